@@ -1,0 +1,5 @@
+import sys
+
+from stereodic.cli import main
+
+sys.exit(main())

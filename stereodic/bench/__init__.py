@@ -1,0 +1,89 @@
+"""`stereodic bench`: speed, memory and accuracy figures, each beside the reference it is compared with.
+
+One module per group (`sim`, `calib`, `rectify`, `scan`, `dic`), each with
+`run(quick: bool) -> list[Figure]`. Benchmarks generate their data with the simulated rig, so this
+package (like `stereodic.cli`) may import `scanners`.
+"""
+
+from __future__ import annotations
+
+import importlib
+import multiprocessing
+import resource
+import time
+from dataclasses import asdict, dataclass
+from typing import Callable
+
+GROUPS = ["sim", "calib", "rectify", "scan", "dic"]
+
+
+@dataclass
+class Figure:
+    """One measured figure. `reference` names what it is compared with, `reference_value` its figure;
+    `goal` is the bound the project set itself (text, e.g. '<= 2 s'), `ok` whether it is met."""
+
+    group: str
+    name: str
+    value: float
+    unit: str
+    reference: str = ""
+    reference_value: float | None = None
+    goal: str = ""
+    ok: bool | None = None
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def best_time(fn: Callable[[], object], repeat: int = 3, warmup: int = 1) -> float:
+    """Best wall-clock time of `fn()` in seconds over `repeat` runs, after `warmup` runs."""
+    for _ in range(warmup):
+        fn()
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def _child(fn, args, conn):
+    t0 = time.perf_counter()
+    result = fn(*args)
+    dt = time.perf_counter() - t0
+    conn.send((dt, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024, result))
+    conn.close()
+
+
+def run_isolated(fn: Callable, *args):
+    """Run `fn(*args)` in a fresh process; returns (seconds, peak resident memory in bytes, result).
+
+    Peak memory is the child's whole-process maximum RSS, interpreter and libraries included.
+    `fn` must be a module-level function and its result picklable.
+    """
+    ctx = multiprocessing.get_context("spawn")
+    parent, child = ctx.Pipe(duplex=False)
+    p = ctx.Process(target=_child, args=(fn, args, child))
+    p.start()
+    child.close()
+    out = parent.recv()
+    p.join()
+    return out
+
+
+def run_groups(names: list[str], quick: bool = False) -> list[Figure]:
+    figures: list[Figure] = []
+    for name in names:
+        figures += importlib.import_module(f"stereodic.bench.{name}").run(quick=quick)
+    return figures
+
+
+def format_table(figures: list[Figure]) -> str:
+    """A plain-text table, one row per figure."""
+    rows = [("group", "figure", "value", "reference", "ref. value", "goal", "ok")]
+    for f in figures:
+        rows.append((f.group, f.name, f"{f.value:.4g} {f.unit}", f.reference,
+                     "" if f.reference_value is None else f"{f.reference_value:.4g} {f.unit}", f.goal,
+                     {True: "yes", False: "NO", None: ""}[f.ok]))
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    return "\n".join("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows)

@@ -1,0 +1,60 @@
+"""The `stereodic` command: one sub-command per module of this package.
+
+Each sub-command module defines `register(subparsers)`, which adds its parser and sets `func` to the
+function that runs it; the function returns an exit status (or None for 0). Heavy imports happen inside
+those functions so that `stereodic --help` stays fast.
+
+Exit status: 0 success; 2 bad usage or bad input (one line naming the file and the problem); 1 an
+internal error (with its traceback) or a hardware fault.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import traceback
+
+from calib import __version__
+from calib.errors import InputError
+
+# In the order `stereodic --help` lists them.
+COMMANDS = ["demo", "simulate", "patterns", "calibrate", "undistort", "rig", "rectify", "scan", "dic2d",
+            "dic", "export", "bench", "acquire", "show"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="stereodic",
+        description="Per-pixel ray camera calibration, rectified virtual stereo, 3D scanning and DIC.")
+    parser.add_argument("--version", action="version", version=f"stereodic {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in COMMANDS:
+        importlib.import_module(f"stereodic.cli.{name}").register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        status = args.func(args)
+    except InputError as exc:
+        print(f"stereodic: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("stereodic: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # an internal error: show where, for the bug report
+        from scanners.errors import HardwareError
+        if isinstance(exc, HardwareError):
+            print(f"stereodic: hardware fault: {exc}", file=sys.stderr)
+            return 1
+        traceback.print_exc()
+        print(f"stereodic: internal error: {exc}", file=sys.stderr)
+        return 1
+    return 0 if status is None else int(status)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
