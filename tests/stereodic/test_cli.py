@@ -1,0 +1,34 @@
+"""The command line skeleton: every command of DESIGN.md has --help; exit statuses 0/1/2."""
+
+import subprocess
+import sys
+
+import pytest
+
+from stereodic.cli import COMMANDS, main
+
+DESIGN_COMMANDS = ["demo", "simulate", "patterns", "calibrate", "undistort", "rig", "rectify", "scan",
+                   "dic2d", "dic", "export", "bench", "acquire", "show"]
+
+
+def test_all_design_commands_exist():
+    assert set(DESIGN_COMMANDS) <= set(COMMANDS)
+
+
+@pytest.mark.parametrize("cmd", DESIGN_COMMANDS)
+def test_help_on_every_command(cmd, capsys):
+    with pytest.raises(SystemExit) as e:
+        main([cmd, "--help"])
+    assert e.value.code == 0
+    assert cmd in capsys.readouterr().out
+
+
+def test_bad_usage_exits_2(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["no-such-command"])
+    assert e.value.code == 2
+
+
+def test_console_script_runs():
+    out = subprocess.run([sys.executable, "-m", "stereodic", "--version"], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.startswith("stereodic ")
