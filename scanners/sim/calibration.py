@@ -1,0 +1,181 @@
+"""Simulated calibration datasets: the display on the stage, showing flats, phase-shifting fringes and
+(optionally) chessboards, rendered by a simulated camera, written as a `stereodic.capture/1` dataset with
+its ground truth (`truth.npz`, a PRVM file: the true ray of every pixel centre, reference z = 0).
+
+Frame order per stage position (nominal positions in the manifest, true ones in truth.npz): flats at
+`flat_levels` (intensity calibration), then fringes for axis x then y, each period, each shift
+2*pi*k/N wrapped to (-pi, pi], then chessboards. Files: `z000/cam0_flat_128.png`,
+`z000/cam0_x_P60_s0.png`, `z000/cam0_chess_0.png`, ... The manifest is written last, so an interrupted
+run never leaves a folder that looks like a complete dataset.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+
+import numpy as np
+
+from calib.capture import MANIFEST, Capture, CoverGlass, Frame, Pattern, load_capture
+from calib.errors import InputError
+from calib.imageio import write_gray
+from calib.progress import progress
+from scanners.sim.camera import SimCamera
+from scanners.sim.display import SimDisplay
+from scanners.sim.lenses import Lens, make_lens
+from scanners.sim.screens import fringe_shifts, screen_image
+from scanners.sim.sensor import Sensor
+from scanners.sim.stage import SimStage
+
+DEFAULT_FLATS = (0, 32, 64, 96, 128, 160, 192, 224, 255)
+CHESS_SQUARES = (9, 7)          # columns, rows: 8 x 6 inner corners
+
+
+def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown", width: int = 1280,
+                         height: int = 1024, seed: int = 0, periods=(60, 360, 1920), steps: int = 3,
+                         z_positions=(0.0, 50.0), flat_levels=DEFAULT_FLATS, noise: bool = True,
+                         bit_depth: int = 8, supersample: int = 3,
+                         cover_glass: CoverGlass | tuple[float, float] | None = None, low: int = 20,
+                         high: int = 240, chessboard: bool = False, stage_error_um: float = 3.0,
+                         stage_axis=(0.0, 0.0, 1.0), exposure_fraction: float = 0.87,
+                         display: SimDisplay | None = None, lens_options: dict | None = None,
+                         camera: str = "cam0") -> Capture:
+    """Write a simulated calibration dataset to `out_dir` and return it (as load_capture reads it).
+
+    lens: a family of scanners.sim.lenses (with `lens_options` passed to make_lens) or a Lens;
+    periods: fringe periods in display pixels; steps: phase shifts per period (>= 3); z_positions:
+    nominal stage positions (mm, >= 1 of them); flat_levels: grey levels of the flat frames;
+    cover_glass: (thickness_mm, refractive_index) or a CoverGlass; low/high: fringe (and chessboard)
+    levels; chessboard: add chessboards (squares CHESS_SQUARES) at 5 placements per position;
+    stage_error_um: RMS stage positioning error; exposure_fraction: brightest fringe pixel / full scale.
+    Raises InputError naming the argument for bad arguments or a display that does not cover the field.
+    """
+    periods = _check_list("--periods", periods, positive=True)
+    z_nominal = _check_list("--positions", z_positions)
+    flats = [int(v) for v in _check_list("flat_levels", flat_levels, allow_empty=True)]
+    if len(set(z_nominal)) != len(z_nominal):
+        raise InputError("--positions", f"stage positions must be distinct, got {z_nominal}")
+    if int(steps) != steps or steps < 3:
+        raise InputError("--steps", f"need a whole number >= 3 of phase steps, got {steps}")
+    if not 0 <= low < high <= 255 or any(not 0 <= v <= 255 for v in flats):
+        raise InputError("--low/--high", f"levels must satisfy 0 <= low < high <= 255 and flats within "
+                                         f"0..255, got low={low}, high={high}, flats={flats}")
+    if bit_depth not in (8, 10, 12, 14, 16):
+        raise InputError("--bit-depth", f"must be 8, 10, 12, 14 or 16, got {bit_depth}")
+    if not 0 < exposure_fraction <= 1:
+        raise InputError("exposure_fraction", f"must be in (0, 1], got {exposure_fraction}")
+    if cover_glass is not None and not isinstance(cover_glass, CoverGlass):
+        if len(cover_glass) != 2 or cover_glass[0] < 0 or cover_glass[1] < 1:
+            raise InputError("--cover-glass", f"need THICKNESS_MM,INDEX with thickness >= 0 and index >= 1, "
+                                              f"got {cover_glass}")
+        cover_glass = CoverGlass(float(cover_glass[0]), float(cover_glass[1]))
+    display = display or SimDisplay()
+    if cover_glass is not None:
+        display = dataclasses.replace(display, cover_glass=cover_glass)
+    if isinstance(lens, str):
+        lens = make_lens(lens, width, height, seed, **(lens_options or {}))
+    try:
+        stage = SimStage(tuple(z_nominal), stage_error_um, tuple(stage_axis), seed)
+    except ValueError as exc:
+        raise InputError("stage", str(exc)) from None
+    cam = SimCamera(lens, Sensor(bit_depth=bit_depth), supersample, seed=seed)
+    cam.set_exposure(display, high, stage.true_mm[0], exposure_fraction, stage.axis)
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / MANIFEST).unlink(missing_ok=True)     # an old manifest must not describe half-new images
+    frames = _frames(camera, z_nominal, flats, periods, steps, low, high,
+                     _chess_placements(cam, display, stage) if chessboard else [])
+    by_z = {z: t for z, t in zip(z_nominal, stage.true_mm)}
+    for f in progress(frames, "simulating", total=len(frames)):
+        image = screen_image(f.pattern, display.width_px, display.height_px)
+        write_gray(out / f.file, cam.render(image, display, by_z[f.z_mm], noise, stage.axis))
+
+    _truth(cam, display, stage, seed, noise, camera).save(out / "truth.npz")
+    cap = Capture(out, "calibration", {camera: (lens.width, lens.height)}, frames, display.record(),
+                  stage.axis, {"simulated": {"lens": lens.family, "seed": seed, "noise": noise,
+                                             "supersample": cam.supersample, "truth": "truth.npz"}},
+                  {camera: bit_depth})
+    cap.save()
+    return load_capture(out, min_positions=1)
+
+
+def _check_list(name: str, values, positive: bool = False, allow_empty: bool = False) -> list[float]:
+    try:
+        vals = [float(v) for v in values]
+    except (TypeError, ValueError):
+        raise InputError(name, f"expected a list of numbers, got {values!r}") from None
+    if (not vals and not allow_empty) or not all(np.isfinite(vals)) or (positive and min(vals, default=1) <= 0):
+        raise InputError(name, f"expected {'positive' if positive else 'finite'} numbers, got {values!r}")
+    return [int(v) if v == int(v) else v for v in vals]
+
+
+def _frames(camera, z_nominal, flats, periods, steps, low, high, boards) -> list[Frame]:
+    frames = []
+    for i, z in enumerate(z_nominal):
+        folder = f"z{i:03d}"
+        for level in flats:
+            frames.append(Frame(camera, f"{folder}/{camera}_flat_{level}.png", Pattern("flat", {"level": level}),
+                                z_mm=z))
+        for axis in ("x", "y"):
+            for p in periods:
+                for k, shift in enumerate(fringe_shifts(int(steps))):
+                    frames.append(Frame(camera, f"{folder}/{camera}_{axis}_P{p:g}_s{k}.png",
+                                        Pattern("fringe", {"axis": axis, "period_px": p, "shift_rad": shift,
+                                                           "low": low, "high": high}), z_mm=z))
+        for j, board in enumerate(boards):
+            frames.append(Frame(camera, f"{folder}/{camera}_chess_{j}.png",
+                                Pattern("chessboard", {**board, "low": low, "high": high}), z_mm=z))
+    return frames
+
+
+def _chess_placements(cam: SimCamera, display: SimDisplay, stage: SimStage) -> list[dict]:
+    """Five board placements (centre and four shifted ones) that stay inside the camera's field at
+    every stage position."""
+    lo = np.array([-np.inf, -np.inf])
+    hi = np.array([np.inf, np.inf])
+    for z in stage.true_mm:
+        v = cam.view(display, z, stage.axis)
+        cr = v.points_mm[..., :2] - np.array([z * stage.axis[0] / stage.axis[2], z * stage.axis[1] / stage.axis[2]])
+        cr = cr / np.array(display.pitch_mm)
+        lo = np.maximum(lo, np.percentile(cr.reshape(-1, 2), 2, axis=0))
+        hi = np.minimum(hi, np.percentile(cr.reshape(-1, 2), 98, axis=0))
+    field = hi - lo
+    size = int(0.65 * min(field[0] / CHESS_SQUARES[0], field[1] / CHESS_SQUARES[1]))
+    if size < 4:
+        raise InputError("chessboard", f"the camera sees only {field[0]:.0f}x{field[1]:.0f} display pixels "
+                                       f"at every position: too few for a {CHESS_SQUARES[0]}x"
+                                       f"{CHESS_SQUARES[1]} chessboard")
+    board = np.array(CHESS_SQUARES) * size
+    centre = (lo + hi) / 2 - board / 2
+    slack = (field - board) / 2 * 0.8
+    return [{"squares": list(CHESS_SQUARES), "square_px": size,
+             "origin_px": [int(round(centre[0] + dx * slack[0])), int(round(centre[1] + dy * slack[1]))]}
+            for dx, dy in ((0, 0), (-1, -1), (1, -1), (-1, 1), (1, 1))]
+
+
+def _truth(cam: SimCamera, display: SimDisplay, stage: SimStage, seed: int, noise: bool, camera: str):
+    """The true PRVM with the rig's other truths: stage positions, gain and vignetting maps, and the
+    display coordinates (c, r) each pixel centre's ray reaches at each true position."""
+    lens = cam.lens
+    o, d = lens.rays(*lens.pixel_grid())
+    display_cr = np.stack([np.stack(display.hit(o, d, z, stage.axis), axis=-1) for z in stage.true_mm])
+    first = cam.view(display, stage.true_mm[0], stage.axis).points_mm
+    h, w = lens.height, lens.width
+    centre = first[h // 2, w // 2]
+    footprint = 0.5 * (np.linalg.norm(np.diff(first, axis=1), axis=-1).mean()
+                       + np.linalg.norm(np.diff(first, axis=0), axis=-1).mean())
+    prvm = lens.true_prvm(
+        camera=camera, dataset="capture.json", seed=seed, noise=noise,
+        working_distance_mm=float(lens.axis_depth(centre)), pixel_footprint_mm=float(footprint),
+        stage={"nominal_mm": list(stage.nominal_mm), "true_mm": list(stage.true_mm),
+               "axis": list(stage.axis), "error_um": stage.error_um},
+        display={"fill_factor": list(display.fill_factor), "stripes": display.stripes,
+                 "black_level": display.black_level, "gamma": display.gamma},
+        sensor={**cam.sensor.__dict__, "exposure_e": cam.exposure_e, "supersample": cam.supersample,
+                "diffraction_sigma_px": cam.sigma_px})
+    prvm.extra = {"stage_nominal_z_mm": np.array(stage.nominal_mm, float),
+                  "stage_true_z_mm": np.array(stage.true_mm, float), "gain": cam.gain,
+                  "vignetting": cam.vignetting, "display_cr": display_cr.astype(np.float32)}
+    return prvm

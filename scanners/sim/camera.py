@@ -1,0 +1,140 @@
+"""The simulated camera: renders what a lens + sensor record of the simulated display.
+
+Rendering a frame (`SimCamera.render`):
+ 1. each pixel is sampled at S x S sub-pixel points (area integration); the TRUE ray of every sub-sample
+    (`Lens.rays`) is traced through the display's cover glass to its pixel plane -> display coordinates
+    (computed once per display and stage position and cached: rays do not change between patterns);
+ 2. the display's luminance is averaged over each sub-sample's footprint on the pixel grid (8-bit value
+    -> gamma -> black level -> lit sub-pixel stripes and black gaps);
+ 3. the image-plane radiance is blurred by the thin-lens defocus circle and diffraction, and integrated
+    over each pixel (`defocus`);
+ 4. times relative illumination (vignetting), per-pixel gain (PRNU) and exposure -> electrons ->
+    shot noise, full well, read noise, dark offset, quantisation, saturation (`sensor`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib.errors import InputError
+from scanners.sim.defocus import blur_and_integrate
+from scanners.sim.display import SimDisplay
+from scanners.sim.lenses import Lens
+from scanners.sim.sensor import Sensor
+
+ROWS_PER_CHUNK = 64
+
+
+@dataclass(frozen=True)
+class View:
+    """Where a camera's sub-samples land on the display's pixel plane at one stage position.
+
+    c, r: (H*S, W*S) float32 display coordinates of the sub-samples (row-major sub-pixel grid);
+    window: (wc, wr) a sub-sample's footprint in display pixels; blur_px: (H, W) defocus blur-circle
+    diameters (pixels); points_mm: (H, W, 3) WCS points the pixel centres see (on the pixel plane).
+    """
+
+    c: np.ndarray
+    r: np.ndarray
+    window: tuple[float, float]
+    blur_px: np.ndarray
+    points_mm: np.ndarray
+
+
+class SimCamera:
+    """A camera: `lens` (true rays) + `sensor`, supersampling S x S per pixel.
+
+    exposure_e: expected photo-electrons of a pixel with unit gain and unit relative illumination
+    looking at unit mean display luminance (see `set_exposure`). seed draws the PRNU gain map and the
+    noise. diffraction: include the Airy blur (wavelength_mm).
+    """
+
+    def __init__(self, lens: Lens, sensor: Sensor | None = None, supersample: int = 3,
+                 exposure_e: float = 10_000.0, seed: int = 0, diffraction: bool = True,
+                 wavelength_mm: float = 550e-6):
+        if int(supersample) != supersample or not 1 <= supersample <= 16:
+            raise InputError("--supersample", f"must be a whole number 1..16, got {supersample}")
+        self.lens = lens
+        self.sensor = sensor or Sensor()
+        self.supersample = int(supersample)
+        self.exposure_e = float(exposure_e)
+        self.sigma_px = lens.diffraction_sigma_px(wavelength_mm) if diffraction else 0.0
+        self.gain = (1.0 + self.sensor.prnu * np.random.default_rng([seed, 1]).standard_normal(
+            (lens.height, lens.width))).astype(np.float32)
+        self.rng = np.random.default_rng([seed, 2])
+        self.vignetting = lens.relative_illumination(*lens.pixel_grid()).astype(np.float32)
+        self._views: dict[tuple, View] = {}
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.lens.height, self.lens.width
+
+    def view(self, display: SimDisplay, z_mm: float, stage_axis=(0.0, 0.0, 1.0)) -> View:
+        """The (cached) View of `display` at true stage position `z_mm`; InputError if the display does
+        not cover the whole camera field there or the supersampling is too coarse for its pixel grid."""
+        key = (display, float(z_mm), tuple(stage_axis))
+        if key not in self._views:
+            if len(self._views) >= 2:               # keep memory bounded: ~100 MB per 1.3 MP view
+                self._views.pop(next(iter(self._views)))
+            self._views[key] = self._compute_view(display, float(z_mm), tuple(stage_axis))
+        return self._views[key]
+
+    def _compute_view(self, display, z_mm, stage_axis) -> View:
+        s, (h, w) = self.supersample, self.shape
+        sub = (np.arange(s) + 0.5) / s - 0.5
+        us = (np.arange(w)[:, None] + sub[None, :]).ravel()
+        c = np.empty((h * s, w * s), np.float32)
+        r = np.empty((h * s, w * s), np.float32)
+        for v0 in range(0, h, ROWS_PER_CHUNK):
+            vs = (np.arange(v0, min(h, v0 + ROWS_PER_CHUNK))[:, None] + sub[None, :]).ravel()
+            o, d = self.lens.rays(*np.meshgrid(us, vs))
+            cc, rr = display.hit(o, d, z_mm, stage_axis)
+            c[v0 * s:v0 * s + len(vs)] = cc
+            r[v0 * s:v0 * s + len(vs)] = rr
+        lo_c, hi_c, lo_r, hi_r = c.min(), c.max(), r.min(), r.max()
+        if lo_c < -0.5 or lo_r < -0.5 or hi_c > display.width_px - 0.5 or hi_r > display.height_px - 0.5:
+            raise InputError("simulated rig", f"the display ({display.width_px}x{display.height_px} px) does "
+                             f"not cover the camera's field at stage position z = {z_mm:g} mm: the field "
+                             f"spans columns {lo_c:.0f}..{hi_c:.0f} and rows {lo_r:.0f}..{hi_r:.0f}; move "
+                             f"the camera or the stage positions, or use a longer lens")
+        window = (float(np.median(np.abs(np.diff(c, axis=1)))), float(np.median(np.abs(np.diff(r, axis=0)))))
+        if max(window) > 1.0:
+            need = int(np.ceil(s * max(window)))
+            raise InputError("--supersample", f"a sub-sample covers {max(window):.2f} display pixels at z = "
+                                              f"{z_mm:g} mm; use supersample >= {need}")
+        cm = c.reshape(h, s, w, s).mean(axis=(1, 3), dtype=np.float64)
+        rm = r.reshape(h, s, w, s).mean(axis=(1, 3), dtype=np.float64)
+        ax, ay, az = stage_axis
+        pts = np.stack([cm * display.pitch_mm[0] + z_mm * ax / az, rm * display.pitch_mm[1] + z_mm * ay / az,
+                        np.full_like(cm, z_mm)], axis=-1)
+        blur = self.lens.blur_diameter_px(*self.lens.pixel_grid(), pts).astype(np.float32)
+        return View(c, r, window, blur, pts)
+
+    def irradiance(self, display_image: np.ndarray, display: SimDisplay, z_mm: float,
+                   stage_axis=(0.0, 0.0, 1.0)) -> np.ndarray:
+        """(H, W) float32 blurred, pixel-integrated display luminance seen by each pixel (relative
+        units: 1 = a fully lit display area at value 255), before vignetting and gain."""
+        v = self.view(display, z_mm, stage_axis)
+        radiance = display.luminance_at(display_image, v.c, v.r, v.window)
+        return blur_and_integrate(radiance, self.supersample, v.blur_px, self.sigma_px)
+
+    def render(self, display_image: np.ndarray, display: SimDisplay, z_mm: float, noise: bool = True,
+               stage_axis=(0.0, 0.0, 1.0)) -> np.ndarray:
+        """The camera image (uint8, or uint16 above 8 bits) of `display` showing `display_image`
+        ((height_px, width_px) uint8) at TRUE stage position z_mm (mm along the stage axis, as a z
+        coordinate); noise=False gives the expected image, rounded."""
+        e = self.irradiance(display_image, display, z_mm, stage_axis) * (self.vignetting * self.gain
+                                                                        * np.float32(self.exposure_e))
+        return self.sensor.digitise(e, self.rng if noise else None)
+
+    def set_exposure(self, display: SimDisplay, level: int, z_mm: float, fraction: float = 0.87,
+                     stage_axis=(0.0, 0.0, 1.0)) -> float:
+        """Choose exposure_e so that the brightest pixel seeing a flat display at `level` reaches
+        `fraction` of full scale (dark offset included); returns it."""
+        flat = np.full((display.height_px, display.width_px), level, np.uint8)
+        signal = self.irradiance(flat, display, z_mm, stage_axis) * self.vignetting * self.gain
+        target = (fraction - self.sensor.dark_offset) * self.sensor.full_well_e
+        self.exposure_e = float(target / signal.max())
+        return self.exposure_e

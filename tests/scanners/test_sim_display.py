@@ -1,0 +1,104 @@
+"""The simulated display: gamma, pixel grid with gaps, cover-glass refraction, stage axis; its images."""
+
+import numpy as np
+import pytest
+
+from calib.capture import CoverGlass, Pattern
+from scanners.sim.display import SimDisplay
+from scanners.sim.screens import fringe_shifts, screen_image
+from scanners.sim.stage import SimStage
+
+
+def test_luminance_follows_gamma_above_the_black_level():
+    d = SimDisplay(gamma=2.4, black_level=0.002)
+    lum = d.luminance(np.array([0, 64, 128, 255], np.uint8))
+    assert lum[0] == pytest.approx(0.002)
+    assert lum[3] == pytest.approx(1.0)
+    assert (lum[2] - 0.002) / (1 - 0.002) == pytest.approx((128 / 255) ** 2.4, rel=1e-6)
+
+
+def test_a_whole_pixel_window_sees_the_fill_factor_and_a_point_in_the_gap_sees_black():
+    d = SimDisplay(width_px=40, height_px=30, fill_factor=(0.7, 0.8), stripes=3)
+    img = np.full((30, 40), 200, np.uint8)
+    rng = np.random.default_rng(0)
+    c, r = rng.uniform(5, 35, 500), rng.uniform(5, 25, 500)
+    mean = d.luminance_at(img, c, r, window=(1.0, 1.0))
+    assert np.allclose(mean, 0.7 * 0.8 * d.luminance(np.uint8(200)), rtol=1e-5)
+    # Point samples: the middle of the (unlit) gap between rows is black; the centre stripe is lit.
+    assert d.luminance_at(img, np.array([10.0]), np.array([10.5]))[0] == 0
+    assert d.luminance_at(img, np.array([10.0]), np.array([10.0]))[0] == pytest.approx(d.luminance(np.uint8(200)))
+    # Between two stripes of one pixel (1/6 pixel from its centre) is black too.
+    assert d.luminance_at(img, np.array([10.0 + 1 / 6]), np.array([10.0]))[0] == 0
+
+
+def test_a_window_mixes_the_two_neighbouring_display_pixels_by_their_lit_areas():
+    d = SimDisplay(width_px=4, height_px=4, fill_factor=(1.0, 1.0), stripes=1)
+    img = np.zeros((4, 4), np.uint8)
+    img[:, 2] = 255                       # column 2 lit, lit area from c = 1.5 to 2.5
+    got = d.luminance_at(img, np.array([1.25, 1.5, 2.0, 1.0]), np.full(4, 1.0), window=(0.5, 0.5))
+    lo = d.black_level
+    assert np.allclose(got, [lo, 0.5 + 0.5 * lo, 1.0, lo], atol=1e-6)
+
+
+def test_outside_the_display_is_black():
+    d = SimDisplay(width_px=4, height_px=4)
+    img = np.full((4, 4), 255, np.uint8)
+    assert d.luminance_at(img, np.array([-2.0, 7.0]), np.array([1.0, 1.0])).max() == 0
+
+
+@pytest.mark.parametrize("angle_deg", [0.0, 10.0, 25.0, 40.0])
+def test_cover_glass_shifts_the_seen_point_as_a_refracting_plate(angle_deg):
+    t, n, z = 1.2, 1.52, 30.0
+    plain = SimDisplay()
+    glass = SimDisplay(cover_glass=CoverGlass(t, n))
+    a = np.radians(angle_deg)
+    d = np.array([[np.sin(a) * np.cos(0.3), np.sin(a) * np.sin(0.3), np.cos(a)]])
+    o = np.array([[100.0, 80.0, 0.0]])
+    c0, r0 = plain.hit(o, d, z)
+    c1, r1 = glass.hit(o, d, z)
+    shift = np.hypot(c1 - c0, r1 - r0)[0] * plain.pitch_mm[0]        # along the display plane, mm
+    theta_t = np.arcsin(np.sin(a) / n)
+    lateral = t * np.sin(a - theta_t) / np.cos(theta_t)             # perpendicular to the ray
+    assert shift * np.cos(a) == pytest.approx(lateral, abs=1e-12)
+    if angle_deg > 0:                                             # the point moves back towards the axis
+        assert np.hypot(c1 - 100 / 0.2745, r1 - 80 / 0.2745) < np.hypot(c0 - 100 / 0.2745, r0 - 80 / 0.2745)
+
+
+def test_stage_axis_moves_the_display_sideways():
+    d = SimDisplay()
+    o, dirn = np.array([[50.0, 40.0, 0.0]]), np.array([[0.0, 0.0, 1.0]])
+    c0, r0 = d.hit(o, dirn, 100.0)
+    c1, r1 = d.hit(o, dirn, 100.0, stage_axis=(0.01, -0.02, 1.0))
+    assert (c1 - c0)[0] * d.pitch_mm[0] == pytest.approx(-1.0)
+    assert (r1 - r0)[0] * d.pitch_mm[1] == pytest.approx(2.0)
+
+
+def test_stage_true_positions_differ_by_micrometres():
+    s = SimStage((0.0, 25.0, 50.0), error_um=3.0, seed=4)
+    err = np.array(s.true_mm) - np.array(s.nominal_mm)
+    assert 0 < np.abs(err).max() < 0.02
+    assert s.true_position(25.0) == s.true_mm[1]
+    assert SimStage((0.0, 50.0), error_um=0.0).true_mm == (0.0, 50.0)
+
+
+def test_fringe_image_is_the_design_formula_rounded():
+    p = Pattern("fringe", {"axis": "y", "period_px": 60, "shift_rad": 2 * np.pi / 3, "low": 20, "high": 240})
+    img = screen_image(p, 8, 120)
+    assert img.dtype == np.uint8 and img.shape == (120, 8)
+    assert (img == img[:, :1]).all()                   # constant along rows for axis y
+    assert img[20, 0] == 240                           # 2*pi*20/60 - 2*pi/3 = 0: the crest
+    assert img[50, 0] == 20                            # half a period later: the trough
+    assert img[0, 0] == round(20 + 110 * (1 + np.cos(-2 * np.pi / 3)))
+
+
+def test_shifts_follow_the_design_convention():
+    assert np.allclose(fringe_shifts(3), [0, 2 * np.pi / 3, -2 * np.pi / 3])
+    assert np.allclose(fringe_shifts(4), [0, np.pi / 2, np.pi, -np.pi / 2])
+
+
+def test_chessboard_image_places_the_squares():
+    p = Pattern("chessboard", {"squares": [4, 3], "square_px": 10, "origin_px": [5, 7], "low": 20, "high": 240})
+    img = screen_image(p, 60, 50)
+    assert img[7, 5] == 20 and img[7, 15] == 240 and img[17, 15] == 20     # alternating from the corner
+    assert img[6, 5] == 240 and img[36, 44] == 240                          # outside the board: high
+    assert (img == 20).sum() == 6 * 100
