@@ -1,7 +1,90 @@
-"""`stereodic undistort`: Undistort images with a camera's virtual pinhole model."""
+"""`stereodic undistort`: distortion-free virtual images of one camera's images.
 
-from stereodic.cli.common import planned
+CAM.npz is a calibrated camera (PRVM file) - its default virtual camera is built (the largest field
+inside the real one, the real pixel count unless --size/--pitch say otherwise) - or a virtual camera file
+written by --save-virtual, whose IMM is applied as it is. Each IMAGE gives DIR/<its name>, same format
+and bit depth.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from stereodic.cli.common import parse_size
 
 
 def register(sub):
-    planned(sub, "undistort", "Undistort images with a camera's virtual pinhole model", 4)
+    p = sub.add_parser("undistort", help="distortion-free virtual images of one camera's images",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("camera", metavar="CAM.npz", help="camera PRVM file, or a virtual camera file")
+    p.add_argument("images", metavar="IMAGE", nargs="+", help="8- or 16-bit grayscale PNG/TIFF")
+    p.add_argument("-o", "--out", metavar="DIR", required=True, help="output folder")
+    p.add_argument("--model", choices=["pinhole", "telecentric", "modelless"], default="pinhole",
+                   help="ray model of the virtual camera (default pinhole; telecentric for telecentric "
+                        "lenses); the images are the same, the saved Virtual PRVM and EVM differ")
+    p.add_argument("--size", type=parse_size, metavar="WxH", help="virtual image size (default: the real one)")
+    p.add_argument("--pitch", type=float, metavar="MM",
+                   help="virtual pixel pitch on the sensor plane, mm (default: the largest field that fits)")
+    p.add_argument("--plane-z", type=float, metavar="MM",
+                   help="the virtual sensor plane passes where the central ray crosses z = MM "
+                        "(default: the PRVM's reference plane)")
+    kind = p.add_mutually_exclusive_group()
+    kind.add_argument("--float", dest="fixed_point", action="store_false",
+                      help="float32 maps: exact bilinear interpolation (default)")
+    kind.add_argument("--fixed-point", dest="fixed_point", action="store_true",
+                      help="OpenCV fixed-point maps (1/32 pixel positions)")
+    p.add_argument("--no-intensity", action="store_true", help="do not apply the camera's intensity matrix")
+    p.add_argument("--save-virtual", metavar="VCAM.npz",
+                   help="also write the virtual camera (Virtual PRVM + IMM + EVM) for `undistort`/`export`")
+    p.set_defaults(func=run, fixed_point=False)
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from calib.errors import InputError
+    from calib.imageio import read_gray, write_gray
+    from calib.prvm_file import load_prvm
+    from calib.progress import progress
+    from stereodic.undistort import intensity_matrix, undistort_image
+    from stereodic.virtual_prvm import as_virtual, is_virtual, save_virtual
+
+    prvm = load_prvm(args.camera)
+    im = None if args.no_intensity else intensity_matrix(prvm)
+    if is_virtual(prvm):
+        if args.size or args.pitch or args.plane_z is not None:
+            raise InputError(args.camera, "is a virtual camera file: --size, --pitch and --plane-z do not apply")
+        setup = as_virtual(prvm)
+    else:
+        setup = virtual_setup(prvm, args)
+    if args.save_virtual:
+        if im is not None:
+            setup.prvm.extra.update(im.to_arrays())
+        save_virtual(args.save_virtual, setup)
+    out = Path(args.out)
+    names = [Path(f).name for f in args.images]
+    if len(set(names)) != len(names):
+        raise InputError(args.out, "two input images have the same name; outputs are named after the inputs")
+    for path, name in progress(list(zip(args.images, names)), "undistort"):
+        virtual = undistort_image(read_gray(path), setup.imm, im, args.fixed_point, where=path)
+        write_gray(out / name, virtual)
+    return 0
+
+
+def virtual_setup(prvm, args):
+    """The default virtual camera of `prvm` with the command's options, checked to have no blank pixel."""
+    from calib.errors import InputError
+    from stereodic.virtual import default_camera
+    from stereodic.virtual_prvm import make_virtual
+
+    width, height = args.size if args.size else (None, None)
+    try:
+        camera = default_camera(prvm, args.model, width, height, args.pitch, args.plane_z)
+    except InputError as exc:
+        raise InputError(args.camera, exc.problem) from None
+    setup = make_virtual(prvm, camera)
+    blank = int((~setup.imm.valid).sum())
+    if blank:
+        raise InputError(args.camera, f"the virtual camera is larger than the real field: {blank} of "
+                                      f"{setup.imm.valid.size} virtual pixels would be blank")
+    return setup

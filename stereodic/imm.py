@@ -1,0 +1,185 @@
+"""The Inverse Mapping Matrix (IMM): which real pixels make each virtual pixel, and applying it.
+
+For each virtual pixel the IMM holds the real image position (u, v) (float, column/row, integers at real
+pixel centres) whose ray crosses the virtual sensor plane at that virtual pixel's centre. Stored as two
+float32 maps, `map_x` (u) and `map_y` (v): exactly `cv2.remap`'s map form. The seed's "4 real pixels and
+4 coefficients per virtual pixel" are implied by it: the real pixels (i, j), (i+1, j), (i, j+1),
+(i+1, j+1) with i = floor(u), j = floor(v), and the bilinear weights (1-a)(1-b), a(1-b), (1-a)b, ab with
+a = u - i, b = v - j, which are the weights `cv2.remap(INTER_LINEAR)` uses (`IMM.taps` spells them out).
+
+Building: the real pixels are projected onto the virtual plane (the Projected Real Pixels); within the
+quadrilateral of 4 projected real pixels containing a virtual pixel, the bilinear map real (u, v) ->
+plane (x, y) is inverted by Newton's method on its 2x2 Jacobian (a numba kernel, one virtual pixel at a
+time, moving to the neighbouring quadrilateral when the step leaves the current one), starting from a
+coarse inverse (the same Newton on a grid every 8 virtual pixels, itself started from a homography). Virtual pixels that fall outside the valid real field are blank (map value -1).
+
+Applying: `cv2.remap` with the float32 maps (default) or OpenCV's fixed-point maps (CV_16SC2, 1/32
+pixel). With OpenCV >= 5, float maps give exact bilinear interpolation and are not slower; the
+fixed-point maps round every position to 1/32 pixel (see docs/virtual-camera.md for the numbers).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numba
+import numpy as np
+from scipy.ndimage import distance_transform_edt
+
+from calib.errors import InputError
+from calib.prvm_file import PRVM
+from stereodic.virtual import VirtualSensor, project_to_plane
+
+BLANK = -1.0  # map value of a blank virtual pixel: outside the image, so cv2.remap gives the border (0)
+
+
+@dataclass
+class IMM:
+    """Inverse Mapping Matrix of one virtual sensor.
+
+    map_x, map_y: (Hv, Wv) float32, the real image column u and row v sampled by each virtual pixel
+    (BLANK where the virtual pixel is blank). valid: (Hv, Wv) bool, not blank. real_size: (width, height)
+    of the real image it applies to.
+    """
+
+    map_x: np.ndarray
+    map_y: np.ndarray
+    valid: np.ndarray
+    real_size: tuple[int, int]
+    _fixed: tuple | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(height, width) of the virtual image."""
+        return self.valid.shape
+
+    def fixed_point(self) -> tuple[np.ndarray, np.ndarray]:
+        """The maps as OpenCV fixed point (CV_16SC2 integer positions + CV_16UC1 1/32-pixel fractions),
+        computed once."""
+        if self._fixed is None:
+            self._fixed = cv2.convertMaps(self.map_x, self.map_y, cv2.CV_16SC2)
+        return self._fixed
+
+    def taps(self) -> tuple[np.ndarray, np.ndarray]:
+        """The seed's form: (index (Hv, Wv, 4) int64 into the row-major flattened real image,
+        weights (Hv, Wv, 4) float64) such that virtual = sum(weights * real.ravel()[index], axis=-1).
+        Blank virtual pixels get index 0 and weights 0."""
+        w, h = self.real_size
+        u = np.where(self.valid, self.map_x.astype(np.float64), 0)
+        v = np.where(self.valid, self.map_y.astype(np.float64), 0)
+        i = np.clip(np.floor(u), 0, w - 2).astype(np.int64)
+        j = np.clip(np.floor(v), 0, h - 2).astype(np.int64)
+        a, b = u - i, v - j
+        k = j * w + i
+        index = np.stack([k, k + 1, k + w, k + w + 1], axis=-1)
+        weights = np.stack([(1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b], axis=-1)
+        return index, weights * self.valid[..., None]
+
+
+def build_imm(prvm: PRVM, sensor: VirtualSensor, tol_px: float = 1e-6, iterations: int = 12) -> IMM:
+    """The IMM of `sensor` for the real camera `prvm`.
+
+    A virtual pixel is valid when the inversion converges (plane residual < tol_px virtual pixels) to a
+    real position inside [0, W-1] x [0, H-1] whose 4 neighbouring real pixels are valid.
+    """
+    q = np.ascontiguousarray(project_to_plane(prvm, sensor))  # (H, W, 2) virtual coords of real pixels
+    coarse = _coarse_inverse(q, sensor.width, sensor.height, tol_px)
+    hv, wv = sensor.height, sensor.width
+    map_x = np.full((hv, wv), BLANK, np.float32)
+    map_y = np.full((hv, wv), BLANK, np.float32)
+    valid = np.zeros((hv, wv), np.bool_)
+    _invert(q, coarse, 1.0 / _STEP, 1.0, iterations, tol_px, map_x, map_y, valid)
+    return IMM(map_x, map_y, valid, (prvm.width, prvm.height))
+
+
+_STEP = 8  # virtual pixels between the nodes of the coarse inverse
+
+
+def _coarse_inverse(q: np.ndarray, wv: int, hv: int, tol_px: float, max_points: int = 10_000) -> np.ndarray:
+    """(Hc, Wc, 2) float64 real (u, v) at the virtual nodes (k * _STEP, l * _STEP) covering the virtual
+    image: a homography fitted to a sub-grid of projected real pixels gives the start, Newton (many
+    steps) the node; nodes outside the real field take the nearest node's value (they only start the
+    full-resolution Newton)."""
+    h, w = q.shape[:2]
+    step = max(1, int(np.ceil(np.sqrt(h * w / max_points))))
+    sub = q[::step, ::step]
+    vv, uu = np.mgrid[0:h:step, 0:w:step]
+    good = np.isfinite(sub).all(axis=-1)
+    if good.sum() < 4:
+        raise InputError(None, "the PRVM has fewer than 4 valid pixels")
+    hom, _ = cv2.findHomography(sub[good], np.stack([uu[good], vv[good]], axis=-1).astype(np.float64), 0)
+    nu, nv = max(2, -(-(wv - 1) // _STEP) + 1), max(2, -(-(hv - 1) // _STEP) + 1)
+    gv, gu = np.mgrid[0:nv, 0:nu] * float(_STEP)
+    start = cv2.perspectiveTransform(np.stack([gu, gv], axis=-1).reshape(-1, 1, 2), hom).reshape(nv, nu, 2)
+    mx, my = np.full((nv, nu), BLANK, np.float32), np.full((nv, nu), BLANK, np.float32)
+    ok = np.zeros((nv, nu), np.bool_)
+    coarse = np.ascontiguousarray(start, np.float64)
+    _invert(q, coarse, 1.0, float(_STEP), 100, tol_px, mx, my, ok)
+    if not ok.any():
+        raise InputError(None, "the virtual sensor does not overlap the real field")
+    coarse = np.stack([mx, my], axis=-1).astype(np.float64)
+    if not ok.all():
+        near = distance_transform_edt(~ok, return_distances=False, return_indices=True)
+        coarse = coarse[near[0], near[1]]
+    return np.ascontiguousarray(coarse)
+
+
+@numba.njit(cache=True, parallel=True)
+def _invert(q, start, start_scale, target_step, iterations, tol_px, map_x, map_y, valid):  # pragma: no cover
+    """For every output node (col, row), i.e. virtual point (col, row) * target_step: start from `start`
+    (Hs, Ws, 2) real (u, v) sampled bilinearly at (col, row) * start_scale, then Newton on the bilinear
+    interpolant of the projected real pixels q (H, W, 2), cell by cell, until the plane residual is
+    below 1e-9 px. Writes the real (u, v) and validity (see build_imm). A numba kernel."""
+    h, w = q.shape[0], q.shape[1]
+    nv, nu = start.shape[0], start.shape[1]
+    hv, wv = map_x.shape
+    for row in numba.prange(hv):
+        for col in range(wv):
+            tx, ty = col * target_step, row * target_step
+            gx, gy = col * start_scale, row * start_scale
+            i0, j0 = min(int(gx), nu - 2), min(int(gy), nv - 2)
+            a, b = gx - i0, gy - j0
+            u = ((1 - a) * (1 - b) * start[j0, i0, 0] + a * (1 - b) * start[j0, i0 + 1, 0]
+                 + (1 - a) * b * start[j0 + 1, i0, 0] + a * b * start[j0 + 1, i0 + 1, 0])
+            v = ((1 - a) * (1 - b) * start[j0, i0, 1] + a * (1 - b) * start[j0, i0 + 1, 1]
+                 + (1 - a) * b * start[j0 + 1, i0, 1] + a * b * start[j0 + 1, i0 + 1, 1])
+            norm = np.inf
+            for _ in range(iterations):
+                if not (np.isfinite(u) and np.isfinite(v)):
+                    norm = np.inf
+                    break
+                i = min(max(int(np.floor(u)), 0), w - 2)
+                j = min(max(int(np.floor(v)), 0), h - 2)
+                a, b = u - i, v - j
+                ux = q[j, i + 1, 0] - q[j, i, 0]
+                uy = q[j, i + 1, 1] - q[j, i, 1]
+                vx = q[j + 1, i, 0] - q[j, i, 0]
+                vy = q[j + 1, i, 1] - q[j, i, 1]
+                cx = q[j + 1, i + 1, 0] - q[j, i + 1, 0] - q[j + 1, i, 0] + q[j, i, 0]
+                cy = q[j + 1, i + 1, 1] - q[j, i + 1, 1] - q[j + 1, i, 1] + q[j, i, 1]
+                rx = q[j, i, 0] + a * ux + b * vx + a * b * cx - tx
+                ry = q[j, i, 1] + a * uy + b * vy + a * b * cy - ty
+                norm = np.sqrt(rx * rx + ry * ry)
+                if not norm >= 1e-9:  # converged (or NaN: an invalid real pixel)
+                    break
+                jux, juy = ux + b * cx, uy + b * cy  # d(plane)/du
+                jvx, jvy = vx + a * cx, vy + a * cy  # d(plane)/dv
+                det = jux * jvy - juy * jvx
+                u -= (jvy * rx - jvx * ry) / det
+                v -= (jux * ry - juy * rx) / det
+            eps = 1e-9
+            if norm < tol_px and -eps <= u <= w - 1 + eps and -eps <= v <= h - 1 + eps:
+                map_x[row, col] = min(max(u, 0.0), w - 1.0)
+                map_y[row, col] = min(max(v, 0.0), h - 1.0)
+                valid[row, col] = True
+
+
+def apply_imm(image: np.ndarray, imm: IMM, fixed_point: bool = False) -> np.ndarray:
+    """The virtual image of a real `image` (H, W) of any dtype cv2.remap takes: bilinear samples at the
+    IMM's positions, blank pixels 0; same dtype. `fixed_point` uses OpenCV's 1/32-pixel maps."""
+    if image.shape[:2] != (imm.real_size[1], imm.real_size[0]):
+        raise InputError(None, f"image is {image.shape[1]}x{image.shape[0]} but the camera is "
+                               f"{imm.real_size[0]}x{imm.real_size[1]}")
+    maps = imm.fixed_point() if fixed_point else (imm.map_x, imm.map_y)
+    return cv2.remap(image, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)

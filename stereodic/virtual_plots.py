@@ -1,0 +1,66 @@
+"""Pictures of a camera's departure from the ideal models (matplotlib), for `stereodic show` and docs.
+
+Each function draws into a new figure and returns it; the caller saves or shows it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from stereodic.imm import IMM
+
+
+def plot_noncentrality(miss_mm: np.ndarray, miss_px: np.ndarray | None = None, title: str = "non-centrality"):
+    """Heat maps over the real image of how far each ray misses the fitted optical centre (mm) and,
+    if given, the pinhole model's resulting image error (pixels, `stereodic.virtual.miss_in_pixels`)."""
+    import matplotlib.pyplot as plt
+    maps = [(miss_mm, "miss distance (mm)")] + ([] if miss_px is None else [(miss_px, "pinhole error (px)")])
+    fig, axes = plt.subplots(1, len(maps), figsize=(5.5 * len(maps), 4), squeeze=False)
+    for ax, (m, label) in zip(axes[0], maps):
+        im = ax.imshow(m, cmap="viridis")
+        ax.set_title(label)
+        ax.set_xlabel("u (px)")
+        ax.set_ylabel("v (px)")
+        fig.colorbar(im, ax=ax, shrink=0.8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig
+
+
+def plot_distortion(imm: IMM, step: int = 32, scale: float = 1.0, title: str = "distortion map"):
+    """Where each virtual pixel samples the real image, relative to the best similarity transform
+    (scale, rotation, shift) between the two grids: arrows on a grid every `step` virtual pixels,
+    magnified `scale` times, over a colour map of the displacement length (real pixels)."""
+    import matplotlib.pyplot as plt
+    v, u = np.mgrid[0:imm.shape[0], 0:imm.shape[1]].astype(np.float64)
+    ok = imm.valid
+    src = np.stack([u[ok], v[ok]], -1)
+    dst = np.stack([imm.map_x[ok], imm.map_y[ok]], -1).astype(np.float64)
+    # least-squares similarity dst ~ a*src + b*perp(src) + t, complex form
+    zs, zd = src[:, 0] + 1j * src[:, 1], dst[:, 0] + 1j * dst[:, 1]
+    design = np.stack([zs, np.ones_like(zs)], -1)
+    coef = np.linalg.lstsq(design, zd, rcond=None)[0]
+    fitted = coef[0] * (u + 1j * v) + coef[1]
+    disp = np.where(ok, imm.map_x + 1j * imm.map_y - fitted, np.nan)
+    fig, ax = plt.subplots(figsize=(7, 5.5))
+    im = ax.imshow(np.abs(disp), cmap="magma")
+    s = (slice(step // 2, None, step), slice(step // 2, None, step))
+    ax.quiver(u[s], v[s], disp[s].real, disp[s].imag, color="cyan", angles="xy", scale_units="xy",
+              scale=1 / scale)
+    ax.set_title(title)
+    ax.set_xlabel("virtual u (px)")
+    ax.set_ylabel("virtual v (px)")
+    fig.colorbar(im, ax=ax, shrink=0.8, label="displacement from a similarity (real px)")
+    fig.tight_layout()
+    return fig
+
+
+def plot_evm(evm: np.ndarray, title: str = "error vector matrix"):
+    """Length of each virtual pixel's error vector (radians, model-less minus modelled direction)."""
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(7, 5.5))
+    im = ax.imshow(np.linalg.norm(evm, axis=-1), cmap="viridis")
+    ax.set_title(title)
+    fig.colorbar(im, ax=ax, shrink=0.8, label="|EVM| (rad)")
+    fig.tight_layout()
+    return fig
