@@ -1,0 +1,279 @@
+"""Cameras for acquisition: one interface (`Camera.grab`), averaging and the saturation check (`capture`).
+
+- `OpenCVCamera` (`--camera cv:INDEX?exposure_ms=..&gain=..`): a `cv2.VideoCapture` device (USB/UVC,
+  V4L2, DirectShow, AVFoundation). Exposure and gain are set where the driver allows and read back; a
+  setting the driver ignores is reported, not silently assumed. Frames buffered before the pattern
+  changed are discarded (`discard`), colour frames become monochrome (the seed: colour as monochrome).
+- `FolderCamera` (`--camera folder:DIR?size=WxH&timeout=S`): photos taken by hand (a phone, a DSLR on a
+  tripod: the seed's reduced PRVM and hand-held cases). Each `grab` takes the next photo (by file name)
+  not used yet, waiting for it to appear (the user is asked to take it). Pixels stay as the sensor
+  stored them (EXIF rotation is not applied: a PRVM belongs to the sensor).
+- `SimulatedCamera` (`--camera sim[:LENS]?size=WxH&seed=N`): `scanners.sim.camera.SimCamera` looking at
+  the `SimScreen` on the emulated stage, rendered at the stage's TRUE position. Its noise is seeded by
+  what it sees (image shown, position, grab number), so a resumed acquisition gives the same images.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+import zlib
+from abc import ABC, abstractmethod
+from pathlib import Path
+from typing import Callable
+from urllib.parse import parse_qsl, urlsplit
+
+import numpy as np
+
+from calib.errors import InputError
+from calib.imageio import read_gray
+from scanners.errors import HardwareError
+
+PHOTO_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg")
+
+
+class SaturatedError(HardwareError):
+    """A capture with too many pixels at full scale (tip 3.4: lower the exposure or the gain)."""
+
+
+class Camera(ABC):
+    """A camera: `name` in the dataset, `size` = (width, height), `bit_depth` of its pixel values."""
+
+    name: str
+    size: tuple[int, int]
+    bit_depth: int = 8
+    exposure_ms: float | None = None
+    source: str | None = None  # where the last frame came from, if it came from a file
+
+    @abstractmethod
+    def grab(self) -> np.ndarray:
+        """One new frame taken after this call: 2-D uint8 or uint16, (height, width)."""
+
+    def close(self) -> None:
+        """Release the device."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def capture(camera: Camera, average: int = 1, max_saturated: float | None = 1e-4) -> np.ndarray:
+    """The mean of `average` frames (rounded, the camera's dtype). Raises SaturatedError if in any frame
+    more than `max_saturated` of the pixels (a fraction) are at full scale (None: no check)."""
+    if average < 1:
+        raise ValueError("average must be >= 1")
+    full = 2 ** camera.bit_depth - 1
+    acc = None
+    for _ in range(average):
+        img = camera.grab()
+        w, h = camera.size
+        if img.shape != (h, w):
+            raise HardwareError(f"{camera.name}: frame is {img.shape[1]}x{img.shape[0]}, expected {w}x{h}")
+        if max_saturated is not None:
+            frac = float(np.count_nonzero(img >= full)) / img.size
+            if frac > max_saturated:
+                raise SaturatedError(f"{camera.name}: {100 * frac:.2f}% of the pixels are saturated; lower "
+                                     f"the exposure or the gain (or the pattern's high level)")
+        acc = img.astype(np.float64) if acc is None else acc + img
+    if average == 1:
+        return img
+    return np.rint(acc / average).astype(img.dtype)
+
+
+# ------------------------------------------------------------------------------------------ OpenCV
+
+class OpenCVCamera(Camera):
+    """A `cv2.VideoCapture` device. exposure_ms/gain: None leaves the driver's setting (and automatic
+    exposure) alone. discard: frames thrown away before each grab (driver buffers hold stale frames)."""
+
+    def __init__(self, index: int, name: str, exposure_ms: float | None = None, gain: float | None = None,
+                 discard: int = 2, width: int | None = None, height: int | None = None):
+        import cv2
+        self._cv2 = cv2
+        self.name, self.discard = name, discard
+        self._cap = cv2.VideoCapture(index)
+        if not self._cap.isOpened():
+            raise HardwareError(f"{name}: cannot open camera cv:{index}")
+        self._cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)
+        if width and height:
+            self._cap.set(cv2.CAP_PROP_FRAME_WIDTH, width)
+            self._cap.set(cv2.CAP_PROP_FRAME_HEIGHT, height)
+        if exposure_ms is not None:
+            self._cap.set(cv2.CAP_PROP_AUTO_EXPOSURE, 1)  # V4L2: 1 = manual
+            backend = self._cap.getBackendName()
+            # V4L2 counts exposure in 100 us; DirectShow and MSMF in log2(seconds)
+            value = exposure_ms * 10 if backend == "V4L2" else float(np.log2(exposure_ms / 1000))
+            if not self._cap.set(cv2.CAP_PROP_EXPOSURE, value):
+                print(f"stereodic: {name}: the {backend} driver ignored the exposure setting", file=sys.stderr)
+            else:
+                self.exposure_ms = exposure_ms
+        if gain is not None and not self._cap.set(cv2.CAP_PROP_GAIN, gain):
+            print(f"stereodic: {name}: the driver ignored the gain setting", file=sys.stderr)
+        first = self._read()
+        self.size = (first.shape[1], first.shape[0])
+        self.bit_depth = 8 if first.dtype == np.uint8 else 16
+
+    def _read(self) -> np.ndarray:
+        ok, frame = self._cap.read()
+        if not ok or frame is None:
+            raise HardwareError(f"{self.name}: the camera returned no frame (unplugged?)")
+        if frame.ndim == 3:
+            frame = self._cv2.cvtColor(frame, self._cv2.COLOR_BGR2GRAY)
+        return frame
+
+    def grab(self) -> np.ndarray:
+        for _ in range(self.discard):
+            self._cap.grab()
+        return self._read()
+
+    def close(self) -> None:
+        self._cap.release()
+
+
+# ------------------------------------------------------------------------------------------ folder
+
+class FolderCamera(Camera):
+    """Photos arriving in `folder`, used in file-name order, each once. `size` = (width, height), or
+    None to take it from the first photo already there."""
+
+    def __init__(self, folder: str | os.PathLike, name: str, size: tuple[int, int] | None = None,
+                 timeout_s: float = 600.0, poll_s: float = 0.2):
+        self.folder, self.name = Path(folder), name
+        self.timeout_s, self.poll_s = timeout_s, poll_s
+        self.used: set[str] = set()
+        if size is None:
+            photos = self._photos()
+            if not photos:
+                raise InputError(self.folder, "no photo here yet to take the size from; give it: "
+                                              "folder:DIR?size=WIDTHxHEIGHT")
+            img = read_gray(self.folder / photos[0])
+            size = (img.shape[1], img.shape[0])
+            self.bit_depth = 8 if img.dtype == np.uint8 else 16
+        self.size = size
+
+    def _photos(self) -> list[str]:
+        if not self.folder.is_dir():
+            return []
+        return sorted(p.name for p in self.folder.iterdir() if p.suffix.lower() in PHOTO_SUFFIXES)
+
+    def grab(self) -> np.ndarray:
+        deadline = time.monotonic() + self.timeout_s
+        asked = False
+        while True:
+            fresh = [p for p in self._photos() if p not in self.used]
+            if fresh:
+                break
+            if not asked:
+                print(f"Take a photo with {self.name} now (it should appear in {self.folder}).", file=sys.stderr)
+                asked = True
+            if time.monotonic() > deadline:
+                raise HardwareError(f"{self.name}: no new photo in {self.folder} within {self.timeout_s:g} s")
+            time.sleep(self.poll_s)
+        name = fresh[0]
+        time.sleep(self.poll_s if asked else 0)  # a photo that just appeared may still be being written
+        try:
+            img = read_gray(self.folder / name)
+        except InputError as exc:
+            raise HardwareError(f"{self.name}: {exc}") from None
+        self.used.add(name)
+        self.source = name
+        return img
+
+
+# ------------------------------------------------------------------------------------------ simulated
+
+class SimulatedCamera(Camera):
+    """A simulated camera rendering a SimScreen at the true position `true_z_mm()` (mm) of its stage."""
+
+    def __init__(self, name: str, screen, true_z_mm: Callable[[], float], lens: str = "brown",
+                 size: tuple[int, int] = (160, 128), seed: int = 0, noise: bool = True, supersample: int = 3):
+        from scanners.sim.camera import SimCamera
+        from scanners.sim.lenses import make_lens
+        from scanners.sim.sensor import Sensor
+        self.name, self.size, self.seed, self.noise = name, size, seed, noise
+        self.screen, self.true_z_mm = screen, true_z_mm
+        self.sim = SimCamera(make_lens(lens, size[0], size[1], seed), Sensor(bit_depth=8), supersample, seed=seed)
+        self.bit_depth = self.sim.sensor.bit_depth
+        self._seen: tuple[int, int] = (-1, 0)  # (screen serial, grabs of that image)
+
+    def set_exposure(self, level: int, z_mm: float, fraction: float = 0.87) -> None:
+        """Expose so that the brightest pixel seeing a flat screen at `level` reaches `fraction` of full
+        scale at stage position z_mm."""
+        self.sim.set_exposure(self.screen.sim, level, z_mm, fraction)
+
+    def grab(self) -> np.ndarray:
+        if self.screen.image is None:
+            raise HardwareError(f"{self.name}: the simulated screen shows nothing yet")
+        serial, k = self._seen
+        k = k + 1 if serial == self.screen.serial else 0
+        self._seen = (self.screen.serial, k)
+        z = self.true_z_mm()
+        self.sim.rng = np.random.default_rng([self.seed, zlib.crc32(self.screen.image.tobytes()),
+                                              round(z * 1e6) & 0xFFFFFFFF, k])
+        return self.sim.render(self.screen.image, self.screen.sim, z, self.noise)
+
+
+# ------------------------------------------------------------------------------------------ specs
+
+def _size_option(options: dict, spec: str) -> tuple[int, int] | None:
+    if "size" not in options:
+        return None
+    try:
+        w, h = (int(v) for v in options["size"].lower().split("x"))
+        if w > 0 and h > 0:
+            return w, h
+    except ValueError:
+        pass
+    raise InputError("--camera", f"{spec!r}: size must be WIDTHxHEIGHT")
+
+
+def _float_option(options: dict, key: str, spec: str) -> float | None:
+    if key not in options:
+        return None
+    try:
+        return float(options[key])
+    except ValueError:
+        raise InputError("--camera", f"{spec!r}: {key} must be a number") from None
+
+
+def open_camera(spec: str, name: str, screen=None, true_z_mm: Callable[[], float] | None = None) -> Camera:
+    """A camera from a `--camera` value: `cv:INDEX`, `folder:DIR` or `sim[:LENS]`, with ?key=value
+    options (see the module docstring). A simulated camera needs the SimScreen and the stage's true
+    position."""
+    parts = urlsplit(spec)
+    kind = parts.scheme or spec.split("?")[0]
+    options = dict(parse_qsl(parts.query))
+    target = parts.netloc + parts.path if parts.scheme else ""
+    allowed = {"cv": {"exposure_ms", "gain", "size", "discard"}, "folder": {"size", "timeout"},
+               "sim": {"size", "seed", "noise"}}
+    if kind not in allowed:
+        raise InputError("--camera", f"unknown camera {spec!r} (cv:INDEX, folder:DIR or sim[:LENS])")
+    unknown = set(options) - allowed[kind]
+    if unknown:
+        raise InputError("--camera", f"{spec!r}: unknown option(s) {', '.join(sorted(unknown))}")
+    size = _size_option(options, spec)
+    if kind == "cv":
+        if not target.isdigit():
+            raise InputError("--camera", f"{spec!r}: expected cv:INDEX, e.g. cv:0")
+        w, h = size or (None, None)
+        return OpenCVCamera(int(target), name, _float_option(options, "exposure_ms", spec),
+                            _float_option(options, "gain", spec), int(_float_option(options, "discard", spec) or 2),
+                            w, h)
+    if kind == "folder":
+        if not target:
+            raise InputError("--camera", f"{spec!r}: expected folder:DIR")
+        timeout = _float_option(options, "timeout", spec)
+        return FolderCamera(target, name, size, 600.0 if timeout is None else timeout)
+    from scanners.display import SimScreen
+    if not isinstance(screen, SimScreen) or true_z_mm is None:
+        raise InputError("--camera", "a simulated camera needs --display sim and a stage (emulated:zaber or "
+                                     "emulated:grbl)")
+    seed = _float_option(options, "seed", spec)
+    return SimulatedCamera(name, screen, true_z_mm, target or "brown", size or (160, 128),
+                           int(seed or 0), options.get("noise", "1") not in ("0", "no", "false"))
+
+
+__all__ = ["Camera", "SaturatedError", "capture", "OpenCVCamera", "FolderCamera", "SimulatedCamera", "open_camera"]

@@ -1,0 +1,121 @@
+"""Pattern display: the file sink, the simulated screen and, on a virtual X screen (Xvfb), the real
+full-screen window read back pixel for pixel through the X server."""
+
+import os
+import shutil
+import subprocess
+import time
+
+import numpy as np
+import pytest
+
+from calib.errors import InputError
+from calib.imageio import read_gray
+from calib.patterns import fringe_image
+from scanners.display import FileScreen, SimScreen, open_screen
+from scanners.errors import HardwareError
+
+W, H = 320, 200
+
+
+def test_file_screen_writes_what_it_shows(tmp_path):
+    screen = open_screen(f"file:{tmp_path}/shown?size=64x48")
+    assert isinstance(screen, FileScreen) and screen.size == (64, 48)
+    a, b = fringe_image(64, 48, "x", 16, 0.0), fringe_image(64, 48, "y", 12, 2.0)
+    screen.show(a)
+    screen.show(b)
+    assert sorted(p.name for p in (tmp_path / "shown").iterdir()) == ["00000.png", "00001.png"]
+    assert np.array_equal(read_gray(tmp_path / "shown" / "00001.png"), b)
+    assert FileScreen(tmp_path / "shown", (64, 48))._next == 2     # a second run continues the numbering
+
+
+def test_wrong_pattern_size_is_refused(tmp_path):
+    screen = FileScreen(tmp_path, (64, 48))
+    with pytest.raises(ValueError, match="needs uint8 64x48"):
+        screen.show(np.zeros((64, 48), np.uint8))
+
+
+def test_sim_screen_holds_the_image():
+    screen = open_screen("sim")
+    assert isinstance(screen, SimScreen) and screen.size == (1920, 1080) and screen.pitch_mm == (0.2745, 0.2745)
+    img = fringe_image(1920, 1080, "x", 60, 0.0)
+    screen.show(img)
+    assert np.array_equal(screen.image, img) and screen.serial == 1
+
+
+@pytest.mark.parametrize("spec, says", [
+    ("projector", "unknown display"), ("screen:one", "monitor number"), ("file:/tmp/x", "size=1920x1080"),
+    ("file:/tmp/x?size=big", "size=1920x1080"),
+])
+def test_bad_display_specs(spec, says):
+    with pytest.raises(InputError, match=says):
+        open_screen(spec)
+
+
+# ----------------------------------------------------------------------------------------- Xvfb
+
+@pytest.fixture(scope="module")
+def xvfb():
+    """A virtual X screen of W x H pixels, 24-bit; DISPLAY points at it for this module."""
+    pytest.importorskip("pygame")
+    pytest.importorskip("Xlib")
+    if shutil.which("Xvfb") is None:
+        pytest.skip("Xvfb is not installed (./run test installs it)")
+    for n in range(91, 120):
+        if not os.path.exists(f"/tmp/.X11-unix/X{n}") and not os.path.exists(f"/tmp/.X{n}-lock"):
+            break
+    proc = subprocess.Popen(["Xvfb", f":{n}", "-screen", "0", f"{W}x{H}x24", "-nolisten", "tcp"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 10
+    while not os.path.exists(f"/tmp/.X11-unix/X{n}"):
+        if proc.poll() is not None or time.monotonic() > deadline:
+            proc.kill()
+            pytest.skip(f"Xvfb could not start on :{n}")
+        time.sleep(0.05)
+    old = os.environ.get("DISPLAY")
+    os.environ["DISPLAY"] = f":{n}"
+    yield f":{n}"
+    if old is None:
+        del os.environ["DISPLAY"]
+    else:
+        os.environ["DISPLAY"] = old
+    proc.terminate()
+    proc.wait(timeout=5)
+
+
+def read_back(display: str) -> np.ndarray:
+    """The whole X screen as (H, W, 3) RGB, read through the X server (XGetImage on the root window)."""
+    from Xlib import X
+    from Xlib import display as xdisplay
+    d = xdisplay.Display(display)
+    try:
+        scr = d.screen()
+        w, h = scr.width_in_pixels, scr.height_in_pixels
+        raw = scr.root.get_image(0, 0, w, h, X.ZPixmap, 0xFFFFFFFF)
+        bgrx = np.frombuffer(raw.data, np.uint8).reshape(h, w, 4)
+        return bgrx[:, :, 2::-1]
+    finally:
+        d.close()
+
+
+@pytest.mark.display
+@pytest.mark.parametrize("vsync", [False, True])
+def test_full_screen_pixel_for_pixel(xvfb, vsync):
+    screen = open_screen("screen:0", settle_s=0.05, vsync=vsync)
+    try:
+        assert screen.size == (W, H)
+        rng = np.random.default_rng(1)
+        for image in (fringe_image(W, H, "x", 60, 0.0), fringe_image(W, H, "y", 36, -2.0944),
+                      rng.integers(0, 256, (H, W), dtype=np.uint8)):   # noise: any scaling or filter shows
+            screen.show(image)
+            got = read_back(xvfb)
+            for ch in range(3):                                       # grey on R, G and B alike
+                assert np.array_equal(got[:, :, ch], image)
+    finally:
+        screen.close()
+
+
+@pytest.mark.display
+def test_missing_monitor(xvfb):
+    with pytest.raises(HardwareError, match=r"screen:3: there are 1 monitor\(s\)"):
+        open_screen("screen:3")
