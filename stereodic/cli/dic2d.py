@@ -1,7 +1,151 @@
-"""`stereodic dic2d`: 2D subset digital image correlation."""
+"""`stereodic dic2d`: 2D subset digital image correlation of one or more deformed images.
 
-from stereodic.cli.common import planned
+Writes one CSV row per point and deformed image: image (0-based index among the deformed images), x, y
+(the point in the reference image, pixels), u, v (displacement, pixels, u along x), zncc, converged
+(1/0), status (ok, no_texture, outside, diverged, low_zncc, unreached), iterations and, with
+--strain-window, the Green-Lagrange strains exx, eyy, exy and strain_valid. u, v are NaN exactly
+where converged is 0; strains are NaN exactly where strain_valid is 0.
+"""
+
+from __future__ import annotations
+
+import argparse
 
 
 def register(sub):
-    planned(sub, "dic2d", "2D subset digital image correlation", 8)
+    p = sub.add_parser("dic2d", help="2D subset digital image correlation",
+                       description="2D subset DIC: displacements (and strains) of deformed images against a "
+                                   "reference, on a grid of points.")
+    p.add_argument("ref", metavar="REF_IMG", help="reference image (8/16-bit PNG or TIFF)")
+    p.add_argument("defs", metavar="DEF_IMG", nargs="+", help="deformed images, in order")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.csv", help="CSV of the results")
+    p.add_argument("--subset", type=int, default=21, help="subset side in pixels, odd (default 21)")
+    p.add_argument("--step", type=int, default=5, help="grid step in pixels (default 5)")
+    p.add_argument("--shape", choices=["affine", "quadratic"], default="affine",
+                   help="subset shape function (default affine)")
+    p.add_argument("--interp", choices=["cubic", "quintic"], default="cubic",
+                   help="B-spline interpolation (default cubic)")
+    p.add_argument("--prefilter", type=float, default=0.7, metavar="SIGMA",
+                   help="Gaussian low-pass of both images before interpolation, pixels (default 0.7, 0 = "
+                        "none); lowers the interpolation bias")
+    p.add_argument("--roi", metavar="X0,Y0,X1,Y1", help="region of interest (inclusive pixel bounds)")
+    p.add_argument("--mask", metavar="PNG", help="image of the reference's size: points where it is non-zero")
+    p.add_argument("--seed", action="append", default=[], metavar="X,Y",
+                   help="start point of the propagation (repeatable; default: automatic)")
+    p.add_argument("--search", type=int, default=40, metavar="PIXELS",
+                   help="search range of the seeds' integer displacement (default 40)")
+    p.add_argument("--min-zncc", type=float, default=0.8, help="points below are flagged (default 0.8)")
+    p.add_argument("--incremental", action="store_true",
+                   help="register each image against the previous one and add up (large deformations)")
+    p.add_argument("--strain-window", type=int, metavar="N",
+                   help="add Green-Lagrange strains fitted over N x N grid points (odd)")
+    p.add_argument("--npz", metavar="OUT.npz", help="also write the fields as arrays (n_images, ny, nx)")
+    p.add_argument("--plot", metavar="DIR", help="write PNG maps of u, v, zncc (and strains) per image")
+    p.set_defaults(func=run)
+
+
+def _ints(text: str, n: int, what: str) -> list[int]:
+    from calib.errors import InputError
+    try:
+        vals = [int(round(float(t))) for t in text.split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) != n:
+        raise InputError(what, f"expected {n} comma-separated numbers, got {text!r}")
+    return vals
+
+
+def _check_args(args, width: int, height: int):
+    """Validated (roi, seeds) from the options."""
+    from calib.errors import InputError
+    if args.subset < 5 or args.subset % 2 == 0:
+        raise InputError("--subset", f"must be an odd number >= 5, got {args.subset}")
+    if args.step < 1:
+        raise InputError("--step", f"must be >= 1, got {args.step}")
+    if args.strain_window is not None and (args.strain_window < 3 or args.strain_window % 2 == 0):
+        raise InputError("--strain-window", f"must be an odd number >= 3, got {args.strain_window}")
+    if not 0 <= args.min_zncc <= 1:
+        raise InputError("--min-zncc", f"must be between 0 and 1, got {args.min_zncc}")
+    if args.search < 1:
+        raise InputError("--search", f"must be >= 1 pixel, got {args.search}")
+    if args.prefilter < 0:
+        raise InputError("--prefilter", f"must be >= 0, got {args.prefilter}")
+    roi = None
+    if args.roi:
+        x0, y0, x1, y1 = _ints(args.roi, 4, "--roi")
+        if not (0 <= x0 < x1 < width and 0 <= y0 < y1 < height):
+            raise InputError("--roi", f"{args.roi} is not a region inside the {width}x{height} reference")
+        roi = (x0, y0, x1, y1)
+    seeds = []
+    for text in args.seed:
+        x, y = _ints(text, 2, "--seed")
+        inside = 0 <= x < width and 0 <= y < height
+        if not inside:
+            raise InputError("--seed", f"{text} is outside the {width}x{height} reference image")
+        if roi and not (roi[0] <= x <= roi[2] and roi[1] <= y <= roi[3]):
+            raise InputError("--seed", f"{text} is outside the region of interest {args.roi}")
+        seeds.append((x, y))
+    return roi, seeds
+
+
+def _read_mask(path: str, width: int, height: int):
+    from calib.errors import InputError
+    from calib.imageio import read_gray
+    mask = read_gray(path)
+    if mask.shape != (height, width):
+        raise InputError(path, f"mask is {mask.shape[1]}x{mask.shape[0]} but the reference is "
+                               f"{width}x{height}")
+    return mask > 0
+
+
+def run(args) -> int:
+    import numpy as np
+
+    from calib.errors import InputError
+    from calib.imageio import image_size, read_gray
+    from calib.progress import progress
+    from stereodic.dic import DicSettings, correlate_sequence, make_grid
+    from stereodic.dic.output import plot_fields, write_csv, write_npz
+    from stereodic.strain import strain_2d
+
+    ref = read_gray(args.ref)
+    height, width = ref.shape
+    for path in args.defs:  # every file checked before the (long) work starts
+        w, h = image_size(path)
+        if (w, h) != (width, height):
+            raise InputError(path, f"image is {w}x{h} but the reference {args.ref} is {width}x{height}")
+    roi, seeds = _check_args(args, width, height)
+    mask = _read_mask(args.mask, width, height) if args.mask else None
+    if seeds and mask is not None and not all(mask[y, x] for x, y in seeds):
+        raise InputError("--seed", "a seed lies outside the mask")
+    grid = make_grid(width, height, args.subset, args.step, roi, mask)
+    if not grid.active.any():
+        raise InputError(args.roi and "--roi" or args.ref,
+                         f"no point of the grid has its {args.subset}-pixel subset inside the image")
+    settings = DicSettings(subset=args.subset, shape=args.shape, order=3 if args.interp == "cubic" else 5,
+                           prefilter_sigma=args.prefilter, min_zncc=args.min_zncc, search_radius=args.search)
+
+    def images():
+        for path in args.defs:
+            img = read_gray(path)
+            if img.shape != ref.shape:
+                raise InputError(path, f"image is {img.shape[1]}x{img.shape[0]} but the reference is "
+                                       f"{width}x{height}")
+            yield img
+
+    fields, strains = [], []
+    for k, f in enumerate(progress(correlate_sequence(ref, images(), grid, settings, seeds,
+                                                      args.incremental), "dic2d", total=len(args.defs))):
+        fields.append(f)
+        strains.append(strain_2d(grid.xs, grid.ys, f.u, f.v, args.strain_window)
+                       if args.strain_window else None)
+        n_ok = int(f.ok.sum())
+        print(f"image {k} ({args.defs[k]}): {n_ok}/{int(grid.active.sum())} points converged, "
+              f"mean u {np.nanmean(f.u) if n_ok else float('nan'):.4f} px, "
+              f"mean v {np.nanmean(f.v) if n_ok else float('nan'):.4f} px")
+    write_csv(args.output, fields, strains)
+    if args.npz:
+        write_npz(args.npz, fields, strains, settings, args.defs)
+    if args.plot:
+        plot_fields(args.plot, fields, strains)
+    return 0

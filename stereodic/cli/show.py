@@ -1,7 +1,140 @@
-"""`stereodic show`: Pictures of a result (distortion, residuals, strain, cloud)."""
+"""`stereodic show`: pictures of a calibration result (PNG): distortion, residual, uncertainty, the mask
+of pixels left out and why, and with `--truth` the ray error map against a simulated truth."""
 
-from stereodic.cli.common import planned
+from __future__ import annotations
+
+from pathlib import Path
 
 
 def register(sub):
-    planned(sub, "show", "Pictures of a result (distortion, residuals, strain, cloud)", 3)
+    p = sub.add_parser("show", help="pictures of a result (distortion, residuals, uncertainty, error)",
+                       description="Write PNG pictures of a PRVM file: distortion.png, residual.png, "
+                                   "uncertainty.png, mask.png and, with --truth, error.png.")
+    p.add_argument("prvm", metavar="CAM.npz")
+    p.add_argument("--truth", metavar="TRUTH.npz", help="a simulated dataset's truth.npz: also draw the ray error")
+    p.add_argument("-o", "--output", required=True, metavar="DIR")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from calib.prvm_file import load_prvm
+    prvm = load_prvm(args.prvm)
+    truth = load_prvm(args.truth) if args.truth else None
+    for path in write_report(prvm, args.output, truth):
+        print(path)
+    return 0
+
+
+def _save(fig, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    from calib.atomic import atomic_output
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def _image(data, title: str, label: str, path: Path, cmap="viridis", vmax=None, quiver=None) -> Path:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    fig, ax = plt.subplots(figsize=(7, 5.6))
+    finite = data[np.isfinite(data)]
+    if vmax is None and finite.size:
+        vmax = float(np.percentile(finite, 99.5))
+    im = ax.imshow(data, cmap=cmap, vmin=0 if cmap != "RdBu_r" else -vmax, vmax=vmax, interpolation="nearest")
+    fig.colorbar(im, ax=ax, label=label, shrink=0.85)
+    if quiver is not None:
+        u, v, du, dv = quiver
+        ax.quiver(u, v, du, dv, color="white", angles="xy", scale_units="xy", scale=None, width=0.002)
+    ax.set_title(title)
+    ax.set_xlabel("u (column, px)")
+    ax.set_ylabel("v (row, px)")
+    return _save(fig, path)
+
+
+def distortion_px(prvm, z_mm: float):
+    """(2, H, W) displacement (camera pixels) of each pixel from the best homography of the rays'
+    points on the plane z = z_mm: how far the camera is from an ideal pinhole view of that plane."""
+    import numpy as np
+
+    from calib.reduced import fit_homography
+    pts = prvm.at_z(z_mm)
+    coord = np.stack([pts[..., 0], pts[..., 1]])
+    hom = fit_homography(coord, prvm.valid)
+    x, y = coord
+    den = hom[2, 0] * x + hom[2, 1] * y + hom[2, 2]
+    h, w = prvm.valid.shape
+    v, u = np.mgrid[0:h, 0:w]
+    return np.stack([(hom[0, 0] * x + hom[0, 1] * y + hom[0, 2]) / den - u,
+                     (hom[1, 0] * x + hom[1, 1] * y + hom[1, 2]) / den - v])
+
+
+def write_report(prvm, out_dir, truth=None) -> list[Path]:
+    """Write the PNG pictures of `prvm` (and its error against `truth`) into out_dir; returns the paths."""
+    import numpy as np
+
+    from calib.evaluate import ErrorStats, footprint_mm, ray_error_px, working_plane
+    from calib.phase import QUALITY_NAMES
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    valid = prvm.valid
+    z0 = float(prvm.meta.get("uncertainty_z_mm", [prvm.reference_z_mm])[0])
+    d = distortion_px(prvm, z0)
+    mag = np.where(valid, np.hypot(d[0], d[1]), np.nan)
+    h, w = valid.shape
+    step = max(h, w) // 24
+    v, u = np.mgrid[step // 2:h:step, step // 2:w:step]
+    paths.append(_image(mag, f"distortion from the best pinhole view of z = {z0:g} mm",
+                        "displacement (px)", out / "distortion.png",
+                        quiver=(u, v, d[0][v, u], d[1][v, u])))
+    res = prvm.residual_mm
+    if res is not None and np.isfinite(res).any():
+        paths.append(_image(np.where(valid, res * 1000, np.nan), "line-fit residual", "RMS distance (um)",
+                            out / "residual.png", cmap="magma"))
+    unc = prvm.extra.get("uncertainty_mm")
+    if unc is not None:
+        fp = footprint_mm(prvm, z0)
+        paths.append(_image(np.where(valid, unc[..., 0] / fp, np.nan),
+                            f"1-sigma ray uncertainty at z = {z0:g} mm (per axis)", "camera pixels",
+                            out / "uncertainty.png", cmap="magma"))
+    quality = prvm.extra.get("quality")
+    if quality is not None or not valid.all():
+        paths.append(_mask(valid, quality, QUALITY_NAMES, out / "mask.png"))
+    if truth is not None:
+        err = ray_error_px(prvm, truth)
+        s = ErrorStats.of(err)
+        paths.append(_image(err, f"ray error at z = {working_plane(truth):g} mm: RMS {s.rms:.4f} px, "
+                                 f"p99 {s.p99:.4f} px", "camera pixels", out / "error.png", cmap="magma"))
+        pts = prvm.at_z(working_plane(truth)) - truth.at_z(working_plane(truth))
+        fp = footprint_mm(truth, working_plane(truth))
+        signed = np.concatenate([np.where(valid, pts[..., 0] / fp, np.nan),
+                                 np.where(valid, pts[..., 1] / fp, np.nan)], axis=1)
+        vmax = float(np.nanpercentile(np.abs(signed), 99.5))
+        paths.append(_image(signed, "signed ray error: x (left), y (right)", "camera pixels",
+                            out / "error_xy.png", cmap="RdBu_r", vmax=vmax))
+    return paths
+
+
+def _mask(valid, quality, names, path: Path) -> Path:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from matplotlib.colors import ListedColormap
+    fig, ax = plt.subplots(figsize=(7, 5.6))
+    labels = ["calibrated", "not calibrated"] + list(names.values())
+    code = np.where(valid, 0, 1)
+    if quality is not None:
+        for i, flag in enumerate(names):           # the lowest flag names the pixel's main problem
+            code = np.where(~valid & (quality & flag > 0) & (code == 1), i + 2, code)
+    colours = ["#2a9d8f", "#555555", "#264653", "#e76f51", "#f4a261", "#e9c46a", "#9b5de5"][:len(labels)]
+    ax.imshow(code, cmap=ListedColormap(colours), vmin=-0.5, vmax=len(colours) - 0.5, interpolation="nearest")
+    present = np.unique(code)
+    handles = [plt.Rectangle((0, 0), 1, 1, color=colours[i]) for i in present]
+    ax.legend(handles, [f"{labels[i]} ({np.mean(code == i):.1%})" for i in present], loc="lower right", fontsize=8)
+    ax.set_title("calibrated pixels")
+    return _save(fig, path)
