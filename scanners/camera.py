@@ -211,9 +211,9 @@ class SimulatedCamera(Camera):
         k = k + 1 if serial == self.screen.serial else 0
         self._seen = (self.screen.serial, k)
         z = self.true_z_mm()
-        self.sim.rng = np.random.default_rng([self.seed, zlib.crc32(self.screen.image.tobytes()),
-                                              round(z * 1e6) & 0xFFFFFFFF, k])
-        return self.sim.render(self.screen.image, self.screen.sim, z, self.noise)
+        rng = np.random.default_rng([self.seed, zlib.crc32(self.screen.image.tobytes()),
+                                     round(z * 1e6) & 0xFFFFFFFF, k])
+        return self.sim.render(self.screen.image, self.screen.sim, z, self.noise, rng=rng)
 
 
 # ------------------------------------------------------------------------------------------ specs

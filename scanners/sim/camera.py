@@ -121,13 +121,14 @@ class SimCamera:
         return blur_and_integrate(radiance, self.supersample, v.blur_px, self.sigma_px)
 
     def render(self, display_image: np.ndarray, display: SimDisplay, z_mm: float, noise: bool = True,
-               stage_axis=(0.0, 0.0, 1.0)) -> np.ndarray:
+               stage_axis=(0.0, 0.0, 1.0), rng: np.random.Generator | None = None) -> np.ndarray:
         """The camera image (uint8, or uint16 above 8 bits) of `display` showing `display_image`
         ((height_px, width_px) uint8) at TRUE stage position z_mm (mm along the stage axis, as a z
-        coordinate); noise=False gives the expected image, rounded."""
+        coordinate); noise=False gives the expected image, rounded. rng: the noise generator for this
+        frame (default: the camera's own stream)."""
         e = self.irradiance(display_image, display, z_mm, stage_axis) * (self.vignetting * self.gain
                                                                         * np.float32(self.exposure_e))
-        return self.sensor.digitise(e, self.rng if noise else None)
+        return self.sensor.digitise(e, (self.rng if rng is None else rng) if noise else None)
 
     def set_exposure(self, display: SimDisplay, level: int, z_mm: float, fraction: float = 0.87,
                      stage_axis=(0.0, 0.0, 1.0)) -> float:
