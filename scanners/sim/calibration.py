@@ -40,7 +40,7 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
                          high: int = 240, chessboard: bool = False, stage_error_um: float = 3.0,
                          stage_axis=(0.0, 0.0, 1.0), exposure_fraction: float = 0.87,
                          display: SimDisplay | None = None, lens_options: dict | None = None,
-                         camera: str = "cam0") -> Capture:
+                         camera: str = "cam0", sensor_seed: int | None = None) -> Capture:
     """Write a simulated calibration dataset to `out_dir` and return it (as load_capture reads it).
 
     lens: a family of scanners.sim.lenses (with `lens_options` passed to make_lens) or a Lens;
@@ -48,7 +48,9 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
     nominal stage positions (mm, >= 1 of them); flat_levels: grey levels of the flat frames;
     cover_glass: (thickness_mm, refractive_index) or a CoverGlass; low/high: fringe (and chessboard)
     levels; chessboard: add chessboards (squares CHESS_SQUARES) at 5 placements per position;
-    stage_error_um: RMS stage positioning error; exposure_fraction: brightest fringe pixel / full scale.
+    stage_error_um: RMS stage positioning error; exposure_fraction: brightest fringe pixel / full scale;
+    sensor_seed: seed of the camera's gain map and noise (default `seed`; cameras of one rig share the
+    stage's seed but each has its own sensor).
     Raises InputError naming the argument for bad arguments or a display that does not cover the field.
     """
     periods = _check_list("--periods", periods, positive=True)
@@ -79,7 +81,8 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
         stage = SimStage(tuple(z_nominal), stage_error_um, tuple(stage_axis), seed)
     except ValueError as exc:
         raise InputError("stage", str(exc)) from None
-    cam = SimCamera(lens, Sensor(bit_depth=bit_depth), supersample, seed=seed)
+    cam = SimCamera(lens, Sensor(bit_depth=bit_depth), supersample,
+                    seed=seed if sensor_seed is None else sensor_seed)
     cam.set_exposure(display, high, stage.true_mm[0], exposure_fraction, stage.axis)
 
     out = Path(out_dir)

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 
 from scanners.sim.lenses import LENS_FAMILIES, make_lens
-from stereodic.bench import Figure, best_time
+from stereodic.bench import Figure, best_time, rig
 from stereodic.bench.lines import line_centres, render_lines, straightness_rms
 from stereodic.imm import apply_imm, build_imm
 from stereodic.sampling import bilinear
@@ -111,7 +111,7 @@ def straightness(quick: bool) -> list[Figure]:
     return figs
 
 
-SECTIONS = [imm_speed, imm_accuracy, straightness]
+SECTIONS = [imm_speed, imm_accuracy, straightness, *rig.SECTIONS]
 
 
 def run(quick: bool = False) -> list[Figure]:

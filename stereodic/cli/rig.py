@@ -63,4 +63,8 @@ def run(args) -> int:
     s = rig.sensor
     print(f"{args.out}: {s.width}x{s.height} virtual pixels of {s.pitch_mm[0] * 1e3:.1f} um, baseline "
           f"{(rig.baseline ** 2).sum() ** 0.5:.2f} mm, working distance {rig.working_distance_mm:.1f} mm")
+    for side in ("left", "right"):
+        blank = rig.camera(side).info["blank_pixels"]
+        if blank:
+            print(f"{args.out}: note: {blank} virtual pixels are blank in the {side} camera (holes in its field)")
     return 0

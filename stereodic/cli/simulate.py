@@ -1,7 +1,8 @@
 """`stereodic simulate MODE`: write a simulated dataset with its ground truth (scanners.sim).
 
 Modes: `calibration` (fringes on a display moved by a stage, with truth.npz); `stereo` (two cameras,
-stereodic/cli/simulate_stereo.py); `scan` and `dic` are registered but not in this version yet.
+stereodic/cli/simulate_stereo.py); `scan` (projector + two cameras, stereodic/cli/simulate_scan.py); `dic` is
+registered but not in this version yet.
 """
 
 from __future__ import annotations
@@ -9,11 +10,11 @@ from __future__ import annotations
 import argparse
 import sys
 
+from stereodic.cli import simulate_scan as scan_mode
 from stereodic.cli import simulate_stereo as stereo_mode
 from stereodic.cli.common import parse_floats, planned
 
-LATER = {"scan": ("Simulated structured-light scan dataset", 6),
-         "dic": ("Simulated stereo DIC dataset", 8)}
+LATER = {"dic": ("Simulated stereo DIC dataset", 8)}
 
 
 def register(sub):
@@ -49,6 +50,7 @@ def register(sub):
     c.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
     c.set_defaults(func=run_calibration)
     stereo_mode.register(modes)                         # `simulate stereo`: stereodic/cli/simulate_stereo.py
+    scan_mode.register(modes)                           # `simulate scan`: stereodic/cli/simulate_scan.py
     for name, (text, issue) in LATER.items():
         later = planned(modes, name, text, issue)
         for flag in ("--lens", "--seed", "-o"):        # DESIGN.md's options, accepted ahead of time

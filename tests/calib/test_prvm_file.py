@@ -49,3 +49,12 @@ def test_not_a_prvm_is_rejected(tmp_path):
         load_prvm(tmp_path / "y.npz")
     with pytest.raises(InputError, match="missing"):
         load_prvm(tmp_path / "none.npz")
+
+
+def test_outputs_get_ordinary_permissions(tmp_path):
+    import os
+    import stat
+    pinhole_prvm().save(tmp_path / "cam.npz")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert stat.S_IMODE(os.stat(tmp_path / "cam.npz").st_mode) == 0o666 & ~mask

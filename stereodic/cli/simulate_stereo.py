@@ -1,0 +1,55 @@
+"""`stereodic simulate stereo`: a simulated stereo calibration (scanners.sim.stereo), wired into
+`stereodic simulate` by stereodic/cli/simulate.py."""
+
+from __future__ import annotations
+
+import argparse
+
+from stereodic.cli.common import parse_floats
+
+
+def register(modes) -> None:
+    from scanners.sim.lenses import LENS_FAMILIES
+    s = modes.add_parser(
+        "stereo", help="stereo calibration dataset: two cameras, one display and stage",
+        description="Render a calibration dataset of two cameras in one WCS (same display, same stage "
+                    "positions): cameras cam0 (left) and cam1 (right), with truth_cam0.npz and truth_cam1.npz. "
+                    "--separate instead calibrates each camera on its own facing the display straight (left/, "
+                    "right/), plus a registration dataset of both in the stereo pose (register/) and "
+                    "registration_truth.json; see docs/stereo-rig.md.")
+    s.add_argument("--left", choices=LENS_FAMILIES, default="brown", help="left lens family (default brown)")
+    s.add_argument("--right", choices=LENS_FAMILIES, default="brown", help="right lens family (default brown)")
+    s.add_argument("--lens", choices=LENS_FAMILIES, help="both lens families at once")
+    s.add_argument("--width", type=int, default=1280, help="sensor width in pixels (default 1280)")
+    s.add_argument("--height", type=int, default=1024, help="sensor height in pixels (default 1024)")
+    s.add_argument("--pixel-mm", type=float, default=None,
+                   help="pixel pitch in mm (default: 0.0053 x 1280 / width, the same field of view)")
+    s.add_argument("--baseline", type=float, default=200.0, help="distance between the cameras, mm (default 200)")
+    s.add_argument("--distance", type=float, default=400.0, help="distance to the display, mm (default 400)")
+    s.add_argument("--seed", type=int, default=0, help="random seed of lenses, poses, stage and noise")
+    s.add_argument("--separate", action="store_true",
+                   help="each camera calibrated separately, then a registration dataset")
+    s.add_argument("--noise", action=argparse.BooleanOptionalAction, default=True, help="sensor noise (default on)")
+    s.add_argument("--periods", type=parse_floats, default=[60, 360, 1920],
+                   help="fringe periods in display pixels (default 60,360,1920)")
+    s.add_argument("--positions", type=parse_floats, default=[0.0, 50.0],
+                   help="nominal stage positions in mm (default 0,50)")
+    s.add_argument("--supersample", type=int, default=None,
+                   help="sub-samples per pixel side (default max(3, 1280 / width): a sub-sample below a display pixel)")
+    s.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
+    s.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from scanners.sim.stereo import simulate_stereo
+    left = args.lens or args.left
+    right = args.lens or args.right
+    supersample = args.supersample or max(3, -(-1280 // args.width))
+    pixel_mm = args.pixel_mm if args.pixel_mm else 0.0053 * 1280 / args.width
+    out = simulate_stereo(args.output, left, right, args.width, args.height, args.seed, args.separate,
+                          args.baseline, args.distance, {"pixel_mm": pixel_mm}, periods=args.periods,
+                          z_positions=args.positions, noise=args.noise, supersample=supersample)
+    what = "left/, right/ (own WCS each), register/ and registration_truth.json" if args.separate else \
+        "capture.json (cam0, cam1), truth_cam0.npz, truth_cam1.npz"
+    print(f"wrote {out}: {what}")
+    return 0

@@ -1,0 +1,334 @@
+"""The rectified virtual stereo pair (seed, "Virtual stereo camera"): building it from two PRVMs, and the
+RIG file that holds it.
+
+Geometry (WCS, mm). The optical centres C_L, C_R are fitted to each camera's rays
+(`fit_optical_centre`); the baseline is b = C_R - C_L. The Rectified Common FOV Plane contains the
+working point W (the mean of the points where the two central rays cross z = plane_z_mm) and is parallel
+to the baseline: its normal n is the mean viewing direction (the unit vectors C_L -> W and C_R -> W)
+with its baseline component removed. One virtual pixel grid lies on it, rows along b (axis_u = b / |b|,
+axis_v = n x axis_u, so a left camera on the left gives an upright image): both virtual sensors are the
+same pixels on the same plane. The grid is the largest one of the requested size that lies inside both
+real fields (no blank pixel), so it covers the common field of view.
+
+Each camera then has, on that grid, its IMM (the real image position sampled by every virtual pixel),
+its pinhole-model Virtual PRVM (rays from its own centre through every virtual pixel centre), and its
+model-less rays (the real ray crossing the plane there: the PRVM's direction interpolated at the IMM's
+real position); the EVM is model-less minus pinhole unit directions. A scene point X is imaged at the
+virtual pixel whose model-less ray passes through X; for central cameras that is where C -> X crosses
+the plane, and both cameras see it on the same row (the epipolar plane through C_L, C_R and X cuts the
+plane along a row).
+
+Same WCS rule (`check_same_wcs`): a PRVM's WCS is named by its meta `wcs` (written by a registration,
+`stereodic.register`) or else by its `dataset` (the calibration dataset: one display, one stage, one
+WCS). Two PRVMs whose names are both given and differ do not share a WCS. Geometry adds: the working
+point must lie in front of both centres, the centres must be apart (baseline >= 1e-3 x working
+distance), and the two real fields must overlap on the plane.
+
+RIG file (`.npz`, "stereodic.rig/1", no pickles): `meta` (0-d str JSON: format, model, sensor (the
+VirtualSensor), baseline_mm, working_distance_mm, cameras: {left, right: name, centre, file, real
+width/height, dataset, wcs}, software) and per side S in (left, right): `S_map_x`, `S_map_y` (Hv, Wv)
+float32 (the IMM in cv2.remap form, -1 where blank), `S_valid` (Hv, Wv) bool, `S_direction`
+(Hv, Wv, 3) float64 (model-less unit directions through each virtual pixel centre, NaN where blank), and
+the camera's intensity matrix as `S_im_*` when its PRVM has one.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from calib import __version__
+from calib.atomic import write_npz
+from calib.errors import InputError
+from calib.intensity import IntensityMatrix
+from calib.prvm_file import PRVM
+from stereodic.imm import IMM, build_imm
+from stereodic.undistort import intensity_matrix
+from stereodic.virtual import VirtualCamera, VirtualSensor, fit_optical_centre, project_to_plane
+from stereodic.virtual_prvm import make_virtual
+
+FORMAT = "stereodic.rig/1"
+SIDES = ("left", "right")
+RIG_MODELS = ("pinhole", "modelless")
+
+
+@dataclass
+class RigCamera:
+    """One camera of the rig on the common virtual sensor.
+
+    name: the camera's name; centre: (3,) fitted optical centre, WCS mm; imm: its IMM on the common
+    sensor; direction: (Hv, Wv, 3) float64 model-less unit directions (WCS) of the real rays through the
+    virtual pixel centres, NaN where blank; im: its intensity matrix or None; info: JSON data of where it
+    came from (file, dataset, wcs, real width and height).
+    """
+
+    name: str
+    centre: np.ndarray
+    imm: IMM
+    direction: np.ndarray
+    im: IntensityMatrix | None = None
+    info: dict = field(default_factory=dict)
+
+
+@dataclass
+class Rig:
+    """The rectified virtual stereo pair: one VirtualSensor on the Rectified Common FOV Plane and the two
+    cameras on it. model: "pinhole" (the Virtual PRVMs are the pinhole rays, EVM = model-less - pinhole)
+    or "modelless" (the Virtual PRVMs are the model-less rays, EVM zero); the images are the same."""
+
+    sensor: VirtualSensor
+    left: RigCamera
+    right: RigCamera
+    model: str = "pinhole"
+
+    def camera(self, side: str) -> RigCamera:
+        if side not in SIDES:
+            raise ValueError(f"side must be one of {SIDES}, got {side!r}")
+        return self.left if side == "left" else self.right
+
+    @property
+    def baseline(self) -> np.ndarray:
+        """(3,) WCS mm, the baseline vector C_R - C_L."""
+        return self.right.centre - self.left.centre
+
+    @property
+    def working_distance_mm(self) -> float:
+        """Distance of both optical centres from the common plane (they are equal: the plane is parallel
+        to the baseline)."""
+        return float((self.sensor.origin - self.left.centre) @ self.sensor.normal)
+
+    def virtual_camera(self, side: str) -> VirtualCamera:
+        """The pinhole virtual camera of `side`: the common sensor and that camera's centre."""
+        return VirtualCamera(self.sensor, "pinhole", self.camera(side).centre)
+
+    def pinhole_direction(self, side: str) -> np.ndarray:
+        """(Hv, Wv, 3) unit directions from the camera's centre through each virtual pixel centre."""
+        d = self.sensor.grid() - self.camera(side).centre
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    def evm(self, side: str) -> np.ndarray:
+        """(Hv, Wv, 3) the Error Vector Matrix: model-less minus the Virtual PRVM's unit directions (zero
+        for a model-less rig), NaN where blank."""
+        cam = self.camera(side)
+        if self.model == "modelless":
+            return np.where(np.isfinite(cam.direction), 0.0, np.nan)
+        return cam.direction - self.pinhole_direction(side)
+
+    def virtual_prvm(self, side: str) -> PRVM:
+        """The Virtual PRVM of `side` (the model's rays) as a PRVM, origins on the common plane's
+        reference z of the WCS (z = 0 plane crossing)."""
+        cam = self.camera(side)
+        d = cam.direction if self.model == "modelless" else self.pinhole_direction(side)
+        valid = cam.imm.valid & np.isfinite(cam.direction).all(axis=-1)
+        p = self.sensor.grid()
+        origin = p - (p[..., 2] / d[..., 2])[..., None] * d
+        return PRVM(origin, np.where(valid[..., None], d, np.nan), valid, None,
+                    {"camera": f"{cam.name}-virtual", "reference_z_mm": 0.0,
+                     "virtual": self.virtual_camera(side).to_dict()})
+
+    def meta(self) -> dict:
+        return {"format": FORMAT, "model": self.model, "sensor": self.sensor.to_dict(),
+                "baseline_mm": self.baseline.tolist(), "working_distance_mm": self.working_distance_mm,
+                "cameras": {s: {"name": self.camera(s).name, "centre": self.camera(s).centre.tolist(),
+                                **self.camera(s).info} for s in SIDES},
+                "software": f"stereodic {__version__}"}
+
+
+# ------------------------------------------------------------------------------------------ checks
+
+def wcs_name(prvm: PRVM) -> str:
+    """The name of a PRVM's WCS: meta `wcs` (set by a registration) or else its calibration `dataset`,
+    normalised; "" when it has neither."""
+    name = prvm.meta.get("wcs") or prvm.meta.get("dataset") or ""
+    return os.path.normpath(str(name)) if name else ""
+
+
+def check_same_wcs(left: PRVM, right: PRVM, where: tuple) -> None:
+    """InputError naming the right camera's file if the two PRVMs are known to be in different WCSs
+    (see the module docstring), or are not the same kind of file (reference planes aside)."""
+    a, b = wcs_name(left), wcs_name(right)
+    if a and b and a != b:
+        how = "registered into" if "wcs" in left.meta or "wcs" in right.meta else "calibrated in"
+        raise InputError(where[1], f"does not share a WCS with {where[0]}: {how} different frames ({b!r} vs "
+                                   f"{a!r}); calibrate both cameras from one dataset, or register them "
+                                   f"(stereodic rig ... --register LEFT_REG.npz RIGHT_REG.npz)")
+
+
+def _central_ray(prvm: PRVM) -> tuple[np.ndarray, np.ndarray]:
+    """(origin, direction) of the valid real ray nearest the image centre."""
+    ys, xs = np.nonzero(prvm.valid)
+    if len(ys) == 0:
+        raise InputError(None, "the PRVM has no valid pixel")
+    k = np.argmin((xs - (prvm.width - 1) / 2) ** 2 + (ys - (prvm.height - 1) / 2) ** 2)
+    return prvm.origin[ys[k], xs[k]], prvm.direction[ys[k], xs[k]]
+
+
+def rectified_plane(left: PRVM, right: PRVM, c_left: np.ndarray, c_right: np.ndarray,
+                    plane_z_mm: float | None, where: tuple) -> VirtualSensor:
+    """A unit-pitch 1x1 VirtualSensor on the Rectified Common FOV Plane: through the working point,
+    parallel to the baseline, axis_u along the baseline (see the module docstring)."""
+    z = left.reference_z_mm if plane_z_mm is None else float(plane_z_mm)
+    hits = []
+    for prvm in (left, right):
+        o, d = _central_ray(prvm)
+        hits.append(o + (z - o[2]) / d[2] * d)
+    through = (hits[0] + hits[1]) / 2
+    b = c_right - c_left
+    look = [through - c for c in (c_left, c_right)]
+    if any(v @ _central_ray(p)[1] <= 0 for v, p in zip(look, (left, right))):
+        raise InputError(where[1], f"the working point {np.round(through, 1).tolist()} is not in front of both "
+                                   f"fitted optical centres: the two cameras do not share a WCS")
+    distance = float(np.mean([np.linalg.norm(v) for v in look]))
+    if np.linalg.norm(b) < 1e-3 * distance:
+        raise InputError(where[1], f"its optical centre coincides with {where[0]}'s (baseline "
+                                   f"{np.linalg.norm(b):.3g} mm at a working distance of {distance:.0f} mm): "
+                                   f"no stereo")
+    axis_u = b / np.linalg.norm(b)
+    n = sum(v / np.linalg.norm(v) for v in look)
+    n -= (n @ axis_u) * axis_u
+    if np.linalg.norm(n) < 1e-6:
+        raise InputError(where[1], "the cameras look along the baseline: no common plane parallel to it")
+    n /= np.linalg.norm(n)
+    return VirtualSensor(through, axis_u, np.cross(n, axis_u), 1.0, 1, 1)
+
+
+def common_field(prvms: list[PRVM], plane: VirtualSensor, width: int, height: int, pitch_mm=None,
+                 raster: int = 512, where=None) -> VirtualSensor:
+    """The biggest width x height grid on `plane` (its origin and axes) whose every pixel lies inside all
+    the real fields of `prvms` (no blank virtual pixel in any camera). With `pitch_mm`, the grid keeps
+    that pitch and is centred where it fits best; InputError if it does not fit.
+
+    Method: a probe grid of about raster x raster points over the overlap of the fields' bounding boxes,
+    scaled so that the wanted grid becomes a square; a probe point is inside when every camera's IMM is
+    valid there (`build_imm`); the largest inscribed square is the maximum of the chessboard distance
+    transform, less 2 probe cells of margin.
+    """
+    unit = VirtualSensor(plane.origin, plane.axis_u, plane.axis_v, 1.0, 1, 1)
+    lo, hi = np.full(2, -np.inf), np.full(2, np.inf)
+    for prvm in prvms:
+        q = project_to_plane(prvm, unit).reshape(-1, 2)
+        q = q[np.isfinite(q).all(axis=1)]
+        lo, hi = np.maximum(lo, q.min(axis=0)), np.minimum(hi, q.max(axis=0))
+    if np.any(hi <= lo):
+        raise InputError(where, "the cameras' fields do not overlap on the common plane")
+    aspect = (width - 1) / max(height - 1, 1)
+    cell_u = max((hi[0] - lo[0]) / raster, (hi[1] - lo[1]) * aspect / raster)
+    cell_v = cell_u / aspect
+    nu, nv = int(np.ceil((hi[0] - lo[0]) / cell_u)) + 1, int(np.ceil((hi[1] - lo[1]) / cell_v)) + 1
+    probe = VirtualSensor(plane.origin + lo[0] * plane.axis_u + lo[1] * plane.axis_v, plane.axis_u,
+                          plane.axis_v, (cell_u, cell_v), nu, nv)
+    inside = np.ones((nv, nu), bool)
+    for prvm in prvms:
+        inside &= build_imm(prvm, probe, tol_px=1e-3).valid
+    mask = np.zeros((nv + 2, nu + 2), np.uint8)
+    mask[1:-1, 1:-1] = inside
+    dist = cv2.distanceTransform(mask, cv2.DIST_C, 3)[1:-1, 1:-1]
+    row, col = np.unravel_index(np.argmax(dist), dist.shape)
+    half = float(dist[row, col]) - 2.0
+    if half <= 0:
+        raise InputError(where, "the cameras' fields do not overlap on the common plane")
+    biggest = 2 * half * cell_u / (width - 1)
+    if pitch_mm is None:
+        pitch_mm = (biggest, biggest)
+    else:
+        pu, pv = np.broadcast_to(np.asarray(pitch_mm, np.float64), (2,))
+        if (width - 1) * pu > 2 * half * cell_u or (height - 1) * pv > 2 * half * cell_v:
+            raise InputError(where, f"a {width}x{height} grid at pitch {pu:g} x {pv:g} mm is larger than the "
+                                    f"common field (largest square pitch that fits: {biggest:.6g} mm)")
+        pitch_mm = (pu, pv)
+    return probe.with_field((col * cell_u, row * cell_v), pitch_mm, width, height)
+
+
+# --------------------------------------------------------------------------------------- building
+
+def build_rig(left: PRVM, right: PRVM, model: str = "pinhole", width: int | None = None,
+              height: int | None = None, pitch_mm=None, plane_z_mm: float | None = None,
+              where: tuple = ("left", "right")) -> Rig:
+    """The rectified virtual stereo pair of two calibrated cameras in one WCS.
+
+    width, height: virtual image size (default: the left camera's); pitch_mm: virtual pixel pitch on the
+    plane (default: the largest common field); plane_z_mm: the working point's z (default: the left
+    PRVM's reference_z_mm); where: names of the two inputs for error messages (file names).
+    InputError for PRVMs that do not share a WCS, coincident centres or fields that do not overlap.
+    """
+    if model not in RIG_MODELS:
+        raise InputError("--model", f"a stereo rig is {' or '.join(RIG_MODELS)} (a telecentric pair has no "
+                                    f"optical centres to put a baseline through), got {model!r}")
+    check_same_wcs(left, right, where)
+    centres = []
+    for prvm, name in zip((left, right), where):
+        try:
+            centres.append(fit_optical_centre(prvm)[0])
+        except InputError as exc:
+            raise InputError(name, exc.problem) from None
+    plane = rectified_plane(left, right, centres[0], centres[1], plane_z_mm, where)
+    width = left.width if width is None else int(width)
+    height = left.height if height is None else int(height)
+    sensor = common_field([left, right], plane, width, height, pitch_mm, where=where[1])
+    cams = []
+    for prvm, centre, name in zip((left, right), centres, where):
+        setup = make_virtual(prvm, VirtualCamera(sensor, "pinhole", centre))
+        direction = setup.prvm.direction + setup.evm
+        direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
+        info = {"file": os.fspath(name), "dataset": prvm.meta.get("dataset", ""), "wcs": wcs_name(prvm),
+                "real_width": prvm.width, "real_height": prvm.height,
+                "blank_pixels": int((~setup.imm.valid).sum())}
+        cams.append(RigCamera(prvm.meta.get("camera", Path(os.fspath(name)).stem), centre, setup.imm, direction,
+                              intensity_matrix(prvm), info))
+    return Rig(sensor, cams[0], cams[1], model)
+
+
+# ------------------------------------------------------------------------------------------- file
+
+def save_rig(path: str | os.PathLike, rig: Rig) -> None:
+    """Write the RIG file (module docstring), atomically."""
+    arrays = {"meta": np.array(json.dumps(rig.meta()))}
+    for side in SIDES:
+        cam = rig.camera(side)
+        arrays.update({f"{side}_map_x": cam.imm.map_x.astype(np.float32),
+                       f"{side}_map_y": cam.imm.map_y.astype(np.float32),
+                       f"{side}_valid": cam.imm.valid.astype(bool),
+                       f"{side}_direction": cam.direction.astype(np.float64)})
+        if cam.im is not None:
+            arrays.update(cam.im.to_arrays(prefix=f"{side}_im_"))
+    write_npz(path, **arrays)
+
+
+def load_rig(path: str | os.PathLike) -> Rig:
+    """Read a RIG file; InputError naming the file if it is missing or not one."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "rig file is missing")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        meta = json.loads(str(arrays["meta"]))
+    except KeyError:
+        raise InputError(path, "not a rig file: lacks 'meta'") from None
+    except Exception as exc:
+        raise InputError(path, f"not a readable rig file ({exc.__class__.__name__})") from None
+    if meta.get("format") != FORMAT:
+        raise InputError(path, f"format is {meta.get('format')!r}, expected {FORMAT!r}"
+                               + (" (a camera file: build a rig with `stereodic rig LEFT.npz RIGHT.npz`)"
+                                  if str(meta.get("format", "")).startswith("stereodic.prvm") else ""))
+    sensor = VirtualSensor.from_dict(meta["sensor"])
+    cams = []
+    for side in SIDES:
+        need = [f"{side}_{k}" for k in ("map_x", "map_y", "valid", "direction")]
+        if any(k not in arrays for k in need):
+            raise InputError(path, f"not a rig file: lacks {', '.join(k for k in need if k not in arrays)}")
+        info = dict(meta["cameras"][side])
+        name, centre = info.pop("name"), np.asarray(info.pop("centre"), np.float64)
+        shape = (sensor.height, sensor.width)
+        if arrays[f"{side}_map_x"].shape != shape or arrays[f"{side}_direction"].shape != shape + (3,):
+            raise InputError(path, f"{side} arrays do not match the {sensor.width}x{sensor.height} sensor")
+        imm = IMM(arrays[f"{side}_map_x"], arrays[f"{side}_map_y"], arrays[f"{side}_valid"].astype(bool),
+                  (int(info["real_width"]), int(info["real_height"])))
+        im = IntensityMatrix.from_arrays(arrays, prefix=f"{side}_im_") if f"{side}_im_offset" in arrays else None
+        cams.append(RigCamera(name, centre, imm, arrays[f"{side}_direction"].astype(np.float64), im, info))
+    return Rig(sensor, cams[0], cams[1], meta.get("model", "pinhole"))
