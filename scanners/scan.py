@@ -1,0 +1,281 @@
+"""The structured-light scan: fringe images of two cameras -> absolute projector phase per camera ->
+rectified virtual phase maps -> 1-D matching along rows -> triangulation -> point cloud.
+
+Steps for one state (one scan) of a `kind: "scan"` dataset:
+ 1. decode (`decode_camera`): per fringe period the wrapped phase, modulation and quality flags
+    (`calib.phase.FringeSums`), corrected for the projector's gamma when the manifest's `projector` block
+    states it (`calib.phase.WaveformCorrection`), then temporal unwrapping into the absolute projector
+    column (`calib.phase.unwrap_temporal`); flagged pixels become NaN;
+ 2. rectify (`virtual_phase`): the absolute phase (never the wrapped one) and the modulation are
+    interpolated through each camera's IMM into the common virtual image; a virtual pixel any of whose 4
+    real neighbours is flagged or blank is NaN (the quality mask is carried along);
+ 3. match (`stereodic.matching.match_rows`): equal phase along each row, sub-pixel, with monotonicity,
+    slope and left-right checks;
+ 4. triangulate (`stereodic.triangulate`) with the EVM-corrected (model-less) rays, or the pinhole rays
+    for comparison; points whose rays pass further apart than `max_gap_px` virtual pixels are dropped;
+ 5. cloud (`stereodic.cloud`): statistical outlier removal, normals, per-point quality = the smaller of
+    the two cameras' fringe modulations as a fraction of full scale (0..1), and the ray gap (mm).
+
+The manifest's top-level `projector` block: `width_px` (panel columns, the extent of the absolute phase,
+required), `periods_px` and `steps` (what the frames must contain), `gamma` and `black_level` (the
+emission curve L(v) = black + (1 - black) (v / 255)^gamma; omitted: linear, no correction).
+"""
+
+from __future__ import annotations
+
+import os
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from calib.capture import Capture, load_capture
+from calib.decode import DARK_FRACTION, MAX_MISMATCH_SIGMA, MODULATION_FRACTION
+from calib.errors import InputError
+from calib.phase import LOW_MODULATION, UNWRAP, FringeSums, WaveformCorrection, unwrap_temporal
+from stereodic.matching import match_rows
+from stereodic.rig import Rig
+from stereodic.triangulate import triangulate
+
+MIN_MODULATION_FRACTION = 0.02   # of full scale: fringes weaker than this are not measured
+
+
+@dataclass
+class PhaseMap:
+    """One camera's decoded scan. coord: (H, W) float32 absolute projector column (panel pixels), NaN
+    where not measured; modulation: (H, W) float32 fringe amplitude of the shortest period as a fraction
+    of full scale, offset: its mean level (same unit); quality: (H, W) uint8 `calib.phase` flags
+    (0 = good); steps: frames of the shortest period."""
+
+    coord: np.ndarray
+    modulation: np.ndarray
+    offset: np.ndarray
+    quality: np.ndarray
+    steps: int
+
+
+@dataclass
+class ScanResult:
+    """Matched and triangulated virtual pixels of one scan (N of them). points: (N, 3) float64 WCS mm;
+    gap_mm: (N,) distance between the two rays; quality: (N,) float32 (module docstring); row, x_left,
+    x_right: (N,) virtual image positions of the match (pixels)."""
+
+    points: np.ndarray
+    gap_mm: np.ndarray
+    quality: np.ndarray
+    row: np.ndarray
+    x_left: np.ndarray
+    x_right: np.ndarray
+
+
+# ------------------------------------------------------------------------------------------- input
+
+def projector_block(capture: Capture) -> dict:
+    """The manifest's `projector` block, checked: width_px, and optional periods_px, steps, gamma."""
+    p = capture.extra.get("projector")
+    where = capture.manifest_path
+    if not isinstance(p, dict) or not isinstance(p.get("width_px"), int) or p["width_px"] <= 0:
+        raise InputError(where, "a scan dataset needs a top-level 'projector' block with 'width_px' (the "
+                                "panel columns the fringe phase spans)")
+    for key in ("gamma", "black_level"):
+        if key in p and not (isinstance(p[key], (int, float)) and p[key] >= 0):
+            raise InputError(where, f"projector.{key} must be a non-negative number, got {p[key]!r}")
+    return p
+
+
+def check_scan_dataset(capture: Capture, cameras: tuple[str, str], state: int) -> dict[str, dict[float, list]]:
+    """Frames of `state` per camera and period, checked against each other and the projector block;
+    InputError naming the manifest for a dataset of another kind, a missing camera or state, x-axis
+    fringes missing or with fewer than 3 distinct shifts, periods that differ between the cameras or
+    from the projector block's `periods_px`, or a different number of steps than its `steps`."""
+    where = capture.manifest_path
+    if capture.kind != "scan":
+        raise InputError(where, f"kind is {capture.kind!r}: `stereodic scan` needs a dataset of kind 'scan'")
+    proj = projector_block(capture)
+    out = {}
+    for cam in cameras:
+        if cam not in capture.cameras:
+            raise InputError(where, f"has no camera {cam!r} (cameras: {', '.join(capture.cameras)}); name the "
+                                    f"rig's cameras with --cameras LEFT,RIGHT")
+        sets: dict[float, list] = defaultdict(list)
+        for f in capture.select(cam, state=state, type="fringe"):
+            if f.pattern.axis != "x":
+                raise InputError(where, f"{f.file}: scan fringes run along the projector columns (axis 'x'), "
+                                        f"got axis {f.pattern.axis!r}")
+            sets[float(f.pattern.period_px)].append(f)
+        if not sets:
+            raise InputError(where, f"camera {cam!r} has no fringe frames in state {state}")
+        for period, frames in sets.items():
+            if len({round(f.pattern.shift_rad, 9) for f in frames}) < 3:
+                raise InputError(where, f"camera {cam!r}, state {state}: the fringe of period {period:g} px has "
+                                        f"{len(frames)} frame(s) with fewer than 3 distinct shifts (missing "
+                                        f"patterns)")
+            if "steps" in proj and len(frames) != proj["steps"]:
+                raise InputError(where, f"camera {cam!r}, state {state}: period {period:g} px has {len(frames)} "
+                                        f"frames, the projector block says steps = {proj['steps']}")
+        if "periods_px" in proj:
+            want = sorted(float(p) for p in proj["periods_px"])
+            if sorted(sets) != want:
+                raise InputError(where, f"camera {cam!r}, state {state}: the frames' projector periods "
+                                        f"{_fmt(sorted(sets))} differ from the projector block's periods_px "
+                                        f"{_fmt(want)}")
+        out[cam] = sets
+    if sorted(out[cameras[0]]) != sorted(out[cameras[1]]):
+        raise InputError(where, f"state {state}: cameras {cameras[0]!r} and {cameras[1]!r} have different "
+                                f"projector periods ({_fmt(sorted(out[cameras[0]]))} vs "
+                                f"{_fmt(sorted(out[cameras[1]]))})")
+    return out
+
+
+def _fmt(periods) -> str:
+    return "[" + ", ".join(f"{p:g}" for p in periods) + "]"
+
+
+# ------------------------------------------------------------------------------------------ decode
+
+def _correction(proj: dict, frames) -> WaveformCorrection | None:
+    """The phase correction for the projector's gamma (None: linear emission or pre-compensated)."""
+    pat = frames[0].pattern
+    if "gamma" not in proj or pat.params.get("precompensated"):
+        return None
+    black = float(proj.get("black_level", 0.0))
+    phi = 2 * np.pi * np.arange(1024) / 1024
+    code = pat.low + (pat.high - pat.low) / 2 * (1 + np.cos(phi))
+    wave = black + (1 - black) * (code / 255.0) ** float(proj["gamma"])
+    return WaveformCorrection(wave, [f.pattern.shift_rad for f in frames])
+
+
+def decode_camera(capture: Capture, camera: str, sets: dict[float, list], images=None) -> PhaseMap:
+    """Absolute projector column of every pixel of `camera` from its fringe sets (period -> frames, see
+    `check_scan_dataset`). images: optional {file: array} already in memory (else read from disk)."""
+    proj = projector_block(capture)
+    w, h = capture.cameras[camera]
+    periods = sorted(sets, reverse=True)
+    quality = np.zeros((h, w), np.uint8)
+    phases, full, last = [], 1, None
+    for period in periods:
+        sums = FringeSums((h, w))
+        for f in sets[period]:
+            raw = images[f.file] if images is not None else capture.read(f)
+            full = capture.max_value(camera, raw)
+            sums.add(raw, f.pattern.shift_rad)
+        res = sums.solve(full, DARK_FRACTION * full, MIN_MODULATION_FRACTION * full)
+        fix = _correction(proj, sets[period])
+        if fix is not None:
+            res.phase = fix(res.phase)
+        lit = res.quality == 0
+        if lit.any():
+            res.quality[res.modulation < MODULATION_FRACTION * np.percentile(res.modulation[lit], 90)] |= LOW_MODULATION
+        quality |= res.quality
+        phases.append(res.phase)
+        last = res
+    try:
+        un = unwrap_temporal(periods, phases, int(proj["width_px"]), valid=quality == 0)
+    except ValueError as exc:
+        raise InputError(capture.manifest_path, f"camera {camera!r}: {exc}") from None
+    for (p_long, p_short), s in zip(zip(periods, periods[1:]), un.mismatch_sigma):
+        if s > MAX_MISMATCH_SIGMA:
+            raise InputError(capture.manifest_path, f"camera {camera!r}: the period ratio {p_long:g}/{p_short:g} "
+                                                    f"is too large for the phase noise (the periods disagree by "
+                                                    f"{s:.3f} period RMS, safe <= {MAX_MISMATCH_SIGMA})")
+    quality[~un.consistent] |= UNWRAP
+    coord = np.where(quality == 0, un.coord, np.nan).astype(np.float32)
+    scale = np.float32(1.0 / full)
+    return PhaseMap(coord, last.modulation * scale, last.offset * scale, quality, last.frames)
+
+
+def virtual_phase(rig: Rig, side: str, real: np.ndarray) -> np.ndarray:
+    """(Hv, Wv) float32: a real per-pixel map (absolute phase, modulation; NaN = not measured) in `side`'s
+    virtual image: bilinear through the IMM, NaN where the virtual pixel is blank or any of its 4 real
+    neighbours is NaN."""
+    imm = rig.camera(side).imm
+    if real.shape != (imm.real_size[1], imm.real_size[0]):
+        raise InputError(None, f"the {side} camera's images are {real.shape[1]}x{real.shape[0]}, the rig's "
+                               f"{side} camera is {imm.real_size[0]}x{imm.real_size[1]}")
+    out = cv2.remap(np.ascontiguousarray(real, np.float32), imm.map_x, imm.map_y, cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan"))
+    out[~imm.valid] = np.nan
+    return out
+
+
+# ---------------------------------------------------------------------------------- match + 3D
+
+def match_and_triangulate(rig: Rig, phase_left: np.ndarray, phase_right: np.ndarray, quality_left: np.ndarray,
+                          quality_right: np.ndarray, corrected: bool = True, max_gap_px: float = 2.0,
+                          matches: np.ndarray | None = None) -> ScanResult:
+    """Match the two virtual phase maps along rows and triangulate (module docstring, steps 3-4).
+    quality_*: virtual per-pixel quality maps (the point takes the smaller); matches: x_right per left
+    pixel from an earlier call (to triangulate the same matches with other rays)."""
+    xr = match_rows(phase_left, phase_right) if matches is None else matches
+    row, xl = np.nonzero(np.isfinite(xr))
+    xrs = xr[row, xl].astype(np.float64)
+    tri = triangulate(rig, xl.astype(np.float64), xrs, row.astype(np.float64), corrected=corrected)
+    k = np.clip(np.rint(xrs).astype(np.intp), 0, xr.shape[1] - 1)
+    q = np.minimum(quality_left[row, xl], quality_right[row, k])
+    good = np.isfinite(tri.points).all(axis=1) & (tri.gap_mm <= max_gap_px * min(rig.sensor.pitch_mm)) \
+        & np.isfinite(q)
+    return ScanResult(tri.points[good], tri.gap_mm[good], q[good].astype(np.float32), row[good],
+                      xl[good].astype(np.float64), xrs[good])
+
+
+def scan_state(rig: Rig, capture: Capture, state: int, cameras: tuple[str, str] | None = None,
+               corrected: bool = True, images=None) -> tuple[ScanResult, dict]:
+    """One scan: decode both cameras, rectify, match, triangulate. Returns the result and the
+    intermediate maps: "phase", "modulation", "offset" (left, right) virtual maps, "matches" x_right,
+    "real" (left, right) PhaseMaps (for comparisons and noise estimates). InputError if nothing matched (the object is outside the common field of view,
+    or unlit)."""
+    cameras = cameras or (rig.left.name, rig.right.name)
+    sets = check_scan_dataset(capture, cameras, state)
+    phases, mods, offsets, real = [], [], [], []
+    for side, cam in zip(("left", "right"), cameras):
+        pm = decode_camera(capture, cam, sets[cam], images)
+        real.append(pm)
+        try:
+            phases.append(virtual_phase(rig, side, pm.coord))
+        except InputError as exc:
+            raise InputError(capture.manifest_path, f"camera {cam!r}: {exc.problem}") from None
+        mods.append(virtual_phase(rig, side, pm.modulation))
+        offsets.append(virtual_phase(rig, side, pm.offset))
+    xr = match_rows(phases[0], phases[1])
+    result = match_and_triangulate(rig, phases[0], phases[1], mods[0], mods[1], corrected, matches=xr)
+    if len(result.points) == 0:
+        raise InputError(capture.root, f"state {state}: no point was matched: nothing lit by the projector is "
+                                       f"seen by both cameras (is the object inside the common field of view?)")
+    return result, {"phase": tuple(phases), "modulation": tuple(mods), "offset": tuple(offsets), "matches": xr,
+                    "real": tuple(real)}
+
+
+def scan_to_files(rig: Rig, dataset: str | os.PathLike, out: str | os.PathLike, states=None,
+                  cameras: tuple[str, str] | None = None, mesh: str | os.PathLike | None = None,
+                  corrected: bool = True, neighbours: int = 20, std_ratio: float = 3.0) -> list[tuple[Path, int]]:
+    """Scan every state of `dataset` (or those listed) into PLY clouds: `out` for a single state, else
+    `<out stem>_s<state>.ply` per state; with `mesh`, also a Poisson mesh per state named the same way.
+    Returns [(file, point count)]."""
+    from calib.progress import progress
+    from stereodic.cloud import make_cloud, poisson_mesh, write_cloud, write_mesh
+    capture = load_capture(dataset)
+    cameras = cameras or (rig.left.name, rig.right.name)
+    all_states = capture.states(cameras[0]) if cameras[0] in capture.cameras else []
+    states = all_states if states is None else list(states)
+    if not states:
+        raise InputError(capture.manifest_path, "has no scan states for the rig's cameras")
+    for s in states:
+        if s not in all_states:
+            raise InputError(capture.manifest_path, f"has no state {s} (states: {all_states})")
+    out = Path(out)
+    viewpoint = (rig.left.centre + rig.right.centre) / 2
+    written = []
+    for s in progress(states, "scanning", total=len(states)):
+        result, _ = scan_state(rig, capture, s, cameras, corrected)
+        cloud, _ = make_cloud(result.points, {"quality": result.quality, "gap_mm": result.gap_mm}, viewpoint,
+                              neighbours, std_ratio)
+        name = out if len(states) == 1 else out.with_name(f"{out.stem}_s{s:03d}{out.suffix or '.ply'}")
+        write_cloud(name, cloud)
+        written.append((name, len(cloud.point.positions)))
+        if mesh is not None:
+            m = Path(mesh)
+            write_mesh(m if len(states) == 1 else m.with_name(f"{m.stem}_s{s:03d}{m.suffix or '.ply'}"),
+                       poisson_mesh(cloud))
+    return written

@@ -1,0 +1,262 @@
+"""The simulated structured-light scanner: two cameras (`scanners.sim.stereo` poses) and a fringe
+projector (`scanners.sim.projector`) between them, scanning analytic scenes (`scanners.sim.scan_scene`).
+
+Rendering one camera frame:
+ 1. each pixel is sampled at S x S sub-pixel points; the TRUE ray of each sub-sample hits the scene's
+    nearest surface (occlusion), computed once per scene (`lit_view`);
+ 2. the hit point is lit if the segment to the projector's centre is clear (shadows) and the projector
+    sees it; its panel column comes from the projector's lens, its irradiance factor from the incidence
+    angle, throw and the projector's field falloff;
+ 3. radiance = albedo * (ambient + irradiance factor * projector emission of the pattern at that column,
+    through the projector's gamma);
+ 4. the camera's defocus and diffraction blur, pixel integration, vignetting, PRNU, exposure, shot and
+    read noise and 8-bit quantisation (`scanners.sim.camera.SimCamera`'s sensor model).
+
+`simulate_scan` writes a `stereodic.capture/1` dataset of kind "scan" (cameras cam0 = left, cam1 =
+right; one state per scene; the projector's fringes along its columns, `periods` x `steps` frames per
+state and camera), with a top-level `projector` block (panel size, gamma, axis, periods, steps), the true
+PRVMs truth_cam0.npz / truth_cam1.npz, the rig built from them (rig.npz, `stereodic.rig`), and
+truth.npz whose `meta` lists every state's exact surfaces.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from calib.atomic import write_npz
+from calib.capture import MANIFEST, Capture, Frame, Pattern, load_capture
+from calib.errors import InputError
+from calib.imageio import write_gray
+from calib.progress import progress
+from scanners.sim.camera import SimCamera
+from scanners.sim.defocus import blur_and_integrate
+from scanners.sim.lenses import DEFAULT_TARGET_MM, Lens
+from scanners.sim.projector import Projector, make_projector
+from scanners.sim.scan_scene import HeightField, Plane, Scene, Sphere, ball_bar
+from scanners.sim.screens import fringe_shifts
+from scanners.sim.sensor import Sensor
+from scanners.sim.stereo import CAMERAS, stereo_lenses
+
+TARGET = np.asarray(DEFAULT_TARGET_MM, np.float64)
+DEFAULT_PERIODS = (1280, 120, 12)
+# the measuring volume (WCS mm, about the target): x, y, z extent; L0 is its diagonal
+VOLUME_MM = (200.0, 160.0, 100.0)
+L0_MM = float(np.linalg.norm(VOLUME_MM))
+ROWS_PER_CHUNK = 32
+
+
+@dataclass
+class ScanRig:
+    """The simulated scanner: left and right lenses, projector, camera sensor, S x S supersampling,
+    ambient light (relative to the projector's full irradiance at its nominal distance)."""
+
+    left: Lens
+    right: Lens
+    projector: Projector
+    sensor: Sensor
+    supersample: int = 2
+    ambient: float = 0.05
+
+    def cameras(self, seed: int) -> list[SimCamera]:
+        """The two SimCameras, exposed so that a white surface facing the projector at its nominal
+        distance, fully lit, reaches 95 % of full scale."""
+        cams = []
+        for k, lens in enumerate((self.left, self.right)):
+            cam = SimCamera(lens, self.sensor, self.supersample, seed=seed + 7919 * k)
+            cam.exposure_e = 0.95 * (1 - self.sensor.dark_offset) * self.sensor.full_well_e / (1 + self.ambient)
+            cams.append(cam)
+        return cams
+
+
+def default_scan_rig(width: int = 1280, height: int = 1024, seed: int = 0, lens: str = "brown",
+                     baseline_mm: float = 200.0, distance_mm: float = 400.0, supersample: int = 2,
+                     bit_depth: int = 8, ambient: float = 0.05) -> ScanRig:
+    """The default scanner: ~200 mm field of view (a `width` x `height` sensor spans the 1280-pixel field
+    of 5.3 um pixels with a 12 mm lens at `distance_mm`), cameras `baseline_mm` apart, 8-bit with noise;
+    a 1280 x 800 projector 420 mm from the target, 60 mm above the baseline, gamma 2.2."""
+    left, right = stereo_lenses(lens, lens, width, height, seed, baseline_mm, distance_mm,
+                                pixel_mm=0.0053 * 1280 / width)
+    return ScanRig(left, right, make_projector(TARGET), Sensor(bit_depth=bit_depth), supersample, ambient)
+
+
+@dataclass
+class LitView:
+    """What one camera's sub-samples see of one scene: c (H*S, W*S) float32 projector panel column (NaN:
+    not lit - shadow, miss, outside the projector's field); factor: float32 irradiance factor; albedo:
+    float32 (0 on a miss); blur_px (H, W) defocus diameters; points (H, W, 3) the points the pixel
+    centres see (NaN on a miss)."""
+
+    c: np.ndarray
+    factor: np.ndarray
+    albedo: np.ndarray
+    blur_px: np.ndarray
+    points: np.ndarray
+
+
+def lit_view(cam: SimCamera, scene: Scene, projector: Projector) -> LitView:
+    """Trace every sub-sample of `cam` into `scene` and towards `projector` (module docstring)."""
+    lens, s = cam.lens, cam.supersample
+    h, w = cam.shape
+    sub = (np.arange(s) + 0.5) / s - 0.5
+    us = (np.arange(w)[:, None] + sub[None, :]).ravel()
+    c = np.empty((h * s, w * s), np.float32)
+    factor = np.empty_like(c)
+    albedo = np.empty_like(c)
+    pts = np.empty((h * s, w * s, 3))
+    for v0 in range(0, h, ROWS_PER_CHUNK):
+        vs = (np.arange(v0, min(h, v0 + ROWS_PER_CHUNK))[:, None] + sub[None, :]).ravel()
+        o, d = lens.rays(*np.meshgrid(us, vs))
+        o = o + ((lens.centre_mm[2] - o[..., 2]) / d[..., 2])[..., None] * d   # start at the camera
+        hit = scene.intersect(o.reshape(-1, 3), d.reshape(-1, 3))
+        seen = np.isfinite(hit.t)
+        cc, _, cos_field = projector.project(hit.point)
+        lit = seen & np.isfinite(cc)
+        lit[lit] &= ~scene.blocked(hit.point[lit] + 1e-4 * hit.normal[lit], projector.centre_mm)
+        f = np.where(lit, projector.irradiance_factor(hit.point, hit.normal, cos_field), 0.0)
+        rows = slice(v0 * s, v0 * s + len(vs))
+        c[rows] = np.where(lit, cc, np.nan).reshape(len(vs), -1)
+        factor[rows] = f.reshape(len(vs), -1)
+        albedo[rows] = np.where(seen, hit.albedo, 0.0).reshape(len(vs), -1)
+        pts[rows] = np.where(seen[:, None], hit.point, np.nan).reshape(len(vs), -1, 3)
+    centre = pts[s // 2::s, s // 2::s]
+    focus = lens.centre_mm + lens.focus_mm * lens.rotation[:, 2]
+    blur = lens.blur_diameter_px(*lens.pixel_grid(), np.where(np.isfinite(centre), centre, focus))
+    return LitView(c, factor, albedo, blur.astype(np.float32), centre)
+
+
+def render_frame(cam: SimCamera, view: LitView, projector: Projector, pattern: Pattern, ambient: float,
+                 noise: bool = True) -> np.ndarray:
+    """The camera image (uint8, or uint16 above 8 bits) of the scene of `view` under `pattern`."""
+    radiance = view.albedo * (np.float32(ambient) + view.factor * projector.emission(pattern, view.c))
+    e = blur_and_integrate(radiance, cam.supersample, view.blur_px, cam.sigma_px)
+    e *= cam.vignetting * cam.gain * np.float32(cam.exposure_e)
+    return cam.sensor.digitise(e, cam.rng if noise else None)
+
+
+# ----------------------------------------------------------------------------------------- scenes
+
+def _background() -> Plane:
+    """A matte grey plate 60 mm behind the target, catching the objects' shadows."""
+    return Plane(centre=TARGET + [0, 0, 60.0], normal=(0, 0, -1), size_mm=(340.0, 280.0), albedo=0.35,
+                 texture=0.3, seed=9)
+
+
+def _rot_x(deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    return np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+
+
+BAR_DIRECTIONS = ((1, 0, 0), (1, 0.55, 0), (1, -0.55, 0), (1, 0.5, 0.45), (1, -0.5, 0.45), (1, 0.5, -0.45),
+                  (1, -0.5, -0.45))
+PLANE_POSES = (((0, 0, 0), (0, 0, -1)), ((0, 0, -30), (0.3, 0, -1)), ((0, 0, 30), (-0.3, 0, -1)),
+               ((0, 0, 0), (0, 0.3, -1)))
+
+
+def standard_scenes(objects=("sphere", "ballbar", "plane", "freeform"), background: bool = True) -> list[Scene]:
+    """The acceptance scenes (VDI/VDE 2634-2 style), in the measuring volume VOLUME_MM about the target:
+    sphere: a 50 mm sphere at the centre and 30 mm nearer; ballbar: a bar of two 25 mm spheres 150 mm
+    apart in 7 orientations; plane: a 180 x 40 mm plate in 4 poses; freeform: a smooth part 90 mm wide.
+    With `background`, the sphere and free-form scenes stand in front of a plate that takes their
+    shadows."""
+    back = [_background()] if background else []
+    scenes = []
+    if "sphere" in objects:
+        for k, z in enumerate((0.0, -30.0)):
+            scenes.append(Scene([Sphere(centre=TARGET + [10.0, 5.0, z], radius_mm=25.0)] + back, f"sphere {k + 1}"))
+    if "ballbar" in objects:
+        for k, direction in enumerate(BAR_DIRECTIONS):
+            scenes.append(Scene(ball_bar(TARGET, direction), f"ball bar {k + 1}"))
+    if "plane" in objects:
+        for k, (offset, normal) in enumerate(PLANE_POSES):
+            scenes.append(Scene([Plane(centre=TARGET + offset, normal=normal, size_mm=(180.0, 40.0))],
+                                f"plane {k + 1}"))
+    if "freeform" in objects:
+        scenes.append(Scene([HeightField(centre=TARGET + [0, 0, 10.0], rotation=np.diag([1.0, -1, -1]) @ _rot_x(10),
+                                         half_mm=45.0)] + back, "free-form"))
+    return scenes
+
+
+# ---------------------------------------------------------------------------------------- dataset
+
+def scan_frames(state: int, periods, steps: int, low: int, high: int) -> list[Frame]:
+    """The frame records of one state: for each camera, each period, each shift (x-axis fringes)."""
+    frames = []
+    for cam in CAMERAS:
+        for p in periods:
+            for k, shift in enumerate(fringe_shifts(int(steps))):
+                frames.append(Frame(cam, f"s{state:03d}/{cam}_P{p:g}_s{k}.png",
+                                    Pattern("fringe", {"axis": "x", "period_px": p, "shift_rad": shift,
+                                                       "low": low, "high": high}), state=state))
+    return frames
+
+
+def simulate_scan(out_dir: str | os.PathLike, scenes: list[Scene] | None = None, rig: ScanRig | None = None,
+                  periods=DEFAULT_PERIODS, steps: int = 3, seed: int = 0, noise: bool = True, low: int = 10,
+                  high: int = 250, build_rig: bool = True, rig_size: tuple[int, int] | None = None) -> Capture:
+    """Render a scan dataset (module docstring) of `scenes` (default `standard_scenes()`) with `rig`
+    (default `default_scan_rig(seed=seed)`). build_rig: also write rig.npz (the rectified pair of the
+    true PRVMs, virtual size `rig_size`, default the cameras'). Returns the loaded dataset."""
+    from stereodic.rig import build_rig as make_rig, save_rig
+    rig = rig or default_scan_rig(seed=seed)
+    scenes = standard_scenes() if scenes is None else scenes
+    periods = [int(p) if float(p) == int(p) else float(p) for p in periods]
+    if steps < 3 or int(steps) != steps:
+        raise InputError("--steps", f"need a whole number >= 3 of phase steps, got {steps}")
+    if max(periods) < rig.projector.width_px:
+        raise InputError("--periods", f"the longest period ({max(periods):g} px) must cover the projector's "
+                                      f"{rig.projector.width_px} columns (absolute phase)")
+    if not 0 <= low < high <= 255:
+        raise InputError("--low/--high", f"need 0 <= low < high <= 255, got {low}, {high}")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / MANIFEST).unlink(missing_ok=True)
+    cams = rig.cameras(seed)
+    frames = []
+    for state, scene in enumerate(progress(scenes, "simulating scan", total=len(scenes))):
+        state_frames = scan_frames(state, periods, steps, low, high)
+        for name, cam in zip(CAMERAS, cams):
+            view = lit_view(cam, scene, rig.projector)
+            for f in state_frames:
+                if f.camera == name:
+                    write_gray(out / f.file, render_frame(cam, view, rig.projector, f.pattern, rig.ambient, noise))
+        frames += state_frames
+    truths = []
+    for name, lens in zip(CAMERAS, (rig.left, rig.right)):
+        prvm = lens.true_prvm(camera=name, dataset=f"simulated scanner, seed {seed}",
+                              wcs=f"simulated scanner, seed {seed}")
+        prvm.save(out / f"truth_{name}.npz")
+        truths.append(prvm)
+    if build_rig:
+        w, h = rig_size or (rig.left.width, rig.left.height)
+        save_rig(out / "rig.npz", make_rig(*truths, width=w, height=h,
+                                           where=(str(out / "truth_cam0.npz"), str(out / "truth_cam1.npz"))))
+    p = rig.projector
+    geometry = {"centre_mm": p.centre_mm.tolist(), "rotation": p.rotation.tolist(), "fx": p.fx, "fy": p.fy,
+                "cx": p.cx, "cy": p.cy, "k1": p.k1, "k2": p.k2, "distance_mm": p.distance_mm}
+    meta = {"format": "stereodic.scan-truth/1", "units": "WCS mm", "volume_mm": list(VOLUME_MM),
+            "L0_mm": L0_MM, "projector": {**p.record(), **geometry}, "ambient": rig.ambient,
+            "states": [{"state": k, **sc.describe()} for k, sc in enumerate(scenes)]}
+    write_npz(out / "truth.npz", meta=np.array(json.dumps(meta)))
+    extra = {"projector": {**p.record(), "axis": "x", "periods_px": periods, "steps": int(steps)},
+             "simulated": {"lens": rig.left.family, "seed": seed, "noise": noise, "supersample": rig.supersample,
+                           "truth": "truth.npz", "rig": "rig.npz" if build_rig else None,
+                           "scenes": [sc.name for sc in scenes]}}
+    cap = Capture(out, "scan", {n: (ln.width, ln.height) for n, ln in zip(CAMERAS, (rig.left, rig.right))},
+                  frames, None, (0.0, 0.0, 1.0), extra, {n: rig.sensor.bit_depth for n in CAMERAS})
+    cap.save()
+    return load_capture(out)
+
+
+def load_truth(dataset: str | os.PathLike) -> dict:
+    """The truth.npz meta of a simulated scan dataset (JSON data; surfaces via
+    `scan_scene.surface_from_dict`)."""
+    path = Path(dataset) / "truth.npz"
+    if not path.is_file():
+        raise InputError(path, "truth file is missing (not a simulated scan dataset?)")
+    with np.load(path, allow_pickle=False) as z:
+        return json.loads(str(z["meta"]))
