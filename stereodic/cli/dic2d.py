@@ -9,8 +9,6 @@ where converged is 0; strains are NaN exactly where strain_valid is 0.
 
 from __future__ import annotations
 
-import argparse
-
 
 def register(sub):
     p = sub.add_parser("dic2d", help="2D subset digital image correlation",

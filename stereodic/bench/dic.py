@@ -1,0 +1,124 @@
+"""2D DIC figures: accuracy on the real DIC-Challenge sample 5 images, random and systematic errors on
+synthetic speckle, and throughput (points per second, initial guess included) on a 2048 x 2048 image.
+
+References: OpenCorr (C++, FFT-CC + first-order IC-GN, bicubic B-spline) measured on this machine
+with 2 threads, and DICe's committed regression result for sample 5.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from stereodic.bench import Figure, best_time
+
+SAMPLE5 = Path(__file__).resolve().parents[3] / "shared" / "data" / "dic-challenge-sample5"
+OPENCORR_MEAN = {21: 0.1025, 35: 0.1023}  # 35: OpenCorr's figure is for 33 x 33 subsets
+OPENCORR_STD = {21: 0.0046, 35: 0.0029}
+OPENCORR_POINTS_PER_S = {21: 41_900, 33: 19_400}
+GOAL_POINTS_PER_S = {21: 45_000, 33: 21_000}
+
+
+def _real_images(quick: bool) -> list[Figure]:
+    from calib.imageio import read_gray
+    from stereodic.dic import DicSettings, correlate_pair, make_grid
+
+    if not SAMPLE5.is_dir():
+        return []
+    ref = read_gray(SAMPLE5 / "reference.tif")
+    figures = []
+    for name, truth in (("shift_x0.10_y0.10.tif", 0.10), ("shift_x0.00_y0.00.tif", 0.0)):
+        dfm = read_gray(SAMPLE5 / name)
+        for subset in (21, 35):
+            grid = make_grid(ref.shape[1], ref.shape[0], subset, 10 if quick else 5, roi=(40, 40, 471, 471))
+            f = correlate_pair(ref, dfm, grid, DicSettings(subset=subset))
+            label = f"sample5 {truth:.2f} px, {subset}x{subset}"
+            for comp, vals in (("u", f.u[f.ok]), ("v", f.v[f.ok])):
+                mean = float(np.mean(vals))
+                ref_name, ref_val = "", None
+                if truth > 0:
+                    ref_name, ref_val = (f"OpenCorr {'21x21' if subset == 21 else '33x33'}", OPENCORR_MEAN[subset])
+                    if subset == 35:
+                        ref_name += "; DICe 35x35 ~0.105"
+                figures.append(Figure("dic", f"{label}: mean {comp}", mean, "px", ref_name, ref_val,
+                                      f"within 0.0015 of {truth:.2f}", abs(mean - truth) <= 0.0015))
+            std = float(np.std(f.u[f.ok]))
+            figures.append(Figure("dic", f"{label}: std u", std, "px",
+                                  "OpenCorr" if truth > 0 else "", OPENCORR_STD[subset] if truth > 0 else None))
+            figures.append(Figure("dic", f"{label}: converged points", float(f.ok.mean() * 100), "%",
+                                  goal="100 %", ok=bool(f.ok.all())))
+    return figures
+
+
+def _synthetic_errors(quick: bool) -> list[Figure]:
+    from scanners.sim.speckle import make_speckle, render
+    from stereodic.dic import BSplineImage, DicSettings, correlate_pair, make_grid
+
+    n, sigma_noise = 256, 2.0
+    sp = make_speckle(n, n, seed=5)
+    clean = render(sp, bits=None)
+    figures = []
+    pix = BSplineImage.from_image(clean, 3, 0.0).pixel_gradients().astype(np.float64)
+    shifts = [0.2, 0.5] if quick else list(np.arange(0.0, 1.0, 0.1))
+    for subset in (21, 33):
+        h = subset // 2
+        grid = make_grid(n, n, subset, subset, roi=(20, 20, n - 21, n - 21))
+        X, Y = grid.points()
+        gx2 = np.array([np.sum(pix[1, y - h:y + h + 1, x - h:x + h + 1] ** 2)
+                        for x, y in zip(X.astype(int), Y.astype(int))])
+        bound = (np.sqrt(2) * sigma_noise / np.sqrt(gx2)).reshape(grid.shape)
+        ratios = []
+        for t in shifts:
+            for rep in range(1 if quick else 3):
+                r = render(sp, noise_sigma=sigma_noise, bits=None, seed=2 * rep + 1)
+                d = render(sp, (t, 0.0), noise_sigma=sigma_noise, bits=None, seed=2 * rep + 2)
+                f = correlate_pair(r, d, grid, DicSettings(subset=subset))
+                ratios.append(((f.u - t) / bound)[f.ok])
+        ratio = float(np.sqrt(np.mean(np.concatenate(ratios) ** 2)))
+        figures.append(Figure("dic", f"random error / noise bound, {subset}x{subset}, noise 2 GL", ratio, "",
+                              goal="<= 1.3", ok=ratio <= 1.3))
+    grid = make_grid(n, n, 21, 7, roi=(16, 16, n - 17, n - 17))
+    worst = 0.0
+    for t in (np.arange(0.05, 1.0, 0.1) if quick else np.arange(0.0, 1.001, 0.05)):
+        f = correlate_pair(clean, render(sp, (t, t), bits=None), grid, DicSettings(subset=21))
+        worst = max(worst, abs(float(np.mean(f.u[f.ok])) - t), abs(float(np.mean(f.v[f.ok])) - t))
+    figures.append(Figure("dic", "systematic error, worst sub-pixel shift, 21x21", worst, "px",
+                          goal="< 0.005", ok=worst < 0.005))
+    return figures
+
+
+def _speed(quick: bool) -> list[Figure]:
+    from scanners.sim.speckle import make_speckle, render
+    from stereodic.dic import DicSettings, correlate_pair, make_grid
+
+    n = 1024 if quick else 2048
+    sp = make_speckle(n, n, seed=2)
+    ref = render(sp, noise_sigma=2.0, seed=1)
+    c = n / 2
+    dfm = render(sp, lambda x, y: (2.3 + 0.002 * (x - c), -1.6 + 0.001 * (y - c)), noise_sigma=2.0, seed=2,
+                 supersample=4)
+    figures = []
+    for subset in (21, 33):
+        grid = make_grid(n, n, subset, 5)
+        settings = DicSettings(subset=subset)
+        correlate_pair(ref[:256, :256], dfm[:256, :256], make_grid(256, 256, subset, 5), settings)  # JIT
+        result = {}
+
+        def run():
+            result["f"] = correlate_pair(ref, dfm, grid, settings)
+
+        seconds = best_time(run, repeat=1 if quick else 3, warmup=0)
+        pts = int(grid.active.sum())
+        rate = pts / seconds
+        figures.append(Figure("dic", f"2D DIC {subset}x{subset}, {n}x{n}, step 5 ({pts} points), "
+                              f"seeds + propagation + IC-GN", rate, "points/s",
+                              "OpenCorr FFT-CC + IC-GN, 2 threads", OPENCORR_POINTS_PER_S[subset],
+                              f">= {GOAL_POINTS_PER_S[subset]}", rate >= GOAL_POINTS_PER_S[subset]))
+        figures.append(Figure("dic", f"2D DIC {subset}x{subset}: converged points",
+                              float(result["f"].ok.mean() * 100), "%"))
+    return figures
+
+
+def run(quick: bool = False) -> list[Figure]:
+    return _real_images(quick) + _synthetic_errors(quick) + _speed(quick)

@@ -1,0 +1,24 @@
+"""2D subset digital image correlation (DIC).
+
+Modules, one job each: `interpolation` (B-spline coefficients and sampling), `icgn` (IC-GN registration
+of one subset, ZNSSD), `initial_guess` (integer ZNCC searches, also along rows for stereo),
+`propagation` (reliability-guided wavefronts over a grid), `grid` (points from ROI and mask),
+`correlate` (pairs and sequences, incremental), `output` (CSV, NPZ, PNG).
+
+Public API (pixels; x = column, y = row; u along x):
+- `BSplineImage.from_image(img, order, prefilter_sigma)`: interpolant of an image.
+- `correlate_points(ref, dfm, xs, ys, guess, settings) -> PointResult`: register a list of points from
+  initial guesses (the building block for stereo matching).
+- `row_search(ref_img, dfm_img, xs, ys, half, dmin, dmax)`: integer match along rows (rectified stereo).
+- `make_grid`, `correlate_pair`, `correlate_sequence`: full-field DIC.
+"""
+
+from stereodic.dic.correlate import (DicField, DicSettings, PointResult, correlate_pair, correlate_points,
+                                     correlate_sequence)
+from stereodic.dic.grid import Grid, make_grid
+from stereodic.dic.icgn import STATUS_NAMES
+from stereodic.dic.initial_guess import row_search, search_integer
+from stereodic.dic.interpolation import BSplineImage
+
+__all__ = ["BSplineImage", "DicField", "DicSettings", "Grid", "PointResult", "STATUS_NAMES", "correlate_pair",
+           "correlate_points", "correlate_sequence", "make_grid", "row_search", "search_integer"]

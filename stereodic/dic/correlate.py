@@ -1,0 +1,341 @@
+"""2D subset DIC between a reference image and one or more deformed images.
+
+`correlate_points` registers a list of points given initial warps (the building block, also for stereo
+matching); `correlate_pair` measures a whole grid from seeds found by ZNCC search and reliability-guided
+propagation; `correlate_sequence` runs a series of deformed images, each starting from the previous
+result, optionally updating the reference (incremental DIC) for large deformations.
+Displacements in pixels, u along x (columns), v along y (rows), at points of the reference image.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Iterable, Iterator, Sequence
+
+import numpy as np
+
+from stereodic.dic.grid import Grid
+from stereodic.dic.icgn import (LOW_ZNCC, OK, SHAPE_PARAMS, UNREACHED, quadratic_fit_matrix,
+                                reference_status, shift_warp, solve_points)
+from stereodic.dic.initial_guess import search_integer
+from stereodic.dic.interpolation import BSplineImage
+from stereodic.dic.propagation import guesses_from_lattice, propagate
+
+
+@dataclass(frozen=True)
+class DicSettings:
+    """subset: side in pixels (odd); shape: 'affine' or 'quadratic'; order: B-spline order (3 or 5);
+    prefilter_sigma: Gaussian low-pass of both images before interpolation (pixels, 0 = none; lowers
+    the interpolation bias); tol: convergence bound on the warp update (pixels at the subset edge);
+    min_zncc: points below are flagged; seed_zncc: a seed needs at least this; search_radius: ZNCC
+    search range of seeds (pixels); max_seeds: seed attempts per image."""
+
+    subset: int = 21
+    shape: str = "affine"
+    order: int = 3
+    prefilter_sigma: float = 0.7
+    max_iter: int = 30
+    tol: float = 1e-3
+    min_zncc: float = 0.8
+    seed_zncc: float = 0.9
+    search_radius: int = 40
+    max_seeds: int = 20
+
+    @property
+    def half(self) -> int:
+        return self.subset // 2
+
+    @property
+    def nparams(self) -> int:
+        return SHAPE_PARAMS[self.shape]
+
+
+@dataclass
+class PointResult:
+    """Per point: warp (N, n) parameters (see icgn), zncc, iterations, status (icgn status codes)."""
+
+    warp: np.ndarray
+    zncc: np.ndarray
+    iterations: np.ndarray
+    status: np.ndarray
+
+    @property
+    def u(self) -> np.ndarray:
+        """Displacement along x (pixels); NaN where status is not OK."""
+        return np.where(self.status == OK, self.warp[:, 0], np.nan)
+
+    @property
+    def v(self) -> np.ndarray:
+        """Displacement along y (pixels); NaN where status is not OK."""
+        return np.where(self.status == OK, self.warp[:, self.warp.shape[1] // 2], np.nan)
+
+
+@dataclass
+class DicField:
+    """Result on a grid for one deformed image. u, v (ny, nx): displacement of each grid point from its
+    reference position (pixels, NaN where not OK; for incremental DIC, summed over the steps); `points`:
+    this image's registration, flat in grid order (for incremental DIC, of the step from the previous
+    image, with the subsets taken around the points' positions there)."""
+
+    grid: Grid
+    points: PointResult
+    u: np.ndarray
+    v: np.ndarray
+
+    @property
+    def zncc(self) -> np.ndarray:
+        return self.points.zncc.reshape(self.grid.shape)
+
+    @property
+    def status(self) -> np.ndarray:
+        return self.points.status.reshape(self.grid.shape)
+
+    @property
+    def ok(self) -> np.ndarray:
+        return self.status == OK
+
+
+def _arrays(n: int, nparams: int):
+    return (np.zeros((n, nparams)), np.full(n, np.nan), np.zeros(n, np.int32),
+            np.full(n, UNREACHED, np.int8))
+
+
+def correlate_points(ref: BSplineImage, dfm: BSplineImage, xs: np.ndarray, ys: np.ndarray,
+                     guess: np.ndarray, settings: DicSettings = DicSettings()) -> PointResult:
+    """Register the subsets centred on (xs[k], ys[k]) (reference pixels, sub-pixel allowed) starting from
+    `guess`: (N, 2) displacements (u, v) or (N, n) full warps. Runs in parallel over points."""
+    xs = np.ascontiguousarray(xs, np.float64)
+    ys = np.ascontiguousarray(ys, np.float64)
+    n = settings.nparams
+    warp, zncc, iters, status = _arrays(xs.size, n)
+    guess = np.asarray(guess, np.float64)
+    if guess.shape[1] == 2:
+        warp[:, 0] = guess[:, 0]
+        warp[:, n // 2] = guess[:, 1]
+    else:
+        warp[:] = guess
+    solve_points(ref.coef, ref.pixel_gradients(), dfm.coef, ref.order, ref.width, ref.height, xs, ys,
+                 settings.half, warp, quadratic_fit_matrix(settings.half), settings.max_iter, settings.tol,
+                 settings.min_zncc, zncc, iters, status)
+    return PointResult(warp, zncc, iters, status)
+
+
+LATTICE = 4  # stride of the coarse lattice that large grids are propagated on first
+
+
+class _PairSolver:
+    """State of one reference/deformed pair on a grid while seeds and propagation fill it."""
+
+    def __init__(self, ref: BSplineImage, dfm: BSplineImage, ref_img: np.ndarray, def_img: np.ndarray,
+                 grid: Grid, xs: np.ndarray, ys: np.ndarray, settings: DicSettings):
+        self.ref, self.dfm, self.ref_img, self.def_img = ref, dfm, ref_img, def_img
+        self.grid, self.xs, self.ys, self.s = grid, xs, ys, settings
+        self.warp, self.zncc, self.iters, self.status = _arrays(xs.size, settings.nparams)
+        self.done = (~grid.active.ravel()).astype(np.int8)
+        self.fit = quadratic_fit_matrix(settings.half)
+
+    def solve(self, idx: np.ndarray) -> None:
+        """Solve points `idx` from the warps already in self.warp."""
+        s = self.s
+        res = correlate_points(self.ref, self.dfm, self.xs[idx], self.ys[idx], self.warp[idx], s)
+        self.warp[idx], self.zncc[idx], self.iters[idx], self.status[idx] = (
+            res.warp, res.zncc, res.iterations, res.status)
+        self.done[idx] = 1
+
+    def propagate(self, stride: int) -> None:
+        s = self.s
+        propagate(self.ref.coef, self.ref.pixel_gradients(), self.dfm.coef, self.ref.order, self.ref.width,
+                  self.ref.height, self.xs, self.ys, self.grid.shape[1], stride, s.half, self.warp, self.fit,
+                  s.max_iter, s.tol, s.min_zncc, self.zncc, self.iters, self.status, self.done)
+
+    def flag_untextured(self, idx: np.ndarray) -> np.ndarray:
+        """Mark the points of `idx` whose reference subset cannot be registered (no texture, outside)
+        as done; returns the others."""
+        st = np.empty(idx.size, np.int8)
+        reference_status(self.ref.coef, self.ref.pixel_gradients(), self.ref.order, self.ref.width,
+                         self.ref.height, self.xs[idx], self.ys[idx], self.s.half, self.s.nparams, st)
+        bad = idx[st != OK]
+        self.status[bad] = st[st != OK]
+        self.done[bad] = 1
+        return idx[st == OK]
+
+    def seed(self, k: int, stride: int) -> bool:
+        """Integer ZNCC search then IC-GN at point k, confirmed by its neighbours (`stride` grid points
+        away): a seed is kept if its ZNCC reaches seed_zncc and at least two of its neighbours (all, if
+        fewer) converge from its warp; a wide search can otherwise lock on a look-alike spot. A
+        rejected seed is flagged LOW_ZNCC and its neighbours return to pending."""
+        s = self.s
+        nb = s.nparams // 2
+        good = (self.done == 1) & (self.status == OK)
+        centre = (0, 0)
+        if good.any():
+            centre = (int(round(np.median(self.warp[good, 0]))), int(round(np.median(self.warp[good, nb]))))
+        x, y = int(round(self.xs[k])), int(round(self.ys[k]))
+        du, dv, _ = search_integer(self.ref_img, self.def_img, x, y, s.half, s.search_radius, centre)
+        self.warp[k] = 0.0
+        self.warp[k, 0] = du + (x - self.xs[k])
+        self.warp[k, nb] = dv + (y - self.ys[k])
+        self.solve(np.array([k]))
+        if self.status[k] != OK:
+            return False
+        ny, nx = self.grid.shape
+        r, c = divmod(k, nx)
+        nbrs = np.array([rr * nx + cc for rr, cc in ((r - stride, c), (r + stride, c), (r, c - stride),
+                                                     (r, c + stride))
+                         if 0 <= rr < ny and 0 <= cc < nx and self.done[rr * nx + cc] == 0], dtype=np.int64)
+        for q in nbrs:
+            shift_warp(self.warp[k], self.xs[q] - self.xs[k], self.ys[q] - self.ys[k], self.warp[q])
+        self.solve(nbrs)
+        if self.zncc[k] >= s.seed_zncc and np.sum(self.status[nbrs] == OK) >= min(2, nbrs.size):
+            return True
+        self.status[k] = LOW_ZNCC
+        self.done[nbrs] = 0
+        self.status[nbrs] = UNREACHED
+        return False
+
+    def fill(self, seeds: Sequence[int]) -> None:
+        """Solve every point reachable from what is solved and from seeds; flag the rest UNREACHED.
+
+        Large grids go in two stages: propagation over a lattice of every LATTICE-th row and column,
+        then one parallel sweep of all other points from a blend of their lattice corners; points
+        that fail there, and those the lattice did not reach, are propagated again point by point."""
+        ny, nx = self.grid.shape
+        stride = LATTICE if min(ny, nx) >= 4 * LATTICE else 1
+        self.grow(seeds, stride)
+        if stride > 1:
+            idx = guesses_from_lattice(self.xs, self.ys, nx, stride, self.warp, self.zncc, self.status,
+                                       self.done)
+            self.solve(idx)
+            self.done[idx[self.status[idx] != OK]] = 0  # a second chance from their neighbours
+            self.grow(seeds, 1)
+        self.status[self.done == 0] = UNREACHED
+
+    def grow(self, seeds: Sequence[int], stride: int) -> None:
+        """Propagate (every `stride` points) from what is solved, then from `seeds`, then from
+        automatic seeds among the pending points on the lattice (nearest to the centre of the pending
+        ones first), up to max_seeds attempts. Seeds without texture are flagged and skipped; if
+        points remain after the first seed, all pending points without texture are flagged so that
+        seeds avoid them."""
+        ny, nx = self.grid.shape
+        rows, cols = np.divmod(np.arange(self.xs.size), nx)
+        on_lattice = (rows % stride == 0) & (cols % stride == 0)
+        self.propagate(stride)
+        attempts = 0
+        on_lattice &= self.grid.active.ravel()
+        lattice = np.flatnonzero(on_lattice)
+        # each seed moves to its nearest lattice point
+        queue = [int(lattice[np.argmin((self.xs[lattice] - self.xs[k]) ** 2
+                                       + (self.ys[lattice] - self.ys[k]) ** 2)])
+                 for k in seeds] if lattice.size else []
+        screened = False
+        while attempts < self.s.max_seeds:
+            pending = np.flatnonzero((self.done == 0) & on_lattice)
+            if pending.size == 0:
+                break
+            if queue:
+                k = queue.pop(0)
+                if self.done[k] != 0:
+                    continue
+            else:
+                if attempts > 0 and not screened:  # once, only if the first seeds left points over
+                    pending = self.flag_untextured(pending)
+                    screened = True
+                    if pending.size == 0:
+                        break
+                cx, cy = self.xs[pending].mean(), self.ys[pending].mean()
+                k = pending[np.argmin((self.xs[pending] - cx) ** 2 + (self.ys[pending] - cy) ** 2)]
+            attempts += 1
+            if self.flag_untextured(np.array([k])).size and self.seed(k, stride):
+                self.propagate(stride)
+
+    def result(self) -> PointResult:
+        self.zncc[self.status == UNREACHED] = np.nan
+        return PointResult(self.warp, self.zncc, self.iters, self.status)
+
+
+def seed_indices(grid: Grid, seeds: Iterable[tuple[float, float]]) -> list[int]:
+    """Flat indices of the active grid points nearest to each (x, y) seed position (pixels)."""
+    X, Y = grid.points()
+    act = np.flatnonzero(grid.active.ravel())
+    return [int(act[np.argmin((X[act] - x) ** 2 + (Y[act] - y) ** 2)]) for x, y in seeds] if act.size else []
+
+
+def _with_bsplines(images: Iterable[np.ndarray], settings: DicSettings
+                   ) -> Iterator[tuple[np.ndarray, BSplineImage]]:
+    """Yield (image, its BSplineImage), preparing the next image's coefficients in a worker thread
+    while the caller works on the current one."""
+    def make(img):
+        return BSplineImage.from_image(img, settings.order, settings.prefilter_sigma)
+
+    with ThreadPoolExecutor(1) as pool:
+        it = iter(images)
+        nxt = next(it, None)
+        job = pool.submit(make, nxt) if nxt is not None else None
+        while job is not None:
+            img = nxt
+            nxt = next(it, None)
+            bspline = job.result()
+            job = pool.submit(make, nxt) if nxt is not None else None
+            yield img, bspline
+
+
+def correlate_sequence(ref_img: np.ndarray, def_imgs: Iterable[np.ndarray], grid: Grid,
+                       settings: DicSettings = DicSettings(), seeds: Iterable[tuple[float, float]] = (),
+                       incremental: bool = False) -> Iterable[DicField]:
+    """Yield one DicField per deformed image (a generator: images are read one at a time).
+
+    Each image starts from the previous image's warps where those were good, then propagates into the
+    rest. With `incremental`, image k is registered against image k-1 (the subsets around the points'
+    current positions), and displacements are accumulated: suited to large deformations, at the cost
+    of adding up the per-step errors. A point lost once stays lost (its status is kept)."""
+    s = settings
+    nb = s.nparams // 2
+    X, Y = grid.points()
+    seed_list = seed_indices(grid, seeds)
+    images = _with_bsplines(def_imgs, s)  # the first deformed image is prepared meanwhile
+    ref_b = BSplineImage.from_image(ref_img, s.order, s.prefilter_sigma)
+    ref_b.pixel_gradients()
+    prev: PointResult | None = None
+    cur_x, cur_y = X.copy(), Y.copy()  # where the points are in the current reference image
+    lost = np.zeros(X.size, bool)
+    lost_status = np.zeros(X.size, np.int8)
+    for img, def_b in images:
+        solver = _PairSolver(ref_b, def_b, ref_img, img, grid, cur_x, cur_y, s)
+        if incremental:
+            solver.done[lost] = 1
+            solver.status[lost] = lost_status[lost]
+        if prev is not None:
+            carry = np.flatnonzero((prev.status == OK) & (solver.done == 0))
+            if incremental:  # the next step starts from the same translation as the last one
+                solver.warp[carry] = 0.0
+                solver.warp[carry, 0] = prev.warp[carry, 0]
+                solver.warp[carry, nb] = prev.warp[carry, nb]
+            else:
+                solver.warp[carry] = prev.warp[carry]
+            solver.solve(carry)
+            redo = carry[solver.status[carry] != OK]
+            solver.done[redo] = 0  # give them a second chance from their neighbours
+        solver.fill(seed_list)
+        res = solver.result()
+        ok = res.status == OK
+        if incremental:
+            new_x = np.where(ok, cur_x + res.warp[:, 0], np.nan)
+            new_y = np.where(ok, cur_y + res.warp[:, nb], np.nan)
+            newly_lost = ~ok & ~lost
+            lost_status[newly_lost] = res.status[newly_lost]
+            lost |= ~ok
+            total_u, total_v = new_x - X, new_y - Y
+            cur_x, cur_y = np.where(ok, new_x, cur_x), np.where(ok, new_y, cur_y)
+            ref_b, ref_img = def_b, img
+        else:
+            total_u, total_v = res.u, res.v
+        prev = res
+        yield DicField(grid, res, total_u.reshape(grid.shape), total_v.reshape(grid.shape))
+
+
+def correlate_pair(ref_img: np.ndarray, def_img: np.ndarray, grid: Grid,
+                   settings: DicSettings = DicSettings(),
+                   seeds: Iterable[tuple[float, float]] = ()) -> DicField:
+    """DIC of one deformed image against the reference on `grid` (see correlate_sequence)."""
+    return next(iter(correlate_sequence(ref_img, [def_img], grid, settings, seeds)))

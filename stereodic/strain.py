@@ -1,0 +1,112 @@
+"""Strain from a displacement field by local least-squares fitting (virtual strain gauge).
+
+Around every point of a grid, the displacement of the valid points in a window of `window` x `window`
+grid points is fitted by a plane (a + b s + c t) in local surface coordinates (s, t); its slopes give
+the deformation gradient and the Green-Lagrange strain E = (F^T F - I) / 2.
+
+- `strain_2d`: in-plane field on the image grid: u, v along x, y.
+- `strain_3d`: surface points X (any units, e.g. mm) and 3-D displacements D: fitted on the local tangent
+  plane of the surface (normal by principal components of the window's points), so that out-of-plane
+  motion and the surface's tilt are handled; components in the tangent frame (e1, e2), e1 the
+  projection of the x axis on the plane, e2 = n x e1, n oriented towards +z.
+Strains are dimensionless; NaN (with valid = False) where the window holds too few valid points or
+the centre point is not valid.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+
+@dataclass
+class Strain:
+    """Green-Lagrange components (ny, nx) in the local frame, `valid` (ny, nx) bool; `grad` (ny, nx,
+    3, 2): the displacement's derivatives along e1 and e2; `normal`, `e1` (ny, nx, 3) the frame."""
+
+    exx: np.ndarray
+    eyy: np.ndarray
+    exy: np.ndarray
+    valid: np.ndarray
+    grad: np.ndarray
+    normal: np.ndarray
+    e1: np.ndarray
+
+
+def _box_sum(a: np.ndarray, window: int) -> np.ndarray:
+    """Sum over window x window neighbours along the first two axes (zero outside)."""
+    size = (window, window) + (1,) * (a.ndim - 2)
+    return ndimage.uniform_filter(a, size=size, mode="constant", cval=0.0) * (window * window)
+
+
+def strain_3d(X: np.ndarray, D: np.ndarray, window: int = 5, min_fraction: float = 0.6) -> Strain:
+    """Strain of surface points X (ny, nx, 3) displaced by D (ny, nx, 3) (NaN where not measured),
+    fitted in `window` x `window` grid neighbourhoods (odd) holding at least `min_fraction` valid
+    points."""
+    if window < 3 or window % 2 == 0:
+        raise ValueError(f"strain window must be odd and >= 3, got {window}")
+    valid = np.isfinite(X).all(-1) & np.isfinite(D).all(-1)
+    m = valid.astype(np.float64)
+    Xc = np.where(valid[..., None], X, 0.0)  # the window's point positions, 0 where invalid
+    Dc = np.where(valid[..., None], D, 0.0)
+    # shift all positions by their mean, so that the sums stay small
+    origin = Xc[valid].mean(0) if valid.any() else np.zeros(3)
+    Xc = np.where(valid[..., None], Xc - origin, 0.0)
+    S1 = _box_sum(m, window)
+    SX = _box_sum(Xc, window)
+    SXX = _box_sum(Xc[..., :, None] * Xc[..., None, :], window)
+    SD = _box_sum(Dc, window)
+    SXD = _box_sum(Xc[..., :, None] * Dc[..., None, :], window)
+    enough = valid & (S1 >= min_fraction * window * window)
+    n = np.maximum(S1, 1.0)[..., None]
+    mean = SX / n
+    cov = SXX / n[..., None] - mean[..., :, None] * mean[..., None, :]
+    evals, evecs = np.linalg.eigh(np.where(enough[..., None, None], cov, np.diag([1.0, 1.0, 0.0])))
+    normal = evecs[..., :, 0]
+    normal = np.where((normal[..., 2:3] < 0), -normal, normal)
+    flat_enough = evals[..., 1] > 1e-6 * np.maximum(evals[..., 2], 1e-300)
+    ex = np.array([1.0, 0.0, 0.0])
+    e1 = ex - (normal @ ex)[..., None] * normal
+    e1_norm = np.linalg.norm(e1, axis=-1, keepdims=True)
+    flat_enough &= e1_norm[..., 0] > 1e-6  # a surface facing along x has no defined e1
+    e1 /= np.maximum(e1_norm, 1e-300)
+    e2 = np.cross(normal, e1)
+    # moments about the centre point c: sum (X - c), sum (X - c)(X - c)^T, sum (X - c) D^T
+    c = Xc
+    A = SX - S1[..., None] * c
+    B = SXX - c[..., :, None] * SX[..., None, :] - SX[..., :, None] * c[..., None, :] \
+        + S1[..., None, None] * c[..., :, None] * c[..., None, :]
+    C = SXD - c[..., :, None] * SD[..., None, :]
+    E = np.stack([e1, e2], -2)  # (ny, nx, 2, 3)
+    s_sum = np.einsum("...ij,...j->...i", E, A)  # sum of (s, t)
+    st = np.einsum("...ij,...jk,...lk->...il", E, B, E)  # 2x2 sums of products of (s, t)
+    rhs_st = np.einsum("...ij,...jk->...ik", E, C)  # (2, 3): sum s D, sum t D
+    N = np.zeros(S1.shape + (3, 3))
+    N[..., 0, 0] = S1
+    N[..., 0, 1:] = s_sum
+    N[..., 1:, 0] = s_sum
+    N[..., 1:, 1:] = st
+    rhs = np.concatenate([SD[..., None, :], rhs_st], -2)  # (3, 3): rows 1, s, t; columns D components
+    ok = enough & flat_enough & (np.linalg.det(np.where(enough[..., None, None], N, np.eye(3))) > 0)
+    coef = np.linalg.solve(np.where(ok[..., None, None], N, np.eye(3)), np.where(ok[..., None, None], rhs, 0))
+    grad = np.swapaxes(coef[..., 1:, :], -1, -2)  # (ny, nx, 3, 2): dD/ds, dD/dt
+    g1 = e1 + grad[..., 0]
+    g2 = e2 + grad[..., 1]
+    nan = np.nan
+    exx = np.where(ok, 0.5 * (np.sum(g1 * g1, -1) - 1.0), nan)
+    eyy = np.where(ok, 0.5 * (np.sum(g2 * g2, -1) - 1.0), nan)
+    exy = np.where(ok, 0.5 * np.sum(g1 * g2, -1), nan)
+    grad = np.where(ok[..., None, None], grad, nan)
+    return Strain(exx, eyy, exy, ok, grad, normal, e1)
+
+
+def strain_2d(xs: np.ndarray, ys: np.ndarray, u: np.ndarray, v: np.ndarray, window: int = 5,
+              min_fraction: float = 0.6) -> Strain:
+    """In-plane strain of the displacement (u, v) (ny, nx), NaN where not measured, on the grid of
+    positions xs (nx,), ys (ny,) (same units as u, v); frame e1 = x, e2 = y."""
+    Xg, Yg = np.meshgrid(np.asarray(xs, np.float64), np.asarray(ys, np.float64))
+    X = np.stack([Xg, Yg, np.zeros_like(Xg)], -1)
+    D = np.stack([u, v, np.zeros_like(u)], -1)
+    return strain_3d(X, D, window, min_fraction)
