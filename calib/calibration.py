@@ -1,0 +1,199 @@
+"""The calibration pipeline of one camera: capture -> decoded display points -> per-pixel rays (PRVM).
+
+1. Intensity matrix from the flat frames (at the first stage position, or the nearest one with flats).
+2. Each stage position decoded to display pixels (`calib.decode`), then to WCS points
+   (`Capture.display_to_wcs`: pitch, stage position and stage axis).
+3. A weighted least-squares line per pixel through its points (2 or more positions); with a cover glass
+   the points are corrected for refraction using the fitted direction, and the lines refitted.
+4. The ray field regularised (`calib.regularise`), and the per-pixel uncertainty estimated.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib.capture import Capture
+from calib.decode import DecodedPosition, decode_position, intensity_matrix
+from calib.errors import InputError
+from calib.intensity import IntensityMatrix
+from calib.phase import QUALITY_NAMES
+from calib.progress import progress
+from calib.prvm import Lines, fit_lines, glass_offset
+from calib.prvm_file import PRVM
+from calib.regularise import Smoother, smooth_fields
+
+GLASS_ITERATIONS = 4
+# the automatic regularisation window, in display pixels
+WINDOW_DISPLAY_PX = 26
+AUTO = Smoother(half_window=-1)          # marker: choose the window from the data (`auto_smoother`)
+# warn when more than this fraction of the pixels could not be calibrated
+MASKED_WARNING = 0.001
+
+
+@dataclass
+class Calibration:
+    """Result of `calibrate_camera`.
+
+    prvm: the rays to save (regularised unless regularisation was turned off); raw: the unregularised
+    lines; lines: the final lines; positions: the decoded stage positions; quality: (H, W) uint8, the
+    OR of the flags of every position at which the pixel's point was dropped; intensity: the IM of the
+    first position (None without flats); notes: warnings for the user (masked areas, missing flats).
+    """
+
+    prvm: PRVM
+    raw: Lines
+    lines: Lines
+    positions: list[DecodedPosition]
+    quality: np.ndarray
+    intensity: IntensityMatrix | None
+    notes: list[str] = field(default_factory=list)
+
+
+def default_camera(capture: Capture, camera: str | None) -> str:
+    """The camera to calibrate: the one named, or the dataset's only camera."""
+    if camera is None:
+        if len(capture.cameras) != 1:
+            raise InputError(capture.manifest_path, f"the dataset has cameras {', '.join(capture.cameras)}; "
+                                                    "choose one with --camera")
+        return next(iter(capture.cameras))
+    if camera not in capture.cameras:
+        raise InputError(capture.manifest_path, f"no camera {camera!r} (have {', '.join(capture.cameras)})")
+    return camera
+
+
+def decode_all(capture: Capture, camera: str) -> tuple[list[DecodedPosition], IntensityMatrix | None, list[str]]:
+    """Decode every stage position of `camera`; returns (positions, IM of the first position, notes)."""
+    zs = capture.z_positions(camera)
+    notes = []
+    n_frames = len(capture.select(camera, type="fringe"))
+    bar = progress(range(n_frames), desc=f"decoding {camera}", total=n_frames)
+    it = iter(bar)
+    # the display response and each pixel's linearisation are the camera's and display's, not the
+    # position's (and the phase does not depend on a pixel's offset and gain): one IM serves all positions
+    im = intensity_matrix(capture, camera, zs[0])
+    if im is None:
+        notes.append("no flat frames: the display's response is not compensated (a display gamma "
+                     "then leaves a periodic phase error); capture flats at several levels")
+    positions = [decode_position(capture, camera, z, im, progress=lambda: next(it, None)) for z in zs]
+    return positions, im, notes
+
+
+def _points(capture: Capture, positions: list[DecodedPosition]) -> tuple[np.ndarray, np.ndarray]:
+    """(M, H, W, 2) WCS x, y of the decoded points and (M, H, W) weights (inverse relative variance)."""
+    h, w = positions[0].valid.shape
+    pts = np.empty((len(positions), h, w, 2))
+    wts = np.empty((len(positions), h, w), np.float32)
+    for i, p in enumerate(positions):
+        pts[i] = capture.display_to_wcs(p.coord[0], p.coord[1], p.z_mm)[..., :2]
+        # sigma of a coordinate ~ period / (B sqrt(N)); the same scale for every position of a pixel
+        var = sum((per / (np.maximum(m, 1e-6) * np.sqrt(n))) ** 2
+                  for per, m, n in zip(p.period_px, p.modulation, p.steps))
+        wts[i] = np.where(p.valid, 1.0 / var, 0.0)
+    return pts, wts
+
+
+def fit_rays(capture: Capture, positions: list[DecodedPosition], z_ref: float = 0.0) -> Lines:
+    """Least-squares lines through the decoded points, corrected for the cover glass if declared."""
+    z = np.array([p.z_mm for p in positions])
+    points, weights = _points(capture, positions)
+    lines = fit_lines(z, points, weights, z_ref)
+    glass = capture.display.cover_glass
+    if glass is not None and glass.thickness_mm > 0:
+        for _ in range(GLASS_ITERATIONS):
+            shift = glass_offset(np.nan_to_num(lines.slope), glass)
+            lines = fit_lines(z, points + shift[None], weights, z_ref)
+    return lines
+
+
+def _coverage_notes(camera: str, quality: np.ndarray, valid: np.ndarray) -> list[str]:
+    masked = ~valid
+    if masked.mean() <= MASKED_WARNING:
+        return []
+    rows, cols = np.nonzero(masked)
+    reasons = ", ".join(f"{name} {np.mean(quality & flag > 0):.1%}" for flag, name in QUALITY_NAMES.items()
+                        if (quality & flag).any())
+    edge = masked[0].any() or masked[-1].any() or masked[:, 0].any() or masked[:, -1].any()
+    hint = (" - does the display cover the camera's whole field of view at every stage position?"
+            if edge else "")
+    return [f"camera {camera!r}: {masked.mean():.1%} of the pixels are not calibrated (columns "
+            f"{cols.min()}-{cols.max()}, rows {rows.min()}-{rows.max()}; {reasons}){hint}; "
+            f"see the mask with --report or `stereodic show`"]
+
+
+def auto_smoother(position: DecodedPosition) -> Smoother:
+    """The default regularisation: a window spanning `WINDOW_DISPLAY_PX` display pixels (the decoded
+    field has no information finer than the display's pixels, and its noise in camera pixels grows with
+    the camera pixels per display pixel), at least `Smoother()`'s, at most a third of the image."""
+    h, w = position.valid.shape
+    gv, gu = np.gradient(position.coord[0])
+    scale = np.hypot(gu, gv)[position.valid]                      # display px per camera px
+    cam_per_display = 1.0 / max(float(np.median(scale)), 1e-9) if scale.size else 1.0
+    half = int(round(WINDOW_DISPLAY_PX * cam_per_display / 2))
+    half = min(max(half, Smoother().half_window), (min(h, w) // 3 - 1) // 2)
+    return Smoother(half_window=max(half, 2))
+
+
+def calibrate_camera(capture: Capture, camera: str | None = None, smoother: Smoother | None = AUTO,
+                     z_ref: float = 0.0) -> Calibration:
+    """Calibrate one camera of a calibration dataset.
+
+    smoother: the regularisation (AUTO: `auto_smoother`; None: rays are left unregularised, but the
+    noise is still estimated with the automatic smoother for the uncertainty). z_ref: the plane (WCS z,
+    mm) of the rays' origins.
+    """
+    camera = default_camera(capture, camera)
+    if capture.kind != "calibration":
+        raise InputError(capture.manifest_path, f"dataset kind is {capture.kind!r}, expected 'calibration'")
+    zs = capture.z_positions(camera)
+    if len(zs) < 2:
+        raise InputError(capture.manifest_path, f"camera {camera!r} has frames at {len(zs)} stage position(s); "
+                                                "a ray needs at least 2 (or use --reduced)")
+    positions, im, notes = decode_all(capture, camera)
+    raw = fit_rays(capture, positions, z_ref)
+    quality = np.zeros(raw.valid.shape, np.uint8)
+    for p in positions:
+        quality |= np.where(p.valid, 0, p.quality).astype(np.uint8)
+    if not raw.valid.any():
+        raise InputError(capture.manifest_path, f"camera {camera!r}: no pixel was decoded at 2 or more "
+                                                "stage positions")
+    notes += _coverage_notes(camera, quality, raw.valid)
+
+    z_a, z_b = zs[0], zs[-1]
+    fields = np.concatenate([raw.at(z_a), raw.at(z_b)], axis=2).transpose(2, 0, 1)
+    used = auto_smoother(positions[0]) if smoother is None or smoother == AUTO else smoother
+    smoother = None if smoother is None else used
+    try:
+        smooth, noise = smooth_fields(fields, raw.valid, used)
+    except ValueError as exc:
+        raise InputError(capture.manifest_path, f"camera {camera!r}: {exc}") from None
+    factor = np.sqrt(used.variance_factor()) if smoother is not None else 1.0
+    sigma = np.stack([np.sqrt((noise[0] ** 2 + noise[1] ** 2) / 2),
+                      np.sqrt((noise[2] ** 2 + noise[3] ** 2) / 2)], axis=2) * factor
+    if smoother is not None:
+        sm = smooth.transpose(1, 2, 0)
+        lines = Lines.through(z_a, sm[..., :2], z_b, sm[..., 2:], raw.valid, raw.residual_mm, raw.used, z_ref)
+    else:
+        lines = raw
+
+    meta = {"camera": camera, "dataset": os.fspath(capture.root), "reference_z_mm": z_ref,
+            "z_positions_mm": zs, "stage_axis": list(capture.stage_axis),
+            "periods_px": {a: sorted({float(f.pattern.period_px) for f in capture.select(camera, type="fringe",
+                                                                                          axis=a)}) for a in "xy"},
+            "steps": [list(p.steps) for p in positions][0],
+            "regularisation": None if smoother is None else {"method": "savitzky-golay", "window_px": smoother.window,
+                                                             "order": smoother.order},
+            "cover_glass": None if capture.display.cover_glass is None else vars(capture.display.cover_glass),
+            "intensity_matrix": im is not None,
+            "uncertainty_z_mm": [z_a, z_b],
+            "notes": notes}
+    extra = {"quality": quality, "uncertainty_mm": sigma.astype(np.float32),
+             "used_positions": raw.used.astype(np.uint8)}
+    if im is not None:
+        extra.update(im.to_arrays())
+    prvm = PRVM(lines.origin(), lines.direction(), raw.valid.copy(), raw.residual_mm, meta, extra)
+    prvm.origin[~prvm.valid] = np.nan
+    prvm.direction[~prvm.valid] = np.nan
+    return Calibration(prvm, raw, lines, positions, quality, im, notes)

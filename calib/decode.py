@@ -1,0 +1,197 @@
+"""Decode a calibration capture: for one camera and one stage position, the display point each camera
+pixel sees (display pixels, column c and row r), with its quality.
+
+Frames are streamed: each is read, linearised with the intensity matrix of that position (if flats were
+captured) and added to the sums of its fringe set (`calib.phase.FringeSums`), so memory stays at a few
+arrays per set whatever the number of frames. Repeated frames (`repeat`) are averaged by the same sums.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib.capture import Capture, Frame
+from calib.errors import InputError
+from calib.intensity import IntensityMatrix, fit_intensity
+from calib.phase import (DARK, LOW_MODULATION, NO_DATA, SATURATED, UNWRAP, FringeSums, WaveformCorrection,
+                         unwrap_temporal)
+
+AXES = ("x", "y")
+# a pixel is dark when its brightest fringe frame stays below this fraction of full scale
+DARK_FRACTION = 0.02
+# a pixel has low modulation when B is below this fraction of the well-lit pixels' modulation
+MODULATION_FRACTION = 0.2
+# the largest robust spread (in periods) of the disagreement between successive periods that still
+# makes a wrong fringe order (a disagreement beyond 0.75 period) a 7-sigma event
+MAX_MISMATCH_SIGMA = 0.1
+
+
+@dataclass
+class DecodedPosition:
+    """Display coordinates seen by each camera pixel at one stage position.
+
+    coord: (2, H, W) float64 display pixels (column c, row r); modulation, mean: (2, H, W) float32 fringe
+    amplitude B and mean A of the shortest period (decoding units: relative luminance with an intensity
+    matrix, camera values without); quality: (H, W) uint8 flag bits of `calib.phase` (0 = good);
+    steps: frames per set of the shortest period, per axis; period_px: the shortest period, per axis;
+    mismatch_sigma: per axis, the measured spread of the period-to-period disagreement.
+    """
+
+    z_mm: float
+    coord: np.ndarray
+    modulation: np.ndarray
+    mean: np.ndarray
+    quality: np.ndarray
+    steps: tuple[int, int]
+    period_px: tuple[float, float]
+    mismatch_sigma: dict = field(default_factory=dict)
+
+    @property
+    def valid(self) -> np.ndarray:
+        return self.quality == 0
+
+
+def _frames_by_set(capture: Capture, camera: str, z_mm: float) -> dict[str, dict[float, list[Frame]]]:
+    sets: dict[str, dict[float, list[Frame]]] = {a: defaultdict(list) for a in AXES}
+    for f in capture.select(camera, z_mm=z_mm, type="fringe"):
+        sets[f.pattern.axis][float(f.pattern.period_px)].append(f)
+    return sets
+
+
+def intensity_matrix(capture: Capture, camera: str, z_mm: float) -> IntensityMatrix | None:
+    """The IM from the flat frames at stage position z_mm, or at the nearest position that has flats;
+    None if the dataset has no flats for this camera. Repeated flats are averaged."""
+    flats = capture.select(camera, type="flat")
+    if not flats:
+        return None
+    zs = sorted({f.z_mm for f in flats}, key=lambda z: (abs(z - z_mm), z))
+    by_level: dict[float, list[Frame]] = defaultdict(list)
+    for f in flats:
+        if f.z_mm == zs[0]:
+            by_level[float(f.pattern.level)].append(f)
+    levels = sorted(by_level)
+    images, full = [], None
+    for level in levels:
+        acc = None
+        for f in by_level[level]:
+            img = capture.read(f)
+            full = capture.max_value(camera, img)
+            acc = img.astype(np.float32) if acc is None else acc + img
+        images.append(acc / len(by_level[level]))
+    try:
+        return fit_intensity(levels, images, full, min_range=DARK_FRACTION * full)
+    except ValueError as exc:
+        raise InputError(capture.path(by_level[levels[0]][0]).parent, f"flat frames of camera {camera!r} at "
+                                                                      f"z={zs[0]} mm: {exc}") from None
+
+
+def _waveform_correction(capture: Capture, frames: list[Frame], im: IntensityMatrix) -> WaveformCorrection:
+    """The phase correction of one fringe set for the display response measured by `im`."""
+    pat = frames[0].pattern
+    shifts = [f.pattern.shift_rad for f in frames]
+    if pat.params.get("precompensated"):
+        return WaveformCorrection(np.cos(2 * np.pi * np.arange(1024) / 1024), shifts)
+    if any((f.pattern.low, f.pattern.high) != (pat.low, pat.high) for f in frames):
+        raise InputError(capture.manifest_path, f"frames of one fringe set ({frames[0].file}, ...) have "
+                                                "different low/high levels")
+    try:
+        return WaveformCorrection(im.fringe_waveform(pat.low, pat.high), shifts)
+    except ValueError as exc:
+        raise InputError(capture.manifest_path, f"{frames[0].file}: {exc}") from None
+
+
+def decode_position(capture: Capture, camera: str, z_mm: float, im: IntensityMatrix | None,
+                    progress=None) -> DecodedPosition:
+    """Decode both axes at one stage position.
+
+    im: the intensity matrix to linearise frames with (None: raw values). progress: an optional callable
+    called once per frame read. Raises InputError (naming the manifest or the images) when the frames
+    do not form complete fringe sets, the longest period cannot give an absolute phase, every pixel is
+    dark or saturated, or the period ratios are too large for the measured phase noise.
+    """
+    w, h = capture.cameras[camera]
+    sets = _frames_by_set(capture, camera, z_mm)
+    display = capture.display
+    extent = {"x": display.width_px, "y": display.height_px}
+    coords, mods, means, steps, shortest, mismatch = [], [], [], [], [], {}
+    quality = np.zeros((h, w), np.uint8)
+    if im is not None:
+        quality[~np.isfinite(im.gain)] |= DARK
+    first_file = None
+    for axis in AXES:
+        if not sets[axis]:
+            raise InputError(capture.manifest_path, f"camera {camera!r} has no {axis}-axis fringes at "
+                                                    f"z={z_mm} mm (both axes are needed)")
+        periods = sorted(sets[axis], reverse=True)
+        phases, last = [], None
+        for period in periods:
+            frames = sets[axis][period]
+            if len({round(f.pattern.shift_rad, 9) for f in frames}) < 3:
+                raise InputError(capture.manifest_path,
+                                 f"camera {camera!r}, z={z_mm} mm: the {axis} fringe of period {period:g} px "
+                                 f"has {len(frames)} frame(s) with fewer than 3 distinct shifts")
+            sums = FringeSums((h, w))
+            full = None
+            for f in frames:
+                raw = capture.read(f)
+                first_file = first_file or capture.path(f)
+                full = capture.max_value(camera, raw)
+                img = raw.astype(np.float32) if im is None else im.luminance(raw)
+                sums.add(img, f.pattern.shift_rad, raw)
+                if progress is not None:
+                    progress()
+            lit = (sums.raw_max >= DARK_FRACTION * full) & (sums.raw_max < full)
+            res = sums.solve(full, DARK_FRACTION * full, 0.0)
+            if im is not None:
+                res.phase = _waveform_correction(capture, frames, im)(res.phase)
+            ref = res.modulation[lit & np.isfinite(res.modulation)][::97]   # a sample suffices
+            min_mod = MODULATION_FRACTION * float(np.percentile(ref, 90)) if ref.size else np.inf
+            res.quality[~(res.modulation >= min_mod)] |= LOW_MODULATION
+            quality |= res.quality
+            phases.append(res.phase)
+            last = res                    # periods run longest first: the last is the shortest
+            del sums
+        if not (quality == 0).any():
+            _raise_unusable(capture, camera, z_mm, quality, first_file)
+        try:
+            un = unwrap_temporal(periods, phases, extent[axis], valid=quality == 0)
+        except ValueError as exc:
+            raise InputError(capture.manifest_path, f"camera {camera!r}, {axis} fringes: {exc}") from None
+        for (p_long, p_short), s in zip(zip(periods, periods[1:]), un.mismatch_sigma):
+            if s > MAX_MISMATCH_SIGMA:
+                raise InputError(capture.manifest_path,
+                                 f"camera {camera!r}, z={z_mm} mm, {axis} fringes: the period ratio "
+                                 f"{p_long:g}/{p_short:g} = {p_long / p_short:.3g} is too large for the "
+                                 f"measured phase noise (the periods disagree by {s:.3f} period RMS, safe "
+                                 f"<= {MAX_MISMATCH_SIGMA}); add a period near {np.sqrt(p_long * p_short):.0f} px"
+                                 + ("" if im is not None else " or capture flat frames (an uncompensated "
+                                                              "display gamma distorts the phase)"))
+        mismatch[axis] = un.mismatch_sigma
+        quality[~un.consistent] |= UNWRAP
+        coords.append(un.coord)
+        mods.append(last.modulation)
+        means.append(last.offset)
+        steps.append(last.frames)
+        shortest.append(periods[-1])
+    coord = np.stack(coords)
+    quality[~np.isfinite(coord).all(axis=0)] |= NO_DATA
+    if not (quality == 0).any():
+        _raise_unusable(capture, camera, z_mm, quality, first_file)
+    return DecodedPosition(float(z_mm), coord, np.stack(mods), np.stack(means), quality, tuple(steps),
+                           tuple(shortest), mismatch)
+
+
+def _raise_unusable(capture: Capture, camera: str, z_mm: float, quality: np.ndarray, where) -> None:
+    dark = np.mean(quality & DARK > 0)
+    sat = np.mean(quality & SATURATED > 0)
+    if dark > 0.5:
+        why = f"all pixels are too dark ({dark:.0%} dark)"
+    elif sat > 0.5:
+        why = f"the images are saturated ({sat:.0%} of pixels reach full scale)"
+    else:
+        why = "no pixel has a usable fringe (low modulation everywhere)"
+    raise InputError(where if where is not None else capture.manifest_path,
+                     f"camera {camera!r}, z={z_mm} mm: {why}")

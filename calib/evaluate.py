@@ -1,0 +1,64 @@
+"""Rays against the truth: the error of each pixel's ray where it matters, on the working plane.
+
+The error of a pixel is the distance (mm) between its estimated and true ray on the plane z = z_mm,
+divided by the pixel footprint there (the mean distance between neighbouring true rays on that plane), so
+it reads in camera pixels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib.prvm_file import PRVM
+
+
+def footprint_mm(truth: PRVM, z_mm: float) -> float:
+    """Mean distance (mm) between neighbouring true rays on the plane z = z_mm."""
+    p = truth.at_z(z_mm)
+    du = np.linalg.norm(np.diff(p, axis=1), axis=-1)
+    dv = np.linalg.norm(np.diff(p, axis=0), axis=-1)
+    return float(0.5 * (np.nanmean(du) + np.nanmean(dv)))
+
+
+def working_plane(truth: PRVM) -> float:
+    """The plane (WCS z, mm) on which rays are compared: the first true stage position recorded in a
+    simulated truth, else the reference plane."""
+    z = truth.extra.get("stage_true_z_mm")
+    return float(z[0]) if z is not None and len(z) else truth.reference_z_mm
+
+
+def ray_error_px(estimate: PRVM | tuple, truth: PRVM, z_mm: float | None = None,
+                 footprint: float | None = None) -> np.ndarray:
+    """(H, W) float64 error in camera pixels on the plane z = z_mm (default `working_plane`); NaN where
+    the estimate is not valid. estimate: a PRVM, or an (H, W, 3) array of its points on that plane."""
+    z = working_plane(truth) if z_mm is None else z_mm
+    fp = footprint_mm(truth, z) if footprint is None else footprint
+    if isinstance(estimate, PRVM):
+        points, valid = estimate.at_z(z), estimate.valid
+    else:
+        points = np.asarray(estimate)
+        valid = np.isfinite(points).all(axis=-1)
+    err = np.linalg.norm(points - truth.at_z(z), axis=-1) / fp
+    return np.where(valid, err, np.nan)
+
+
+@dataclass
+class ErrorStats:
+    """RMS, 99th percentile and maximum (pixels) over the valid pixels, and the valid fraction."""
+
+    rms: float
+    p99: float
+    max: float
+    valid: float
+
+    @classmethod
+    def of(cls, err: np.ndarray, margin: int = 0) -> "ErrorStats":
+        """Statistics of an error map, optionally leaving out `margin` pixels at the image border."""
+        e = err[margin:err.shape[0] - margin, margin:err.shape[1] - margin] if margin else err
+        ok = np.isfinite(e)
+        if not ok.any():
+            return cls(float("nan"), float("nan"), float("nan"), 0.0)
+        v = e[ok]
+        return cls(float(np.sqrt(np.mean(v * v))), float(np.percentile(v, 99)), float(v.max()), float(ok.mean()))

@@ -1,0 +1,158 @@
+"""Display patterns for calibration: phase-shifting fringes, flat grey levels, and their manifest.
+
+A fringe along axis "x" with period P display pixels and shift delta (radians) has, at display column c,
+the value low + (high - low) / 2 * (1 + cos(2*pi*c/P - delta)) (DESIGN.md; axis "y" uses the row r).
+The seed's three-step set is delta = 0, +2pi/3, -2pi/3; N steps use delta_k = 2*pi*k/N wrapped to
+(-pi, pi]. Values stay inside [low, high] (tip 1.7, default [20, 240]).
+
+With a measured display response (`DisplayResponse`, from `calib.intensity`) the fringe is
+pre-compensated: the code values are chosen so that the *emitted luminance*, not the code value, follows
+the cosine. Such patterns carry `"precompensated": true` in their description, and the decoder then
+works in luminance instead of code values.
+
+The manifest `patterns.json` (format "stereodic.patterns/1") lists every written image with its
+pattern description, in the order to show them:
+    {"format": "stereodic.patterns/1", "display": {"width_px": .., "height_px": ..},
+     "patterns": [{"file": "x_P60_s0.png", "pattern": {"type": "fringe", "axis": "x", ...}}, ...]}
+The acquisition copies each `pattern` object into the frames of its `capture.json`.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from calib.atomic import write_json
+from calib.capture import Pattern
+from calib.imageio import write_gray
+
+PATTERNS_FORMAT = "stereodic.patterns/1"
+PATTERNS_MANIFEST = "patterns.json"
+
+
+@dataclass(frozen=True)
+class DisplayResponse:
+    """Relative luminance the display emits for each code value (a monotone table).
+
+    levels: (K,) code values, increasing. luminance: (K,) relative luminance at those codes, increasing
+    (any scale; only its shape matters). Between samples the table is interpolated monotonically.
+    """
+
+    levels: np.ndarray
+    luminance: np.ndarray
+
+    def __call__(self, code: np.ndarray) -> np.ndarray:
+        """Relative luminance of code values (float64)."""
+        from scipy.interpolate import PchipInterpolator
+        return PchipInterpolator(self.levels, self.luminance, extrapolate=True)(np.asarray(code, float))
+
+    def inverse(self, luminance: np.ndarray) -> np.ndarray:
+        """Code values (float64, fractional) that emit the given relative luminance."""
+        codes = np.linspace(self.levels[0], self.levels[-1], 4096)
+        return np.interp(np.asarray(luminance, float), self(codes), codes)
+
+    def to_json(self) -> dict:
+        return {"levels": [float(v) for v in self.levels], "luminance": [float(v) for v in self.luminance]}
+
+    @classmethod
+    def from_json(cls, d: dict) -> "DisplayResponse":
+        levels, lum = np.asarray(d["levels"], float), np.asarray(d["luminance"], float)
+        if levels.ndim != 1 or levels.shape != lum.shape or len(levels) < 2:
+            raise ValueError("a display response needs matching 'levels' and 'luminance' lists, 2 or more")
+        if np.any(np.diff(levels) <= 0) or np.any(np.diff(lum) <= 0):
+            raise ValueError("a display response must increase with the code value")
+        return cls(levels, lum)
+
+
+def step_shifts(steps: int) -> np.ndarray:
+    """The N phase shifts (radians) of an N-step set: 2*pi*k/N wrapped to (-pi, pi]; N >= 3.
+
+    For N = 3 this is the seed's 0, +2pi/3, -2pi/3.
+    """
+    if steps < 3:
+        raise ValueError(f"phase shifting needs at least 3 steps, got {steps}")
+    d = 2 * np.pi * np.arange(steps) / steps
+    return np.where(d > np.pi + 1e-12, d - 2 * np.pi, d)
+
+
+def fringe_profile(n: int, period_px: float, shift_rad: float, low: float = 20, high: float = 240,
+                   response: DisplayResponse | None = None) -> np.ndarray:
+    """Code values (float64, unquantised) of a fringe along one display axis of n pixels.
+
+    Without `response` the code value follows the cosine; with it the emitted luminance does.
+    """
+    wave = 0.5 * (1 + np.cos(2 * np.pi * np.arange(n) / period_px - shift_rad))
+    if response is None:
+        return low + (high - low) * wave
+    y_low, y_high = response(low), response(high)
+    return response.inverse(y_low + (y_high - y_low) * wave)
+
+
+def fringe_image(display_w: int, display_h: int, axis: str, period_px: float, shift_rad: float,
+                 low: float = 20, high: float = 240, response: DisplayResponse | None = None) -> np.ndarray:
+    """The fringe as a uint8 (display_h, display_w) image, rounded to the nearest code value."""
+    if axis not in ("x", "y"):
+        raise ValueError(f"axis must be 'x' or 'y', got {axis!r}")
+    n = display_w if axis == "x" else display_h
+    line = np.clip(np.rint(fringe_profile(n, period_px, shift_rad, low, high, response)), 0, 255)
+    line = line.astype(np.uint8)
+    if axis == "x":
+        return np.broadcast_to(line[None, :], (display_h, display_w)).copy()
+    return np.broadcast_to(line[:, None], (display_h, display_w)).copy()
+
+
+def flat_image(display_w: int, display_h: int, level: int) -> np.ndarray:
+    """A uniform uint8 (display_h, display_w) image of one code value."""
+    return np.full((display_h, display_w), int(level), np.uint8)
+
+
+def fringe_pattern(axis: str, period_px: float, shift_rad: float, low: float, high: float,
+                   precompensated: bool = False) -> Pattern:
+    """The manifest description of a fringe."""
+    params = {"axis": axis, "period_px": period_px, "shift_rad": float(shift_rad), "low": low, "high": high}
+    if precompensated:
+        params["precompensated"] = True
+    return Pattern("fringe", params)
+
+
+def calibration_sequence(display_w: int, display_h: int, periods, steps: int = 3, axes=("x", "y"),
+                         low: float = 20, high: float = 240, flat_levels=(),
+                         response: DisplayResponse | None = None) -> list[tuple[Pattern, np.ndarray]]:
+    """Every pattern of a calibration, in display order: flats first (intensity calibration before
+    geometry, tip 3.6), then for each axis and each period (longest first) the N shifted fringes.
+
+    Returns (Pattern, uint8 image of display_h x display_w) pairs. periods: display pixels; the longest
+    should cover the display along each axis so that the phase is absolute.
+    """
+    seq = [(Pattern("flat", {"level": int(v)}), flat_image(display_w, display_h, int(v))) for v in flat_levels]
+    for axis in axes:
+        for period in sorted(periods, reverse=True):
+            for delta in step_shifts(steps):
+                pat = fringe_pattern(axis, period, delta, low, high, response is not None)
+                seq.append((pat, fringe_image(display_w, display_h, axis, period, delta, low, high, response)))
+    return seq
+
+
+def pattern_filename(pattern: Pattern, index: int) -> str:
+    """A readable, unique file name for the index-th pattern of a sequence."""
+    if pattern.type == "flat":
+        return f"{index:03d}_flat_{pattern.level}.png"
+    return f"{index:03d}_{pattern.axis}_P{pattern.period_px:g}_s{pattern.shift_rad:+.4f}.png"
+
+
+def write_patterns(out_dir: str | os.PathLike, display_w: int, display_h: int,
+                   sequence: list[tuple[Pattern, np.ndarray]]) -> Path:
+    """Write each image as PNG (display resolution exactly) and the manifest; returns its path."""
+    out_dir = Path(out_dir)
+    entries = []
+    for i, (pattern, image) in enumerate(sequence):
+        name = pattern_filename(pattern, i)
+        write_gray(out_dir / name, image)
+        entries.append({"file": name, "pattern": pattern.to_json()})
+    path = out_dir / PATTERNS_MANIFEST
+    write_json(path, {"format": PATTERNS_FORMAT, "display": {"width_px": display_w, "height_px": display_h},
+                      "patterns": entries})
+    return path

@@ -1,0 +1,84 @@
+import numpy as np
+import pytest
+
+from calib.phase import (DARK, LOW_MODULATION, SATURATED, FringeSums, WaveformCorrection, unwrap_temporal)
+from calib.patterns import step_shifts
+
+
+def _frames(theta, shifts, a=100.0, b=60.0):
+    return [a + b * np.cos(theta - d) for d in shifts]
+
+
+@pytest.mark.parametrize("shifts", [step_shifts(3), step_shifts(4), step_shifts(7), [0.0, 1.0, 2.5, 4.0]])
+def test_wrapped_phase_any_known_shifts(shifts):
+    theta = np.linspace(-3.1, 3.1, 50).reshape(5, 10)
+    s = FringeSums(theta.shape)
+    for img, d in zip(_frames(theta, shifts), shifts):
+        s.add(img.astype(np.float32), d)
+    r = s.solve(255, 1, 1)
+    np.testing.assert_allclose(np.angle(np.exp(1j * (r.phase - theta))), 0, atol=1e-4)
+    np.testing.assert_allclose(r.modulation, 60, rtol=1e-4)
+    assert (r.quality == 0).all()
+
+
+def test_noise_estimate_and_phase_sigma():
+    rng = np.random.default_rng(1)
+    theta = rng.uniform(-np.pi, np.pi, (200, 200))
+    shifts = step_shifts(6)
+    s = FringeSums(theta.shape)
+    for img, d in zip(_frames(theta, shifts), shifts):
+        s.add((img + rng.normal(0, 2.0, img.shape)).astype(np.float32), d)
+    r = s.solve(1e9, 0, 0)
+    assert abs(np.median(r.noise) - 2.0 * np.sqrt(6 / 3) / np.sqrt(6 / 3)) < 0.3
+    err = np.angle(np.exp(1j * (r.phase - theta)))
+    assert abs(err.std() / (np.sqrt(2 / 6) * 2.0 / 60) - 1) < 0.05
+
+
+def test_quality_flags():
+    theta = np.zeros((3, 3))
+    s = FringeSums(theta.shape)
+    frames = _frames(theta, step_shifts(3))
+    for img, d in zip(frames, step_shifts(3)):
+        img = img.copy()
+        img[0, 0] = 255          # saturated
+        img[1, 1] = 1            # dark, no modulation
+        s.add(img.astype(np.float32), d)
+    r = s.solve(255, 5, 10)
+    assert r.quality[0, 0] & SATURATED
+    assert r.quality[1, 1] & DARK and r.quality[1, 1] & LOW_MODULATION
+    assert r.quality[2, 2] == 0
+
+
+def test_temporal_unwrapping_recovers_the_display_coordinate():
+    coord = np.linspace(20, 1900, 5000)      # (pixels within 5 sigma of the wrap are flagged)
+    periods = [1920, 360, 60, 12]
+    rng = np.random.default_rng(0)
+    phases = [np.angle(np.exp(1j * (2 * np.pi * coord / p + rng.normal(0, 0.01, coord.shape)))) for p in periods]
+    un = unwrap_temporal(periods[::-1], phases[::-1], 1920)
+    assert un.consistent.all()
+    assert np.abs(un.coord - coord).max() < 0.1
+    assert max(un.mismatch_sigma) < 0.05
+
+
+def test_unwrapping_flags_inconsistent_pixels_and_short_longest_period():
+    coord = np.linspace(0, 999, 1000)
+    phases = [np.angle(np.exp(1j * 2 * np.pi * coord / p)) for p in (1000, 50)]
+    phases[1][500] += 2.5              # a corrupted short-period phase
+    un = unwrap_temporal([1000, 50], phases, 1000)
+    assert not un.consistent[500] and un.consistent.sum() == 999
+    with pytest.raises(ValueError, match="ambiguous"):
+        unwrap_temporal([500, 50], phases, 1000)
+
+
+def test_waveform_correction_removes_the_gamma_error():
+    shifts = step_shifts(3)
+    phi = 2 * np.pi * np.arange(1024) / 1024
+    gamma_wave = lambda x: (20 + 110 * (1 + np.cos(x))) ** 2.2  # noqa: E731
+    corr = WaveformCorrection(gamma_wave(phi), shifts)
+    theta = np.linspace(-3, 3, 101)
+    s = FringeSums(theta.shape)
+    for d in shifts:
+        s.add(gamma_wave(theta - d).astype(np.float32), d)
+    raw = s.solve(1e12, 0, 0).phase
+    assert np.abs(raw - theta).max() > 0.1                  # gamma's periodic error
+    assert np.abs(corr(raw) - theta).max() < 1e-3
