@@ -1,0 +1,121 @@
+"""The end-to-end demo on the built-in simulated rig: every step is a real `stereodic` command, printed
+before it runs so that a user can repeat it by hand.
+
+Each step is a function that takes the output folder and returns the command lines it ran; a figure of
+merit against the simulator's ground truth is printed after the steps that have one.
+"""
+
+from __future__ import annotations
+
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+DEMO_LENS = "freeform"            # the lens OpenCV's models cannot follow
+DEMO_SIZE = ("640", "512")
+
+
+def _run(*argv: str) -> None:
+    """Run one `stereodic` command in-process; a non-zero status stops the demo."""
+    from stereodic.cli import main
+    print(f"$ stereodic {shlex.join(argv)}", flush=True)
+    t0 = time.perf_counter()
+    status = main(list(argv))
+    if status:
+        raise SystemExit(status)
+    print(f"  ({time.perf_counter() - t0:.1f} s)", flush=True)
+
+
+def calibration(out: Path) -> None:
+    """Simulate a calibration bench, calibrate the camera, compare its rays with the truth."""
+    from calib.evaluate import ErrorStats, ray_error_px
+    from calib.prvm_file import load_prvm
+    data = out / "calibration"
+    _run("simulate", "calibration", "--lens", DEMO_LENS, "--width", DEMO_SIZE[0], "--height", DEMO_SIZE[1],
+         "-o", str(data))
+    _run("calibrate", str(data), "-o", str(out / "cam0.npz"), "--report", str(out / "report"))
+    truth = load_prvm(data / "truth.npz")
+    stats = ErrorStats.of(ray_error_px(load_prvm(out / "cam0.npz"), truth))
+    print(f"  ray error against the truth: RMS {stats.rms:.4f} px, 99th percentile {stats.p99:.4f} px, "
+          f"{stats.valid:.1%} of pixels calibrated")
+    _run("show", str(out / "cam0.npz"), "--truth", str(data / "truth.npz"), "-o", str(out / "report"))
+
+
+def virtual_camera(out: Path) -> None:
+    """Undistort one captured frame with the camera's virtual pinhole model and export the model."""
+    frame = sorted((out / "calibration").glob("z*/cam0_flat_*.png"))[0].parent / "cam0_x_P60_s0.png"
+    _run("undistort", str(out / "cam0.npz"), str(frame), "-o", str(out / "undistorted"))
+    _run("export", str(out / "cam0.npz"), "--format", "opencv", "-o", str(out / "cam0_pinhole.yaml"))
+
+
+def stereo(out: Path) -> None:
+    """Calibrate a simulated stereo pair (Brown-Conrady left, free-form right), build the rectified
+    virtual pair, rectify an image pair."""
+    data = out / "stereo"
+    _run("simulate", "stereo", "--left", "brown", "--right", DEMO_LENS, "--width", DEMO_SIZE[0],
+         "--height", DEMO_SIZE[1], "-o", str(data))
+    for cam in ("cam0", "cam1"):
+        _run("calibrate", str(data), "--camera", cam, "-o", str(out / f"stereo_{cam}.npz"))
+    _run("rig", str(out / "stereo_cam0.npz"), str(out / "stereo_cam1.npz"), "-o", str(out / "rig.npz"))
+    z = sorted({p.parent.name for p in (data / "cam0").glob("z*/cam0_x_P60_s0.png")})[0]
+    _run("rectify", str(out / "rig.npz"), str(data / "cam0" / z / "cam0_x_P60_s0.png"),
+         str(data / "cam1" / z / "cam1_x_P60_s0.png"), "-o", str(out / "rectified"))
+    _run("export", str(out / "rig.npz"), "--format", "opencv", "-o", str(out / "rig_opencv.yaml"))
+
+
+def scan(out: Path) -> None:
+    """Scan a simulated sphere with the fringe-projection scanner and check its fitted radius."""
+    from scanners.sim.scan import load_truth
+    from scanners.sim.scan_scene import Sphere, surface_from_dict
+    import open3d as o3d
+
+    from stereodic.fit import fit_sphere
+    data = out / "scan"
+    _run("simulate", "scan", "--objects", "sphere", "--width", DEMO_SIZE[0], "--height", DEMO_SIZE[1],
+         "-o", str(data))
+    _run("scan", str(data / "rig.npz"), str(data), "--state", "0", "-o", str(out / "sphere.ply"))
+    sphere = next(s for s in map(surface_from_dict, load_truth(data)["states"][0]["surfaces"])
+                  if isinstance(s, Sphere))
+    pts = np.asarray(o3d.io.read_point_cloud(str(out / "sphere.ply")).points)
+    near = pts[np.abs(sphere.distance(pts)) < 1.0]
+    fit = fit_sphere(near)
+    print(f"  sphere: {len(near)} points, fitted diameter {2 * fit.radius_mm:.4f} mm, true "
+          f"{2 * sphere.radius_mm:.4f} mm, form error (range) {1000 * np.ptp(fit.residuals):.1f} um")
+
+
+def dic2d(out: Path) -> None:
+    """2D DIC on a rendered speckle pattern moved by a known sub-pixel translation."""
+    import csv
+
+    from calib.imageio import write_gray
+    from scanners.sim.speckle import make_speckle, render
+    shift = (0.35, -0.20)
+    speckle = make_speckle(512, 512, seed=1)
+    write_gray(out / "dic" / "reference.png", render(speckle, None, noise_sigma=1.0, seed=2))
+    write_gray(out / "dic" / "moved.png", render(speckle, shift, noise_sigma=1.0, seed=3))
+    _run("dic2d", str(out / "dic" / "reference.png"), str(out / "dic" / "moved.png"), "--subset", "21",
+         "--step", "8", "-o", str(out / "dic" / "displacements.csv"))
+    with open(out / "dic" / "displacements.csv") as f:
+        rows = [r for r in csv.DictReader(f) if r["converged"] == "1"]
+    u = np.array([float(r["u"]) for r in rows])
+    v = np.array([float(r["v"]) for r in rows])
+    print(f"  {len(rows)} points: mean u {u.mean():+.4f} px (true {shift[0]:+.2f}), mean v {v.mean():+.4f} px "
+          f"(true {shift[1]:+.2f}), std {u.std():.4f} / {v.std():.4f} px")
+
+
+STEPS = [calibration, virtual_camera, stereo, scan, dic2d]
+
+
+def run_demo(output: str) -> int:
+    out = Path(output)
+    out.mkdir(parents=True, exist_ok=True)
+    np.seterr(all="ignore")
+    t0 = time.perf_counter()
+    for step in STEPS:
+        print(f"\n== {step.__doc__.splitlines()[0]}", flush=True)
+        step(out)
+    print(f"\ndemo finished in {time.perf_counter() - t0:.0f} s; results in {out}/", file=sys.stderr)
+    return 0
