@@ -1,8 +1,12 @@
-"""2D DIC figures: accuracy on the real DIC-Challenge sample 5 images, random and systematic errors on
+"""DIC figures. 2D: accuracy on the real DIC-Challenge sample 5 images, random and systematic errors on
 synthetic speckle, and throughput (points per second, initial guess included) on a 2048 x 2048 image.
+Stereo: on a simulated experiment (`scanners.sim.dic`, the rig built from the true camera models), the
+mean strain error for 1 % uniaxial tension, the out-of-plane displacement error against the field of
+view, and the stereo matching throughput on the rectified pair.
 
 References: OpenCorr (C++, FFT-CC + first-order IC-GN, bicubic B-spline) measured on this machine
-with 2 threads, and DICe's committed regression result for sample 5.
+with 2 threads, DICe's committed regression result for sample 5, and OpenCorr's published figure for
+its (unrectified, epipolar-constrained) stereo matching.
 """
 
 from __future__ import annotations
@@ -18,6 +22,10 @@ OPENCORR_MEAN = {21: 0.1025, 35: 0.1023}  # 35: OpenCorr's figure is for 33 x 33
 OPENCORR_STD = {21: 0.0046, 35: 0.0029}
 OPENCORR_POINTS_PER_S = {21: 41_900, 33: 19_400}
 GOAL_POINTS_PER_S = {21: 45_000, 33: 21_000}
+OPENCORR_STEREO_POINTS_PER_S = 1_450
+GOAL_STEREO_POINTS_PER_S = 10_000
+GOAL_STRAIN_ERROR = 50e-6
+GOAL_OUT_OF_PLANE = 1 / 20000
 
 
 def _real_images(quick: bool) -> list[Figure]:
@@ -120,5 +128,61 @@ def _speed(quick: bool) -> list[Figure]:
     return figures
 
 
+def _stereo(quick: bool) -> list[Figure]:
+    import tempfile
+
+    from scanners.sim.dic import load_dic_truth, simulate_dic, standard_states, truth_at_virtual
+    from stereodic.dic import DicSettings, make_grid
+    from stereodic.dic3d.dataset import load_states
+    from stereodic.dic3d.stereo import StereoDic, StereoSettings
+    from stereodic.rig import load_rig
+
+    width, height = (640, 512) if quick else (1280, 1024)
+    figures = []
+    with tempfile.TemporaryDirectory() as tmp:
+        simulate_dic(tmp, standard_states(), width=width, height=height, supersample=2)
+        rig = load_rig(f"{tmp}/rig.npz")
+        pairs = list(load_states(tmp, rig).rectified(rig))
+        truth = load_dic_truth(tmp)
+    W, H = rig.sensor.width, rig.sensor.height
+    fov = W * rig.sensor.pitch_mm[0]
+    grid = make_grid(W, H, 21, 5, roi=(20, 20, W - 21, H - 21))
+    X, Y = grid.points()
+    true = truth_at_virtual(truth, rig, X, Y)
+    dic = StereoDic(rig, grid, StereoSettings(DicSettings(subset=21), strain_window=9))
+    label = f"stereo {width}x{height}, 21x21, step 5"
+    worst_z = 0.0
+    for st in dic.run(pairs):
+        name = truth.states[st.state].name
+        c = st.converged.ravel()
+        dz = st.displacement.reshape(-1, 3)[c, 2] - true["displacement"][st.state][c, 2]
+        rms_z = float(np.sqrt(np.mean(dz ** 2)))
+        worst_z = max(worst_z, rms_z)
+        if name == "tension":
+            sv = st.strain.valid.ravel()
+            err = max(abs(float(np.mean(getattr(st.strain, e).ravel()[sv] - true[e][st.state][sv])))
+                      for e in ("exx", "eyy"))
+            figures.append(Figure("dic", f"{label}: 1 % tension, mean strain error (worst of exx, eyy), "
+                                  f"gauge 9 points", err * 1e6, "microstrain", goal="<= 50",
+                                  ok=err <= GOAL_STRAIN_ERROR))
+            figures.append(Figure("dic", f"{label}: 1 % tension, out-of-plane displacement error RMS / field "
+                                  f"of view ({fov:.0f} mm)", rms_z / fov, "", goal="<= 5e-05",
+                                  ok=rms_z / fov <= GOAL_OUT_OF_PLANE))
+        figures.append(Figure("dic", f"{label}: {name}, converged points", float(c[grid.active.ravel()].mean() * 100),
+                              "%"))
+    figures.append(Figure("dic", f"{label}: out-of-plane displacement error RMS / field of view, worst state "
+                          f"(translation, rotation, tension, bulge)", worst_z / fov, "", goal="<= 5e-05",
+                          ok=worst_z / fov <= GOAL_OUT_OF_PLANE))
+    left, right = pairs[0]
+    seconds = best_time(lambda: dic.stereo_match(left, right), repeat=1 if quick else 3, warmup=1)
+    pts = int(grid.active.sum())
+    rate = pts / seconds
+    figures.append(Figure("dic", f"stereo matching on the rectified pair, {W}x{H}, 21x21, {pts} points: row-search "
+                          f"seeds + IC-GN + propagation", rate, "points/s", "OpenCorr stereo matching (published)",
+                          OPENCORR_STEREO_POINTS_PER_S, f">= {GOAL_STEREO_POINTS_PER_S}",
+                          rate >= GOAL_STEREO_POINTS_PER_S))
+    return figures
+
+
 def run(quick: bool = False) -> list[Figure]:
-    return _real_images(quick) + _synthetic_errors(quick) + _speed(quick)
+    return _real_images(quick) + _synthetic_errors(quick) + _speed(quick) + _stereo(quick)

@@ -1,20 +1,18 @@
 """`stereodic simulate MODE`: write a simulated dataset with its ground truth (scanners.sim).
 
 Modes: `calibration` (fringes on a display moved by a stage, with truth.npz); `stereo` (two cameras,
-stereodic/cli/simulate_stereo.py); `scan` (projector + two cameras, stereodic/cli/simulate_scan.py); `dic` is
-registered but not in this version yet.
+stereodic/cli/simulate_stereo.py); `scan` (projector + two cameras, stereodic/cli/simulate_scan.py); `dic` (a
+speckled plate under load, two cameras, stereodic/cli/simulate_dic.py).
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 
+from stereodic.cli import simulate_dic as dic_mode
 from stereodic.cli import simulate_scan as scan_mode
 from stereodic.cli import simulate_stereo as stereo_mode
-from stereodic.cli.common import parse_floats, planned
-
-LATER = {"dic": ("Simulated stereo DIC dataset", 8)}
+from stereodic.cli.common import parse_floats
 
 
 def register(sub):
@@ -51,18 +49,7 @@ def register(sub):
     c.set_defaults(func=run_calibration)
     stereo_mode.register(modes)                         # `simulate stereo`: stereodic/cli/simulate_stereo.py
     scan_mode.register(modes)                           # `simulate scan`: stereodic/cli/simulate_scan.py
-    for name, (text, issue) in LATER.items():
-        later = planned(modes, name, text, issue)
-        for flag in ("--lens", "--seed", "-o"):        # DESIGN.md's options, accepted ahead of time
-            later.add_argument(flag, help=argparse.SUPPRESS)
-        later.set_defaults(func=_later(name, issue))
-
-
-def _later(name: str, issue: int):
-    def run(args) -> int:
-        print(f"stereodic simulate {name}: not in this version yet (issue {issue})", file=sys.stderr)
-        return 1
-    return run
+    dic_mode.register(modes)                            # `simulate dic`: stereodic/cli/simulate_dic.py
 
 
 def run_calibration(args) -> int:

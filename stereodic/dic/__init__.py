@@ -9,7 +9,8 @@ Public API (pixels; x = column, y = row; u along x):
 - `BSplineImage.from_image(img, order, prefilter_sigma)`: interpolant of an image.
 - `correlate_points(ref, dfm, xs, ys, guess, settings) -> PointResult`: register a list of points from
   initial guesses (the building block for stereo matching).
-- `row_search(ref_img, dfm_img, xs, ys, half, dmin, dmax)`: integer match along rows (rectified stereo).
+- `row_search(ref_img, dfm_img, xs, ys, half, dmin, dmax)`: integer match along rows (rectified stereo);
+  `row_seed_search(dmin, dmax)`: the same as the seed search of `correlate_pair(..., search=)`.
 - `make_grid`, `correlate_pair`, `correlate_sequence`: full-field DIC.
 """
 
@@ -17,8 +18,9 @@ from stereodic.dic.correlate import (DicField, DicSettings, PointResult, correla
                                      correlate_sequence)
 from stereodic.dic.grid import Grid, make_grid
 from stereodic.dic.icgn import STATUS_NAMES
-from stereodic.dic.initial_guess import row_search, search_integer
+from stereodic.dic.initial_guess import row_search, row_seed_search, search_integer
 from stereodic.dic.interpolation import BSplineImage
 
 __all__ = ["BSplineImage", "DicField", "DicSettings", "Grid", "PointResult", "STATUS_NAMES", "correlate_pair",
-           "correlate_points", "correlate_sequence", "make_grid", "row_search", "search_integer"]
+           "correlate_points", "correlate_sequence", "make_grid", "row_search", "row_seed_search",
+           "search_integer"]

@@ -11,16 +11,18 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Iterable, Iterator, Sequence
+from typing import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
 from stereodic.dic.grid import Grid
-from stereodic.dic.icgn import (LOW_ZNCC, OK, SHAPE_PARAMS, UNREACHED, quadratic_fit_matrix,
-                                reference_status, shift_warp, solve_points)
+from stereodic.dic.icgn import (INCONSISTENT, LOW_TEXTURE, LOW_ZNCC, OK, SHAPE_PARAMS, UNREACHED,
+                                quadratic_fit_matrix, reference_status, shift_warp, solve_points)
 from stereodic.dic.initial_guess import search_integer
 from stereodic.dic.interpolation import BSplineImage
+from stereodic.dic.outliers import inconsistent
 from stereodic.dic.propagation import guesses_from_lattice, propagate
+from stereodic.dic.texture import estimate_noise, predicted_noise
 
 
 @dataclass(frozen=True)
@@ -29,7 +31,10 @@ class DicSettings:
     prefilter_sigma: Gaussian low-pass of both images before interpolation (pixels, 0 = none; lowers
     the interpolation bias); tol: convergence bound on the warp update (pixels at the subset edge);
     min_zncc: points below are flagged; seed_zncc: a seed needs at least this; search_radius: ZNCC
-    search range of seeds (pixels); max_seeds: seed attempts per image."""
+    search range of seeds (pixels); max_seeds: seed attempts per image; max_noise_px: points whose
+    predicted random error (`texture.predicted_noise`) exceeds it are flagged low_texture; max_jump_px:
+    points whose displacement departs from their neighbours' median by more than this are solved again
+    from their neighbours, and flagged inconsistent if they still do (`outliers`)."""
 
     subset: int = 21
     shape: str = "affine"
@@ -41,6 +46,8 @@ class DicSettings:
     seed_zncc: float = 0.9
     search_radius: int = 40
     max_seeds: int = 20
+    max_noise_px: float = 0.1
+    max_jump_px: float = 1.0
 
     @property
     def half(self) -> int:
@@ -76,12 +83,14 @@ class DicField:
     """Result on a grid for one deformed image. u, v (ny, nx): displacement of each grid point from its
     reference position (pixels, NaN where not OK; for incremental DIC, summed over the steps); `points`:
     this image's registration, flat in grid order (for incremental DIC, of the step from the previous
-    image, with the subsets taken around the points' positions there)."""
+    image, with the subsets taken around the points' positions there); noise_px (ny, nx): the predicted
+    random error of each point (pixels, `texture.predicted_noise`, NaN where the subset leaves the image)."""
 
     grid: Grid
     points: PointResult
     u: np.ndarray
     v: np.ndarray
+    noise_px: np.ndarray
 
     @property
     def zncc(self) -> np.ndarray:
@@ -121,6 +130,17 @@ def correlate_points(ref: BSplineImage, dfm: BSplineImage, xs: np.ndarray, ys: n
     return PointResult(warp, zncc, iters, status)
 
 
+def subset_status(ref: BSplineImage, xs: np.ndarray, ys: np.ndarray, settings: DicSettings = DicSettings()
+                  ) -> np.ndarray:
+    """Whether the reference subsets at (xs, ys) can be registered at all, from the reference alone:
+    (N,) int8 status OK, NO_TEXTURE or OUTSIDE."""
+    st = np.empty(len(xs), np.int8)
+    reference_status(ref.coef, ref.pixel_gradients(), ref.order, ref.width, ref.height,
+                     np.ascontiguousarray(xs, np.float64), np.ascontiguousarray(ys, np.float64), settings.half,
+                     settings.nparams, st)
+    return st
+
+
 LATTICE = 4  # stride of the coarse lattice that large grids are propagated on first
 
 
@@ -128,8 +148,9 @@ class _PairSolver:
     """State of one reference/deformed pair on a grid while seeds and propagation fill it."""
 
     def __init__(self, ref: BSplineImage, dfm: BSplineImage, ref_img: np.ndarray, def_img: np.ndarray,
-                 grid: Grid, xs: np.ndarray, ys: np.ndarray, settings: DicSettings):
+                 grid: Grid, xs: np.ndarray, ys: np.ndarray, settings: DicSettings, search: Callable | None = None):
         self.ref, self.dfm, self.ref_img, self.def_img = ref, dfm, ref_img, def_img
+        self.search = search or search_integer
         self.grid, self.xs, self.ys, self.s = grid, xs, ys, settings
         self.warp, self.zncc, self.iters, self.status = _arrays(xs.size, settings.nparams)
         self.done = (~grid.active.ravel()).astype(np.int8)
@@ -152,9 +173,7 @@ class _PairSolver:
     def flag_untextured(self, idx: np.ndarray) -> np.ndarray:
         """Mark the points of `idx` whose reference subset cannot be registered (no texture, outside)
         as done; returns the others."""
-        st = np.empty(idx.size, np.int8)
-        reference_status(self.ref.coef, self.ref.pixel_gradients(), self.ref.order, self.ref.width,
-                         self.ref.height, self.xs[idx], self.ys[idx], self.s.half, self.s.nparams, st)
+        st = subset_status(self.ref, self.xs[idx], self.ys[idx], self.s)
         bad = idx[st != OK]
         self.status[bad] = st[st != OK]
         self.done[bad] = 1
@@ -172,7 +191,7 @@ class _PairSolver:
         if good.any():
             centre = (int(round(np.median(self.warp[good, 0]))), int(round(np.median(self.warp[good, nb]))))
         x, y = int(round(self.xs[k])), int(round(self.ys[k]))
-        du, dv, _ = search_integer(self.ref_img, self.def_img, x, y, s.half, s.search_radius, centre)
+        du, dv, _ = self.search(self.ref_img, self.def_img, x, y, s.half, s.search_radius, centre)
         self.warp[k] = 0.0
         self.warp[k, 0] = du + (x - self.xs[k])
         self.warp[k, nb] = dv + (y - self.ys[k])
@@ -249,6 +268,28 @@ class _PairSolver:
             if self.flag_untextured(np.array([k])).size and self.seed(k, stride):
                 self.propagate(stride)
 
+    def screen(self, noise_px: np.ndarray) -> None:
+        """Flag solved points with a predicted error above max_noise_px (low_texture); solve the points
+        inconsistent with their neighbours (`outliers`) again from their neighbours, and flag those that
+        stay so."""
+        s = self.s
+        ok = self.status == OK
+        self.status[ok & (noise_px > s.max_noise_px)] = LOW_TEXTURE
+        nb = s.nparams // 2
+        for again in (True, False):
+            ok = self.status == OK
+            bad = inconsistent(self.warp[:, 0].reshape(self.grid.shape), self.warp[:, nb].reshape(self.grid.shape),
+                               ok.reshape(self.grid.shape), s.max_jump_px).ravel()
+            if not bad.any():
+                return
+            if again:
+                self.status[bad] = UNREACHED
+                self.done[bad] = 0
+                self.propagate(1)
+                self.status[self.done == 0] = UNREACHED
+            else:
+                self.status[bad] = INCONSISTENT
+
     def result(self) -> PointResult:
         self.zncc[self.status == UNREACHED] = np.nan
         return PointResult(self.warp, self.zncc, self.iters, self.status)
@@ -282,13 +323,18 @@ def _with_bsplines(images: Iterable[np.ndarray], settings: DicSettings
 
 def correlate_sequence(ref_img: np.ndarray, def_imgs: Iterable[np.ndarray], grid: Grid,
                        settings: DicSettings = DicSettings(), seeds: Iterable[tuple[float, float]] = (),
-                       incremental: bool = False) -> Iterable[DicField]:
+                       incremental: bool = False, search: Callable | None = None,
+                       start: PointResult | None = None) -> Iterable[DicField]:
     """Yield one DicField per deformed image (a generator: images are read one at a time).
 
-    Each image starts from the previous image's warps where those were good, then propagates into the
+    Each image starts from the previous image's warps where those were good (points that fail from
+    there, or reach less than the seed ZNCC, start again from their neighbours), then propagates into the
     rest. With `incremental`, image k is registered against image k-1 (the subsets around the points'
     current positions), and displacements are accumulated: suited to large deformations, at the cost
-    of adding up the per-step errors. A point lost once stays lost (its status is kept)."""
+    of adding up the per-step errors. A point lost once stays lost (its status is kept).
+    search: the seeds' integer search, `search_integer`'s signature (default: that 2-D search; a
+    rectified stereo pair uses `row_seed_search`); start: warps (grid order) for the first image to
+    start from, as if they were a previous image's result (its points with status OK)."""
     s = settings
     nb = s.nparams // 2
     X, Y = grid.points()
@@ -296,12 +342,13 @@ def correlate_sequence(ref_img: np.ndarray, def_imgs: Iterable[np.ndarray], grid
     images = _with_bsplines(def_imgs, s)  # the first deformed image is prepared meanwhile
     ref_b = BSplineImage.from_image(ref_img, s.order, s.prefilter_sigma)
     ref_b.pixel_gradients()
-    prev: PointResult | None = None
+    prev: PointResult | None = start
     cur_x, cur_y = X.copy(), Y.copy()  # where the points are in the current reference image
     lost = np.zeros(X.size, bool)
     lost_status = np.zeros(X.size, np.int8)
+    sigma = estimate_noise(ref_img)
     for img, def_b in images:
-        solver = _PairSolver(ref_b, def_b, ref_img, img, grid, cur_x, cur_y, s)
+        solver = _PairSolver(ref_b, def_b, ref_img, img, grid, cur_x, cur_y, s, search)
         if incremental:
             solver.done[lost] = 1
             solver.status[lost] = lost_status[lost]
@@ -314,9 +361,13 @@ def correlate_sequence(ref_img: np.ndarray, def_imgs: Iterable[np.ndarray], grid
             else:
                 solver.warp[carry] = prev.warp[carry]
             solver.solve(carry)
-            redo = carry[solver.status[carry] != OK]
-            solver.done[redo] = 0  # give them a second chance from their neighbours
+            # a second chance from their neighbours for the failed points, and for those below the seed
+            # ZNCC: a stale start (a larger motion than the last image's) can end in a false optimum
+            redo = carry[(solver.status[carry] != OK) | ~(solver.zncc[carry] >= s.seed_zncc)]
+            solver.done[redo] = 0
         solver.fill(seed_list)
+        noise = predicted_noise(ref_b, cur_x, cur_y, s.half, sigma)
+        solver.screen(noise)
         res = solver.result()
         ok = res.status == OK
         if incremental:
@@ -328,14 +379,15 @@ def correlate_sequence(ref_img: np.ndarray, def_imgs: Iterable[np.ndarray], grid
             total_u, total_v = new_x - X, new_y - Y
             cur_x, cur_y = np.where(ok, new_x, cur_x), np.where(ok, new_y, cur_y)
             ref_b, ref_img = def_b, img
+            sigma = estimate_noise(img)
         else:
             total_u, total_v = res.u, res.v
         prev = res
-        yield DicField(grid, res, total_u.reshape(grid.shape), total_v.reshape(grid.shape))
+        yield DicField(grid, res, total_u.reshape(grid.shape), total_v.reshape(grid.shape), noise.reshape(grid.shape))
 
 
 def correlate_pair(ref_img: np.ndarray, def_img: np.ndarray, grid: Grid,
-                   settings: DicSettings = DicSettings(),
-                   seeds: Iterable[tuple[float, float]] = ()) -> DicField:
+                   settings: DicSettings = DicSettings(), seeds: Iterable[tuple[float, float]] = (),
+                   search: Callable | None = None, start: PointResult | None = None) -> DicField:
     """DIC of one deformed image against the reference on `grid` (see correlate_sequence)."""
-    return next(iter(correlate_sequence(ref_img, [def_img], grid, settings, seeds)))
+    return next(iter(correlate_sequence(ref_img, [def_img], grid, settings, seeds, search=search, start=start)))

@@ -19,8 +19,8 @@ from numba import njit, prange
 
 from stereodic.dic.interpolation import FAST, sample_any, sample_cubic, sample_with_gradient
 
-OK, NO_TEXTURE, OUTSIDE, DIVERGED, LOW_ZNCC, UNREACHED = 0, 1, 2, 3, 4, 5
-STATUS_NAMES = ("ok", "no_texture", "outside", "diverged", "low_zncc", "unreached")
+OK, NO_TEXTURE, OUTSIDE, DIVERGED, LOW_ZNCC, UNREACHED, INCONSISTENT, LOW_TEXTURE = 0, 1, 2, 3, 4, 5, 6, 7
+STATUS_NAMES = ("ok", "no_texture", "outside", "diverged", "low_zncc", "unreached", "inconsistent", "low_texture")
 SHAPE_PARAMS = {"affine": 6, "quadratic": 12}
 
 

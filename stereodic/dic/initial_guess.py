@@ -2,7 +2,8 @@
 
 `search_integer` finds where the subset around one reference point went in the deformed image, within a
 square search window (OpenCV's matchTemplate, FFT-based for large windows): the seeds of propagation.
-`row_search` does the same along the row only (rectified stereo: the match lies on the same row).
+`row_search` does the same along the row only (rectified stereo: the match lies on the same row), and
+`row_seed_search` wraps it as a seed search of the propagation.
 Positions in pixels, (x, y) = (column, row) of the reference image.
 """
 
@@ -69,3 +70,12 @@ def row_search(ref: np.ndarray, dfm: np.ndarray, xs: np.ndarray, ys: np.ndarray,
         d_out[k] = lo + c - x
         z_out[k] = z
     return d_out, z_out
+
+
+def row_seed_search(dmin: int, dmax: int):
+    """A seed search with `search_integer`'s signature that looks along the row only, at shifts
+    dmin..dmax (its radius and centre are ignored): the seeds of a rectified stereo pair."""
+    def search(ref, dfm, x, y, half, radius, centre):
+        d, z = row_search(ref, dfm, [x], [y], half, dmin, dmax)
+        return int(d[0]), 0, float(z[0])
+    return search

@@ -1,6 +1,7 @@
 """Writing 2D DIC results: CSV rows, NPZ arrays and PNG maps (all atomic).
 
-CSV columns: image, x, y, u, v, zncc, converged, status, iterations [, exx, eyy, exy, strain_valid].
+CSV columns: image, x, y, u, v, zncc, converged, status, iterations, noise_px [, exx, eyy, exy,
+strain_valid].
 Only active grid points are written. u, v are NaN exactly where converged is 0 (status says why);
 strains are NaN exactly where strain_valid is 0.
 """
@@ -24,7 +25,7 @@ from stereodic.strain import Strain
 def write_csv(path: str | os.PathLike, fields: Sequence[DicField], strains: Sequence[Strain | None]) -> None:
     """One row per active point and deformed image."""
     has_strain = any(s is not None for s in strains)
-    cols = "image,x,y,u,v,zncc,converged,status,iterations"
+    cols = "image,x,y,u,v,zncc,converged,status,iterations,noise_px"
     if has_strain:
         cols += ",exx,eyy,exy,strain_valid"
     out = io.StringIO()
@@ -37,7 +38,7 @@ def write_csv(path: str | os.PathLike, fields: Sequence[DicField], strains: Sequ
         parts = [np.full(act.sum(), str(k)), np.char.mod("%g", X[act]), np.char.mod("%g", Y[act]),
                  np.char.mod("%.6f", f.u.ravel()[act]), np.char.mod("%.6f", f.v.ravel()[act]),
                  np.char.mod("%.6f", f.points.zncc[act]), (status == 0).astype(int).astype(str),
-                 names[status], f.points.iterations[act].astype(str)]
+                 names[status], f.points.iterations[act].astype(str), np.char.mod("%.5f", f.noise_px.ravel()[act])]
         if has_strain:
             parts += [np.char.mod("%.7f", s.exx.ravel()[act]), np.char.mod("%.7f", s.eyy.ravel()[act]),
                       np.char.mod("%.7f", s.exy.ravel()[act]), s.valid.ravel()[act].astype(int).astype(str)]
@@ -50,12 +51,12 @@ def write_csv(path: str | os.PathLike, fields: Sequence[DicField], strains: Sequ
 
 def write_npz(path: str | os.PathLike, fields: Sequence[DicField], strains: Sequence[Strain | None],
               settings: DicSettings, images: Sequence[str]) -> None:
-    """Arrays x (nx,), y (ny,), active (ny, nx) and u, v, zncc, status (n_images, ny, nx) [+ exx, eyy,
-    exy]; meta: JSON with the settings, image names and status names."""
+    """Arrays x (nx,), y (ny,), active (ny, nx) and u, v, zncc, status, noise_px (n_images, ny, nx)
+    [+ exx, eyy, exy]; meta: JSON with the settings, image names and status names."""
     g = fields[0].grid
     arrays = dict(x=g.xs, y=g.ys, active=g.active, u=np.stack([f.u for f in fields]),
                   v=np.stack([f.v for f in fields]), zncc=np.stack([f.zncc for f in fields]),
-                  status=np.stack([f.status for f in fields]))
+                  status=np.stack([f.status for f in fields]), noise_px=np.stack([f.noise_px for f in fields]))
     if strains[0] is not None:
         for c in ("exx", "eyy", "exy"):
             arrays[c] = np.stack([getattr(s, c) for s in strains])
@@ -64,26 +65,31 @@ def write_npz(path: str | os.PathLike, fields: Sequence[DicField], strains: Sequ
     _write_npz(path, meta=np.array(json.dumps(meta)), **arrays)
 
 
-def plot_fields(folder: str | os.PathLike, fields: Sequence[DicField], strains: Sequence[Strain | None]) -> None:
-    """PNG maps per deformed image k: image{k}_u.png, _v, _zncc [, _exx, _eyy, _exy]."""
+def save_map(path: str | os.PathLike, arr: np.ndarray, grid, title: str, label: str) -> None:
+    """One PNG map (matplotlib, atomic) of a (ny, nx) array on `grid` (axes in reference pixels); NaN
+    points are left blank."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    extent = (grid.xs[0], grid.xs[-1], grid.ys[-1], grid.ys[0])
+    fig, ax = plt.subplots(figsize=(6, 5))
+    im = ax.imshow(arr, extent=extent, cmap="viridis", interpolation="nearest")
+    fig.colorbar(im, ax=ax, label=label)
+    ax.set_title(title)
+    ax.set_xlabel("x (px)")
+    ax.set_ylabel("y (px)")
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+
+
+def plot_fields(folder: str | os.PathLike, fields: Sequence[DicField], strains: Sequence[Strain | None]) -> None:
+    """PNG maps per deformed image k: image{k}_u.png, _v, _zncc [, _exx, _eyy, _exy]."""
     folder = Path(folder)
     for k, (f, s) in enumerate(zip(fields, strains)):
         maps = {"u": (f.u, "px"), "v": (f.v, "px"), "zncc": (np.where(f.ok, f.zncc, np.nan), "")}
         if s is not None:
             maps.update(exx=(s.exx, ""), eyy=(s.eyy, ""), exy=(s.exy, ""))
-        g = f.grid
-        extent = (g.xs[0], g.xs[-1], g.ys[-1], g.ys[0])
         for name, (arr, unit) in maps.items():
-            fig, ax = plt.subplots(figsize=(6, 5))
-            im = ax.imshow(arr, extent=extent, cmap="viridis", interpolation="nearest")
-            fig.colorbar(im, ax=ax, label=f"{name} {unit}".strip())
-            ax.set_title(f"image {k}: {name}")
-            ax.set_xlabel("x (px)")
-            ax.set_ylabel("y (px)")
-            with atomic_output(folder / f"image{k}_{name}.png") as tmp:
-                fig.savefig(tmp, dpi=100)
-            plt.close(fig)
+            save_map(folder / f"image{k}_{name}.png", arr, f.grid, f"image {k}: {name}", f"{name} {unit}".strip())

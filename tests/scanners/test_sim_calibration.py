@@ -101,6 +101,30 @@ def test_chessboards_are_inside_the_field(tmp_path):
         assert img.min() < 20 and img.max() > 150                 # dark squares and light ones seen
 
 
+@pytest.mark.parametrize("family", ["brown", "telecentric", "scheimpflug"])
+def test_small_sensor_chessboards_fit_each_position_and_are_found(tmp_path, family):
+    """At 320x256 every board lies inside the camera's field (its true outline on the display, a
+    trapezoid for the oblique Scheimpflug view, which also moves across the display with the stage) at
+    its own stage position, and OpenCV finds all its inner corners."""
+    import cv2
+
+    from calib.opencv_baseline import chessboard_corners
+    cap = simulate_calibration(tmp_path, lens=family, width=320, height=256, periods=(1920,), flat_levels=(),
+                               chessboard=True, noise=False)
+    cr = load_prvm(tmp_path / "truth.npz").extra["display_cr"]
+    boards = cap.select("cam0", type="chessboard")
+    assert len(boards) == 2 * 5
+    for f in boards:
+        c = cr[cap.z_positions("cam0").index(f.z_mm)]
+        outline = np.concatenate([c[0], c[1:, -1], c[-1, -2::-1], c[-2:0:-1, 0]]).astype(np.float32)
+        c0, r0 = f.pattern.origin_px
+        w, h = np.array(f.pattern.squares) * f.pattern.square_px
+        for corner in ((c0, r0), (c0 + w, r0), (c0, r0 + h), (c0 + w, r0 + h)):
+            assert cv2.pointPolygonTest(outline, (float(corner[0]), float(corner[1])), True) > 0
+        found = chessboard_corners(cap.read(f), tuple(f.pattern.squares))
+        assert found is not None and len(found) == 8 * 6
+
+
 @pytest.mark.parametrize("family", LENS_FAMILIES)
 def test_every_lens_family_makes_a_dataset_with_one_position(tmp_path, family):
     cap = simulate_calibration(tmp_path, lens=family, z_positions=(10.0,), periods=(30,), flat_levels=(),
@@ -145,8 +169,8 @@ def test_command_line(tmp_path, capsys):
     assert len(cap.frames) == 2 * (9 + 2 * 2 * 3) and cap.display.cover_glass.thickness_mm == 0.5
     assert main(["simulate", "calibration", "--steps", "2", "-o", str(tmp_path / "bad")]) == 2
     assert "--steps" in capsys.readouterr().err
-    assert main(["simulate", "dic", "-o", str(tmp_path / "dic")]) == 1
-    assert "not in this version yet" in capsys.readouterr().err
+    assert main(["simulate", "dic", "--width", "8", "-o", str(tmp_path / "dic")]) == 2
+    assert "--width" in capsys.readouterr().err
 
 
 @pytest.mark.slow

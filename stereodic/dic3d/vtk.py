@@ -1,0 +1,62 @@
+"""VTK XML PolyData (.vtp) of a stereo DIC state, and a ParaView collection (.pvd) of the states.
+
+Each state's file holds the measured surface: the converged points (WCS mm, their position in that
+state), quads between grid neighbours whose four corners converged, and point data: displacement (3
+components, mm), exx, eyy, exy (NaN where not valid), zncc_left, zncc_right, gap_mm. ASCII, written
+atomically; open the .pvd in ParaView to step through the states (warp by `displacement` on state 0 to
+see the deformation).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from calib.atomic import write_text
+from stereodic.dic3d.stereo import StereoState
+
+
+def _array(name: str, a: np.ndarray, ncomp: int = 1) -> str:
+    body = " ".join(f"{v:.9g}" for v in np.asarray(a, np.float64).ravel())
+    return (f'<DataArray type="Float64" Name="{name}" NumberOfComponents="{ncomp}" format="ascii">'
+            f"{body}</DataArray>")
+
+
+def polydata(state: StereoState) -> str:
+    """The .vtp text of one state (module docstring)."""
+    ok = state.converged
+    index = np.full(ok.shape, -1, np.int64)
+    index[ok] = np.arange(int(ok.sum()))
+    quad = ok[:-1, :-1] & ok[1:, :-1] & ok[1:, 1:] & ok[:-1, 1:]
+    conn = np.stack([index[:-1, :-1][quad], index[:-1, 1:][quad], index[1:, 1:][quad], index[1:, :-1][quad]], -1)
+    data = [_array("displacement", state.displacement[ok], 3), _array("zncc_left", state.left.zncc[ok]),
+            _array("zncc_right", state.right.zncc[ok]), _array("gap_mm", state.gap_mm[ok])]
+    if state.strain is not None:
+        data += [_array(c, getattr(state.strain, c)[ok]) for c in ("exx", "eyy", "exy")]
+    ints = lambda name, a: (f'<DataArray type="Int64" Name="{name}" format="ascii">'  # noqa: E731
+                            f'{" ".join(map(str, np.asarray(a).ravel()))}</DataArray>')
+    return ('<?xml version="1.0"?>\n<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian">\n<PolyData>\n'
+            f'<Piece NumberOfPoints="{int(ok.sum())}" NumberOfPolys="{len(conn)}">\n'
+            f'<PointData Vectors="displacement">\n' + "\n".join(data) + "\n</PointData>\n"
+            f"<Points>{_array('points', state.points[ok], 3)}</Points>\n"
+            f"<Polys>{ints('connectivity', conn)}{ints('offsets', 4 * np.arange(1, len(conn) + 1))}</Polys>\n"
+            "</Piece>\n</PolyData>\n</VTKFile>\n")
+
+
+def write_states(folder: str | os.PathLike, states: Sequence[StereoState]) -> Path:
+    """Write folder/state{k:03d}.vtp per state and folder/states.pvd (time = state index); returns the
+    .pvd path."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    entries = []
+    for st in states:
+        name = f"state{st.state:03d}.vtp"
+        write_text(folder / name, polydata(st))
+        entries.append(f'<DataSet timestep="{st.state}" part="0" file="{name}"/>')
+    pvd = folder / "states.pvd"
+    write_text(pvd, '<?xml version="1.0"?>\n<VTKFile type="Collection" version="1.0">\n<Collection>\n'
+               + "\n".join(entries) + "\n</Collection>\n</VTKFile>\n")
+    return pvd

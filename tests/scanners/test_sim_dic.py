@@ -1,0 +1,66 @@
+"""The simulated stereo DIC experiment: exact truth (strains, ray intersections) and the dataset."""
+
+import numpy as np
+import pytest
+
+from calib.capture import load_capture
+from scanners.sim.dic import (DicState, DicTruth, Specimen, dic_lenses, load_dic_truth, simulate_dic,
+                              standard_states)
+from stereodic.rig import load_rig
+
+
+def test_truth_strains_are_green_lagrange_of_the_map():
+    truth = DicTruth(Specimen(tilt_deg=20.0), standard_states(strain=0.01, poisson=0.3, bulge_mm=3.0))
+    X1, X2 = np.meshgrid(np.linspace(-40, 40, 7), np.linspace(-30, 30, 5))
+    e11, e22, e12 = truth.strain(3, X1, X2)            # tension
+    assert np.allclose(e11, 0.5 * (1.01 ** 2 - 1)) and np.allclose(e22, 0.5 * (0.997 ** 2 - 1))
+    assert np.allclose(e12, 0)
+    for state in range(len(truth.states)):          # finite differences of the positions
+        h = 1e-4
+        p = lambda a, b: truth.position(state, a, b)  # noqa: E731
+        g1 = (p(X1 + h, X2) - p(X1 - h, X2)) / (2 * h)
+        g2 = (p(X1, X2 + h) - p(X1, X2 - h)) / (2 * h)
+        e11, e22, e12 = truth.strain(state, X1, X2)
+        assert np.allclose(0.5 * ((g1 * g1).sum(-1) - 1), e11, atol=1e-8)
+        assert np.allclose(0.5 * ((g2 * g2).sum(-1) - 1), e22, atol=1e-8)
+        assert np.allclose(0.5 * (g1 * g2).sum(-1), e12, atol=1e-8)
+    rigid = truth.strain(2, X1, X2)                  # a rotation does not strain
+    assert max(np.abs(e).max() for e in rigid) < 1e-12
+
+
+def test_rays_meet_the_deformed_plate_at_the_material_point():
+    truth = DicTruth(Specimen(), [DicState("bulge", bulge_mm=4.0, rotation_deg=(1, 2, 3), translation_mm=(1, 2, 3))])
+    X = np.column_stack([np.linspace(-50, 50, 9), np.linspace(30, -30, 9)])
+    p = truth.position(0, X[:, 0], X[:, 1])
+    camera = np.array([100.0, 150.0, -400.0])
+    d = p - camera
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    assert np.allclose(truth.material_at(np.broadcast_to(camera, p.shape), d, 0), X, atol=1e-8)
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    out = tmp_path_factory.mktemp("dic")
+    states = [DicState("reference"), DicState("tension", stretch=(1.02, 0.994))]
+    return simulate_dic(out, states, width=96, height=80, supersample=2)
+
+
+def test_dataset_has_states_rig_and_truth(dataset):
+    cap = load_capture(dataset.root)
+    assert cap.kind == "dic" and sorted(cap.cameras) == ["cam0", "cam1"]
+    assert cap.states("cam0") == cap.states("cam1") == [0, 1]
+    imgs = [cap.read(f) for f in cap.frames]
+    assert all(i.shape == (80, 96) and i.dtype == np.uint8 for i in imgs)
+    assert all(i.std() > 10 for i in imgs)                          # speckled
+    assert not np.array_equal(imgs[0], imgs[2])                     # cam0 state 0 vs state 1
+    rig = load_rig(dataset.root / "rig.npz")
+    assert (rig.sensor.width, rig.sensor.height) == (96, 80)
+    truth = load_dic_truth(dataset.root)
+    assert truth.states[1].stretch == (1.02, 0.994)
+    with np.load(dataset.root / "truth.npz") as z:
+        assert z["displacement"].shape[0] == 2 and np.allclose(z["exx"][1], 0.5 * (1.02 ** 2 - 1))
+
+
+def test_default_lenses_see_the_same_field_at_any_size():
+    small, big = dic_lenses(320, 256)[0], dic_lenses(1280, 1024)[0]
+    assert small.pixel_mm == pytest.approx(4 * big.pixel_mm)
