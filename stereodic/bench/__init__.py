@@ -78,12 +78,21 @@ def run_groups(names: list[str], quick: bool = False) -> list[Figure]:
     return figures
 
 
+def _cells(f: Figure) -> tuple[str, ...]:
+    return (f.group, f.name, f"{f.value:.4g} {f.unit}".strip(), f.reference,
+            "" if f.reference_value is None else f"{f.reference_value:.4g} {f.unit}".strip(), f.goal,
+            {True: "yes", False: "NO", None: ""}[f.ok])
+
+
+def format_markdown(figures: list[Figure]) -> str:
+    """A Markdown table (for the README), one row per figure."""
+    head = ("group", "figure", "value", "reference", "ref. value", "goal", "met")
+    rows = [head, ("---",) * len(head)] + [_cells(f) for f in figures]
+    return "\n".join("| " + " | ".join(c.replace("|", "/") for c in r) + " |" for r in rows)
+
+
 def format_table(figures: list[Figure]) -> str:
     """A plain-text table, one row per figure."""
-    rows = [("group", "figure", "value", "reference", "ref. value", "goal", "ok")]
-    for f in figures:
-        rows.append((f.group, f.name, f"{f.value:.4g} {f.unit}", f.reference,
-                     "" if f.reference_value is None else f"{f.reference_value:.4g} {f.unit}", f.goal,
-                     {True: "yes", False: "NO", None: ""}[f.ok]))
+    rows = [("group", "figure", "value", "reference", "ref. value", "goal", "ok")] + [_cells(f) for f in figures]
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     return "\n".join("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows)
