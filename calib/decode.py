@@ -1,16 +1,21 @@
 """Decode a calibration capture: for one camera and one stage position, the display point each camera
 pixel sees (display pixels, column c and row r), with its quality.
 
-Frames are streamed: each is read, linearised with the intensity matrix of that position (if flats were
-captured) and added to the sums of its fringe set (`calib.phase.FringeSums`), so memory stays at a few
-arrays per set whatever the number of frames. Repeated frames (`repeat`) are averaged by the same sums.
+Frames are streamed: each is read (the next ones already being read on threads: PNG decoding releases
+the GIL) and added to the sums of its fringe set (`calib.phase.FringeSums`) in one pass, so memory stays
+at a few arrays per set whatever the number of frames; the intensity matrix's per-pixel linearisation
+(if flats were captured) is applied to the solution of each set, which equals applying it to every
+frame. Repeated frames (`repeat`) are averaged by the same sums.
 """
 
 from __future__ import annotations
 
 from collections import defaultdict
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Iterator
 
+import cv2
 import numpy as np
 
 from calib.capture import Capture, Frame
@@ -61,6 +66,18 @@ def _frames_by_set(capture: Capture, camera: str, z_mm: float) -> dict[str, dict
     return sets
 
 
+def read_ahead(capture: Capture, frames: list[Frame], depth: int = 2) -> Iterator[tuple[Frame, np.ndarray]]:
+    """(frame, image) for each of `frames` in order, the next `depth` images being read on threads
+    meanwhile (at most depth + 1 images in memory)."""
+    with ThreadPoolExecutor(depth) as pool:
+        pending = [pool.submit(capture.read, f) for f in frames[:depth]]
+        for i, f in enumerate(frames):
+            image = pending.pop(0).result()
+            if i + depth < len(frames):
+                pending.append(pool.submit(capture.read, frames[i + depth]))
+            yield f, image
+
+
 def intensity_matrix(capture: Capture, camera: str, z_mm: float) -> IntensityMatrix | None:
     """The IM from the flat frames at stage position z_mm, or at the nearest position that has flats;
     None if the dataset has no flats for this camera. Repeated flats are averaged."""
@@ -73,14 +90,16 @@ def intensity_matrix(capture: Capture, camera: str, z_mm: float) -> IntensityMat
         if f.z_mm == zs[0]:
             by_level[float(f.pattern.level)].append(f)
     levels = sorted(by_level)
-    images, full = [], None
-    for level in levels:
-        acc = None
-        for f in by_level[level]:
-            img = capture.read(f)
-            full = capture.max_value(camera, img)
-            acc = img.astype(np.float32) if acc is None else acc + img
-        images.append(acc / len(by_level[level]))
+    w, h = capture.cameras[camera]
+    images = np.zeros((len(levels), h, w), np.float32)
+    full = None
+    ordered = [(j, f) for j, level in enumerate(levels) for f in by_level[level]]
+    for (j, _), (f, img) in zip(ordered, read_ahead(capture, [f for _, f in ordered])):
+        full = capture.max_value(camera, img)
+        cv2.accumulate(img, images[j])
+    for j, level in enumerate(levels):
+        if len(by_level[level]) > 1:
+            images[j] /= len(by_level[level])
     try:
         return fit_intensity(levels, images, full, min_range=DARK_FRACTION * full)
     except ValueError as exc:
@@ -125,26 +144,30 @@ def decode_position(capture: Capture, camera: str, z_mm: float, im: IntensityMat
         if not sets[axis]:
             raise InputError(capture.manifest_path, f"camera {camera!r} has no {axis}-axis fringes at "
                                                     f"z={z_mm} mm (both axes are needed)")
-        periods = sorted(sets[axis], reverse=True)
-        phases, last = [], None
-        for period in periods:
-            frames = sets[axis][period]
+    for axis in AXES:
+        for period, frames in sets[axis].items():
             if len({round(f.pattern.shift_rad, 9) for f in frames}) < 3:
                 raise InputError(capture.manifest_path,
                                  f"camera {camera!r}, z={z_mm} mm: the {axis} fringe of period {period:g} px "
                                  f"has {len(frames)} frame(s) with fewer than 3 distinct shifts")
-            sums = FringeSums((h, w))
+    order = {axis: sorted(sets[axis], reverse=True) for axis in AXES}
+    stream = read_ahead(capture, [f for axis in AXES for period in order[axis] for f in sets[axis][period]])
+    for axis in AXES:
+        periods = order[axis]
+        phases, last = [], None
+        for period in periods:
+            frames = sets[axis][period]
+            sums = FringeSums((h, w), squares=len(frames) > 3)
             full = None
-            for f in frames:
-                raw = capture.read(f)
+            for _ in frames:
+                f, raw = next(stream)
                 first_file = first_file or capture.path(f)
                 full = capture.max_value(camera, raw)
-                img = raw.astype(np.float32) if im is None else im.luminance(raw)
-                sums.add(img, f.pattern.shift_rad, raw)
+                sums.add(raw, f.pattern.shift_rad)
                 if progress is not None:
                     progress()
             lit = (sums.raw_max >= DARK_FRACTION * full) & (sums.raw_max < full)
-            res = sums.solve(full, DARK_FRACTION * full, 0.0)
+            res = sums.solve(full, DARK_FRACTION * full, 0.0, None if im is None else (im.offset, im.gain))
             if im is not None:
                 res.phase = _waveform_correction(capture, frames, im)(res.phase)
             ref = res.modulation[lit & np.isfinite(res.modulation)][::97]   # a sample suffices

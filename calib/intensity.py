@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from calib.patterns import DisplayResponse
@@ -54,56 +55,70 @@ class IntensityMatrix:
                    DisplayResponse(arrays[f"{prefix}levels"], arrays[f"{prefix}luminance"]))
 
 
-def fit_intensity(levels, images: list[np.ndarray], full_scale: float, min_range: float) -> IntensityMatrix:
+def fit_intensity(levels, images, full_scale: float, min_range: float) -> IntensityMatrix:
     """Fit the IM from flat frames.
 
     levels: (J,) display code values, J >= 3; images: the camera frame at each level (averaged over
-    repeats; any numeric dtype), full_scale: the raw saturation value; min_range: the smallest useful
-    brightness difference between the darkest and brightest flat (camera values); pixels below it are
-    given gain NaN (they see no display). Samples at full_scale are left out (saturated).
+    repeats; a list of (H, W) arrays of any numeric dtype, or one (J, H, W) float32 array, used without
+    a copy); full_scale: the raw saturation value; min_range: the smallest useful brightness difference
+    between the darkest and brightest flat (camera values); pixels below it are given gain NaN (they
+    see no display). Samples at full_scale are left out (saturated).
     Raises ValueError when fewer than 3 distinct levels are given or no pixel responds.
     """
-    order = np.argsort(levels)
-    levels = np.asarray(levels, float)[order]
+    levels = np.asarray(levels, float)
     if len(np.unique(levels)) < 3:
         raise ValueError("the intensity calibration needs flat frames at 3 or more distinct levels")
-    stack = [np.asarray(images[i], np.float32) for i in order]              # J x (H, W), no copy
-    keep = [float(np.mean(img < full_scale)) >= 0.5 for img in stack]   # mostly saturated: no shape
-    if sum(keep) < 3:
+    stack = images if isinstance(images, np.ndarray) and images.dtype == np.float32 else \
+        np.stack([np.asarray(img, np.float32) for img in images])
+    order = np.argsort(levels, kind="stable")
+    # mostly saturated: no shape
+    order = np.array([i for i in order if float(np.mean(stack[i] < full_scale)) >= 0.5], int)
+    if len(order) < 3:
         raise ValueError("fewer than 3 flat levels are below saturation")
-    levels = levels[np.array(keep)]
-    stack = [img for img, k in zip(stack, keep) if k]
-    span = stack[-1] - stack[0]
+    levels = levels[order]
+    span = stack[order[-1]] - stack[order[0]]
     good = span >= min_range
-    for img in stack:
-        good &= img < full_scale
+    for i in order:
+        good &= stack[i] < full_scale
     if good.sum() < 16:
         raise ValueError("no pixel responds to the flat frames (all dark or all saturated)")
     # global shape: median of each pixel's normalised curve (robust to vignetting and gain)
     sub = np.flatnonzero(good.ravel())[:: max(1, int(good.sum()) // 200_000)]
-    flat = np.stack([img.ravel()[sub] for img in stack])
+    flat = np.stack([stack[i].ravel()[sub] for i in order])
     norm = (flat - flat[0]) / (flat[-1] - flat[0])
     response = smooth_response(levels, np.median(norm, axis=1))
-    lum = response(levels)
     # per pixel: offset + gain * Y(L) by least squares over the unsaturated levels
-    sw, sy, syy, si, syi = (np.zeros(span.shape, np.float32) for _ in range(5))
-    for img, y in zip(stack, lum.astype(np.float32)):
-        w = (img < full_scale).astype(np.float32)
-        wi = w * img
-        sw += w
-        sy += y * w
-        syy += y * y * w
-        si += wi
-        syi += y * wi
-    det = sw * syy - sy * sy
-    with np.errstate(divide="ignore", invalid="ignore"):
-        gain = (sw * syi - sy * si) / det
-        offset = (si - gain * sy) / sw
-    ok = (span >= min_range) & (sw >= 2) & (gain > 0)
-    gain = np.where(ok, gain, np.nan).astype(np.float32)
-    offset = np.where(ok, offset, np.nan).astype(np.float32)
+    h, w = span.shape
+    offset, gain = np.empty((h, w), np.float32), np.empty((h, w), np.float32)
+    _fit_pixels(stack.reshape(len(stack), -1), order, response(levels).astype(np.float32), np.float32(full_scale),
+                np.float32(min_range), offset.reshape(-1), gain.reshape(-1))
     return IntensityMatrix(offset, gain, response)
 
+
+@numba.njit(cache=True, parallel=True)
+def _fit_pixels(stack, order, lum, full, min_range, offset, gain):  # pragma: no cover - compiled
+    """Per pixel: least-squares offset + gain * lum over the unsaturated frames stack[order[j]]; NaN
+    where the brightest and darkest frames differ by less than min_range, fewer than 2 frames are
+    unsaturated, or the gain is not positive."""
+    for i in numba.prange(stack.shape[1]):
+        sw = sy = syy = si = syi = np.float32(0)
+        for j in range(order.size):
+            v = stack[order[j], i]
+            if v < full:
+                y = lum[j]
+                sw += 1
+                sy += y
+                syy += y * y
+                si += v
+                syi += y * v
+        det = sw * syy - sy * sy
+        g = (sw * syi - sy * si) / det if det != 0 else np.float32(np.nan)
+        span = stack[order[-1], i] - stack[order[0], i]
+        if span >= min_range and sw >= 2 and g > 0:
+            gain[i] = g
+            offset[i] = (si - g * sy) / sw
+        else:
+            gain[i] = offset[i] = np.nan
 
 
 def smooth_response(levels: np.ndarray, luminance: np.ndarray, samples: int = 256) -> DisplayResponse:

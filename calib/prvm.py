@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from calib.capture import CoverGlass
@@ -19,7 +20,7 @@ from calib.capture import CoverGlass
 class Lines:
     """One line per pixel. start: (H, W, 2) x, y on z = z_ref (mm); slope: (H, W, 2); valid: (H, W) bool;
     residual_mm: (H, W) float32 RMS distance of the points from the line, NaN with fewer than 3 points;
-    used: (H, W) number of stage positions that contributed."""
+    used: (H, W) int16 number of stage positions that contributed."""
 
     start: np.ndarray
     slope: np.ndarray
@@ -34,12 +35,17 @@ class Lines:
 
     def direction(self) -> np.ndarray:
         """(H, W, 3) unit directions, z > 0."""
-        d = np.concatenate([self.slope, np.ones(self.slope.shape[:2] + (1,))], axis=2)
-        return d / np.linalg.norm(d, axis=2, keepdims=True)
+        d = np.empty(self.slope.shape[:2] + (3,))
+        d[..., 2] = 1.0 / np.sqrt(1.0 + self.slope[..., 0] ** 2 + self.slope[..., 1] ** 2)
+        np.multiply(self.slope, d[..., 2:], out=d[..., :2])
+        return d
 
     def origin(self) -> np.ndarray:
         """(H, W, 3) points on z = z_ref."""
-        return np.concatenate([self.start, np.full(self.start.shape[:2] + (1,), self.z_ref)], axis=2)
+        o = np.empty(self.start.shape[:2] + (3,))
+        o[..., :2] = self.start
+        o[..., 2] = self.z_ref
+        return o
 
     @classmethod
     def through(cls, z_a: float, xy_a: np.ndarray, z_b: float, xy_b: np.ndarray, valid: np.ndarray,
@@ -53,42 +59,69 @@ def fit_lines(z_mm: np.ndarray, points: np.ndarray, weights: np.ndarray, z_ref: 
     """Weighted least-squares line through each pixel's points.
 
     z_mm: (M,) plane of each stage position; points: (M, H, W, 2) x, y (mm) on those planes;
-    weights: (M, H, W) >= 0 (0 leaves a point out; e.g. inverse variances). A pixel is valid when it has
-    points on at least two distinct planes.
+    weights: (M, H, W) >= 0 (0 leaves a point out, as does a non-finite point; e.g. inverse variances).
+    A pixel is valid when it has points on at least two distinct planes.
     """
     z = np.asarray(z_mm, np.float64) - z_ref
-    finite = np.isfinite(points).all(axis=3)
-    w = np.where(finite, weights, 0.0).astype(np.float64)
-    p = points if finite.all() else np.where(finite[..., None], points, 0.0)
-    zz = z[:, None, None]
-    s, sz, szz = w.sum(0), (w * zz).sum(0), (w * zz * zz).sum(0)
-    det = s * szz - sz * sz
-    used = (w > 0).sum(0)
-    valid = (used >= 2) & (det > 1e-12 * np.maximum(s * szz, 1e-300))
-    det = np.where(valid, det, 1.0)
-    sx, szx = np.zeros(p.shape[1:]), np.zeros(p.shape[1:])
-    for m in range(len(z)):
-        wp = w[m][..., None] * p[m]
-        sx += wp
-        szx += z[m] * wp
-    slope = (s[..., None] * szx - sz[..., None] * sx) / det[..., None]
-    start = (sx - slope * sz[..., None]) / np.where(valid, s, 1.0)[..., None]
-    start[~valid] = np.nan
-    slope[~valid] = np.nan
-    lines = Lines(start, slope, valid, np.full(valid.shape, np.nan, np.float32), used, z_ref)
-    if len(z) > 2:
-        d = lines.direction()
-        ss, n = np.zeros(valid.shape), np.zeros(valid.shape)
-        for m in range(len(z)):
-            e = p[m] - lines.at(z_mm[m])
-            along = (e * d[..., :2]).sum(axis=2)
-            dist2 = (e * e).sum(axis=2) - along * along
-            use = w[m] > 0
-            ss += np.where(use, dist2, 0.0)
-            n += use
-        with np.errstate(invalid="ignore"):
-            lines.residual_mm = np.where(valid & (n > 2), np.sqrt(ss / np.maximum(n, 1)), np.nan).astype(np.float32)
-    return lines
+    m, h, w = np.shape(weights)
+    pts = np.ascontiguousarray(points, np.float64).reshape(m, h * w, 2)
+    wts = np.ascontiguousarray(weights).reshape(m, h * w)
+    start, slope = np.empty((h, w, 2)), np.empty((h, w, 2))
+    valid = np.empty((h, w), bool)
+    used = np.empty((h, w), np.int16)
+    residual = np.empty((h, w), np.float32)
+    _fit_lines(z, pts, wts, start.reshape(-1, 2), slope.reshape(-1, 2), valid.reshape(-1), used.reshape(-1),
+               residual.reshape(-1))
+    return Lines(start, slope, valid, residual, used, z_ref)
+
+
+@numba.njit(cache=True, parallel=True)
+def _fit_lines(z, points, weights, start, slope, valid, used, residual):  # pragma: no cover - compiled
+    """Per pixel i: the weighted line x = start + slope * z through points[:, i] (float64); residual =
+    RMS distance of the used points from the line (NaN unless 3 or more were used)."""
+    m = z.size
+    for i in numba.prange(weights.shape[1]):
+        s = sz = szz = sx0 = sx1 = szx0 = szx1 = 0.0
+        n = 0
+        for k in range(m):
+            wk = np.float64(weights[k, i])
+            x0, x1 = points[k, i, 0], points[k, i, 1]
+            if not (wk > 0) or not (np.isfinite(x0) and np.isfinite(x1)):
+                continue
+            n += 1
+            s += wk
+            sz += wk * z[k]
+            szz += wk * z[k] * z[k]
+            sx0 += wk * x0
+            sx1 += wk * x1
+            szx0 += wk * z[k] * x0
+            szx1 += wk * z[k] * x1
+        det = s * szz - sz * sz
+        ok = n >= 2 and det > 1e-12 * max(s * szz, 1e-300)
+        used[i] = n
+        valid[i] = ok
+        residual[i] = np.nan
+        if not ok:
+            start[i, 0] = start[i, 1] = slope[i, 0] = slope[i, 1] = np.nan
+            continue
+        a0 = (s * szx0 - sz * sx0) / det
+        a1 = (s * szx1 - sz * sx1) / det
+        b0 = (sx0 - a0 * sz) / s
+        b1 = (sx1 - a1 * sz) / s
+        slope[i, 0], slope[i, 1], start[i, 0], start[i, 1] = a0, a1, b0, b1
+        if n > 2:
+            norm2 = 1.0 + a0 * a0 + a1 * a1
+            ss = 0.0
+            for k in range(m):
+                wk = np.float64(weights[k, i])
+                x0, x1 = points[k, i, 0], points[k, i, 1]
+                if not (wk > 0) or not (np.isfinite(x0) and np.isfinite(x1)):
+                    continue
+                e0 = x0 - (b0 + a0 * z[k])
+                e1 = x1 - (b1 + a1 * z[k])
+                along = (e0 * a0 + e1 * a1)
+                ss += e0 * e0 + e1 * e1 - along * along / norm2
+            residual[i] = np.sqrt(max(ss, 0.0) / n)
 
 
 def glass_offset(slope: np.ndarray, glass: CoverGlass) -> np.ndarray:

@@ -47,7 +47,8 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
     periods: fringe periods in display pixels; steps: phase shifts per period (>= 3); z_positions:
     nominal stage positions (mm, >= 1 of them); flat_levels: grey levels of the flat frames;
     cover_glass: (thickness_mm, refractive_index) or a CoverGlass; low/high: fringe (and chessboard)
-    levels; chessboard: add chessboards (squares CHESS_SQUARES) at 5 placements per position;
+    levels; chessboard: add chessboards (squares CHESS_SQUARES) at 5 placements per position, inside
+    the field at that position;
     stage_error_um: RMS stage positioning error; exposure_fraction: brightest fringe pixel / full scale;
     sensor_seed: seed of the camera's gain map and noise (default `seed`; cameras of one rig share the
     stage's seed but each has its own sensor).
@@ -88,8 +89,8 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / MANIFEST).unlink(missing_ok=True)     # an old manifest must not describe half-new images
-    frames = _frames(camera, z_nominal, flats, periods, steps, low, high,
-                     _chess_placements(cam, display, stage) if chessboard else [])
+    boards = [_chess_placements(cam, display, stage, z) if chessboard else [] for z in stage.true_mm]
+    frames = _frames(camera, z_nominal, flats, periods, steps, low, high, boards)
     by_z = {z: t for z, t in zip(z_nominal, stage.true_mm)}
     for f in progress(frames, "simulating", total=len(frames)):
         image = screen_image(f.pattern, display.width_px, display.height_px)
@@ -127,35 +128,58 @@ def _frames(camera, z_nominal, flats, periods, steps, low, high, boards) -> list
                     frames.append(Frame(camera, f"{folder}/{camera}_{axis}_P{p:g}_s{k}.png",
                                         Pattern("fringe", {"axis": axis, "period_px": p, "shift_rad": shift,
                                                            "low": low, "high": high}), z_mm=z))
-        for j, board in enumerate(boards):
+        for j, board in enumerate(boards[i]):
             frames.append(Frame(camera, f"{folder}/{camera}_chess_{j}.png",
                                 Pattern("chessboard", {**board, "low": low, "high": high}), z_mm=z))
     return frames
 
 
-def _chess_placements(cam: SimCamera, display: SimDisplay, stage: SimStage) -> list[dict]:
-    """Five board placements (centre and four shifted ones) that stay inside the camera's field at
-    every stage position."""
-    lo = np.array([-np.inf, -np.inf])
-    hi = np.array([np.inf, np.inf])
-    for z in stage.true_mm:
-        v = cam.view(display, z, stage.axis)
-        cr = v.points_mm[..., :2] - np.array([z * stage.axis[0] / stage.axis[2], z * stage.axis[1] / stage.axis[2]])
-        cr = cr / np.array(display.pitch_mm)
-        lo = np.maximum(lo, np.percentile(cr.reshape(-1, 2), 2, axis=0))
-        hi = np.minimum(hi, np.percentile(cr.reshape(-1, 2), 98, axis=0))
+def _chess_placements(cam: SimCamera, display: SimDisplay, stage: SimStage, z: float) -> list[dict]:
+    """Five board placements (centre and four shifted ones) inside the camera's field at true stage
+    position z: sized from the field's extent (2nd-98th percentile of the display coordinates seen),
+    then shrunk until every corner of every board lies inside the field's outline (an oblique view sees
+    a trapezoid, not the box of its extent) by half a square or more (the light border a detector
+    needs)."""
+    cr = _field_cr(cam, display, stage, z)
+    lo, hi = np.percentile(cr.reshape(-1, 2), [2, 98], axis=0)
+    outline = np.concatenate([cr[0], cr[1:, -1], cr[-1, -2::-1], cr[-2:0:-1, 0]]).astype(np.float32)
     field = hi - lo
     size = int(0.65 * min(field[0] / CHESS_SQUARES[0], field[1] / CHESS_SQUARES[1]))
-    if size < 4:
-        raise InputError("chessboard", f"the camera sees only {field[0]:.0f}x{field[1]:.0f} display pixels "
-                                       f"at every position: too few for a {CHESS_SQUARES[0]}x"
-                                       f"{CHESS_SQUARES[1]} chessboard")
+    while size >= 4:
+        boards = _boards(size, lo, hi)
+        if all(_inside(outline, b, size / 2) for b in boards):
+            return boards
+        size -= 1
+    raise InputError("chessboard", f"the camera sees only {field[0]:.0f}x{field[1]:.0f} display pixels "
+                                   f"at z = {z:g} mm: too few for a {CHESS_SQUARES[0]}x{CHESS_SQUARES[1]} "
+                                   f"chessboard")
+
+
+def _field_cr(cam: SimCamera, display: SimDisplay, stage: SimStage, z: float) -> np.ndarray:
+    """(H, W, 2) display coordinates (c, r) each camera pixel sees at true stage position z."""
+    v = cam.view(display, z, stage.axis)
+    shift = np.array([z * stage.axis[0] / stage.axis[2], z * stage.axis[1] / stage.axis[2]])
+    return (v.points_mm[..., :2] - shift) / np.array(display.pitch_mm)
+
+
+def _boards(size: int, lo: np.ndarray, hi: np.ndarray) -> list[dict]:
+    """The five placements of a board of `size`-pixel squares in the display box [lo, hi]."""
     board = np.array(CHESS_SQUARES) * size
     centre = (lo + hi) / 2 - board / 2
-    slack = (field - board) / 2 * 0.8
+    slack = (hi - lo - board) / 2 * 0.8
     return [{"squares": list(CHESS_SQUARES), "square_px": size,
              "origin_px": [int(round(centre[0] + dx * slack[0])), int(round(centre[1] + dy * slack[1]))]}
             for dx, dy in ((0, 0), (-1, -1), (1, -1), (-1, 1), (1, 1))]
+
+
+def _inside(outline: np.ndarray, board: dict, margin: float) -> bool:
+    """Whether the board's four corners lie inside the closed `outline` ((N, 2) display c, r) by
+    `margin` display pixels or more."""
+    import cv2
+    c0, r0 = board["origin_px"]
+    w, h = np.array(board["squares"]) * board["square_px"]
+    return all(cv2.pointPolygonTest(outline, (float(c), float(r)), True) >= margin
+               for c, r in ((c0, r0), (c0 + w, r0), (c0, r0 + h), (c0 + w, r0 + h)))
 
 
 def _truth(cam: SimCamera, display: SimDisplay, stage: SimStage, seed: int, noise: bool, camera: str):

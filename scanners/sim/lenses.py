@@ -15,7 +15,8 @@ Families (`make_lens`):
   freeform     "smartphone": pinhole + smooth global distortion + local Gaussian bumps
   noncentral   pinhole camera behind a thick tilted glass window, traced with Snell's law
   telecentric  object-side telecentric: parallel rays, small distortion of the object-plane points
-  scheimpflug  pinhole lens with mild distortion and a tilted sensor
+  scheimpflug  pinhole lens with mild distortion viewing the display obliquely, its sensor tilted so
+               that the display plane is in focus (the Scheimpflug condition, `scheimpflug_tilt_deg`)
 """
 
 from __future__ import annotations
@@ -242,8 +243,28 @@ _FAMILY_KEYS = {
     "freeform": ("focal_mm", "f_number", "k", "p", "bumps", "bump_sigma_px", "bump_amplitude_px"),
     "noncentral": ("focal_mm", "f_number", "k", "p", "window"),
     "telecentric": ("magnification", "numerical_aperture", "k"),
-    "scheimpflug": ("focal_mm", "f_number", "k", "p", "sensor_tilt_deg"),
+    "scheimpflug": ("focal_mm", "f_number", "k", "p", "sensor_tilt_deg", "view_deg"),
 }
+# the default lenses are focused on the display at the middle of the default stage travel (0, 50 mm)
+FOCUS_BEYOND_TARGET_MM = 25.0
+# a large-field telecentric lens (like the commercial 0.06x ones covering ~100 mm): a 5.3 um pixel sees
+# 88 um = 0.32 display pixels, so the display's pixels are not resolved; working F/8 (NA = m / (2 F))
+TELECENTRIC_MAGNIFICATION = 0.06
+TELECENTRIC_WORKING_F_NUMBER = 8.0
+
+
+def scheimpflug_tilt_deg(camera_to_wcs: np.ndarray, focus_mm: float, focal_mm: float) -> float:
+    """Sensor tilt (degrees, about the camera y axis, `CentralLens.sensor_tilt_deg`) that puts the plane
+    of sharp focus on the display plane (WCS normal z) through the axis point at `focus_mm`.
+
+    A thin lens images the plane n.P = d (camera frame, P in mm) onto the plane (f n - d e_z).Q = -d f
+    (sensor drawn in front of the lens, Q = P f / (P_z - f)): the sensor must lie in that plane. Its
+    normal, (-f n_x, -f n_y, (F - f) n_z) for d = F n_z, gives tan(tilt) = f / (F - f) * tan(object
+    tilt) = m tan(object tilt); the small component n_y (a camera off the display's row through the
+    target, or rolled) is left uncorrected, as a one-axis Scheimpflug mount does.
+    """
+    n = camera_to_wcs.T @ np.array([0.0, 0.0, 1.0])            # display normal in the camera frame
+    return float(np.degrees(np.arctan2(-focal_mm * n[0], (focus_mm - focal_mm) * n[2])))
 
 
 def make_lens(family: str, width: int = 1280, height: int = 1024, seed: int = 0, **overrides) -> Lens:
@@ -251,12 +272,16 @@ def make_lens(family: str, width: int = 1280, height: int = 1024, seed: int = 0,
     drawn from `seed`, posed ~400 mm in front of the default display's centre, looking at it.
 
     Overrides (all optional): pixel_mm; distance_mm (camera to target along -z); focus_mm (in-focus
-    distance along the axis, default distance + 25); target_mm (WCS point on the axis); offset_mm (x, y
-    of the camera relative to the target); roll_deg; vignetting (mechanical r^2 coefficient);
+    distance along the axis, default: to the display plane 25 mm beyond the target, distance + 25 for
+    a camera facing it); target_mm (WCS point on the axis); offset_mm (x, y of the camera relative to
+    the target; scheimpflug: default -distance * tan(view_deg) in x, an oblique view); roll_deg;
+    vignetting (mechanical r^2 coefficient);
     principal_offset_px (cx, cy offset from the sensor centre); and per family: focal_mm, f_number,
     k (k1, k2, k3), p (p1, p2), bumps ((n, 5) array of (u, v, sigma, du, dv) in pixels, or a count),
     bump_sigma_px (lo, hi), bump_amplitude_px (lo, hi), window (a Window), magnification,
-    numerical_aperture, sensor_tilt_deg.
+    numerical_aperture, sensor_tilt_deg (default for scheimpflug: the Scheimpflug condition for the
+    display plane in focus, `scheimpflug_tilt_deg`), view_deg (angle between the scheimpflug camera's
+    axis and the display normal, from which its default offset follows).
     """
     if family not in LENS_FAMILIES:
         raise InputError("--lens", f"unknown lens family {family!r} (known: {', '.join(LENS_FAMILIES)})")
@@ -279,19 +304,25 @@ def make_lens(family: str, width: int = 1280, height: int = 1024, seed: int = 0,
                          bump_sigma_px=(20.0, 60.0), bump_amplitude_px=(1.0, 3.0)),
         "noncentral": dict(k=(-0.03 * (1 + dev(0.15)), 0.02, 0.0), p=(dev(2e-4), dev(2e-4)),
                            window=Window(tilt_deg=25.0 + dev(2.0))),
-        "telecentric": dict(magnification=0.2, numerical_aperture=0.005, k=(1e-3 * (1 + dev(0.2)), 0.0, 0.0),
-                            vignetting=-0.06),
-        "scheimpflug": dict(k=(-0.03 * (1 + dev(0.15)), 0.01, 0.0), p=(dev(2e-4), dev(2e-4)),
-                            sensor_tilt_deg=float(rng.uniform(4.0, 6.0)), f_number=11.0),
+        "telecentric": dict(magnification=TELECENTRIC_MAGNIFICATION,
+                            numerical_aperture=TELECENTRIC_MAGNIFICATION / (2 * TELECENTRIC_WORKING_F_NUMBER),
+                            k=(1e-3 * (1 + dev(0.2)), 0.0, 0.0), vignetting=-0.06),
+        # a 25 mm lens at f/8 viewing the display ~30 degrees off its normal (m ~ 0.056: a ~1.7 degree tilt)
+        "scheimpflug": dict(k=(-0.02 * (1 + dev(0.15)), 0.005, 0.0), p=(dev(2e-4), dev(2e-4)),
+                            focal_mm=25.0, f_number=8.0, view_deg=30.0 + dev(2.0), sensor_tilt_deg=None),
     }[family])
     q.update(overrides)
+    if family == "scheimpflug" and "offset_mm" not in overrides:
+        q["offset_mm"] = (-q["distance_mm"] * np.tan(np.radians(q["view_deg"])), dev(5.0))
     for key in ("pixel_mm", "distance_mm", "focal_mm", "f_number", "magnification", "numerical_aperture"):
         if key in q and not (np.isfinite(q[key]) and q[key] > 0):
             raise InputError("lens", f"{key} must be positive, got {q[key]!r}")
-    focus = q["distance_mm"] + 25.0 if q["focus_mm"] is None else float(q["focus_mm"])
     target = np.asarray(q["target_mm"], float)
     centre = target + np.array([q["offset_mm"][0], q["offset_mm"][1], -q["distance_mm"]])
     rot = look_at(centre, target, q["roll_deg"])
+    focus = q["distance_mm"] + FOCUS_BEYOND_TARGET_MM if q["focus_mm"] is None else float(q["focus_mm"])
+    if family == "scheimpflug" and q["focus_mm"] is None:      # oblique: the axis meets the plane farther
+        focus /= rot[2, 2]
     cx = (width - 1) / 2 + q["principal_offset_px"][0]
     cy = (height - 1) / 2 + q["principal_offset_px"][1]
     common = dict(family=family, width=int(width), height=int(height), pixel_mm=q["pixel_mm"], rotation=rot,
@@ -315,7 +346,8 @@ def make_lens(family: str, width: int = 1280, height: int = 1024, seed: int = 0,
     dist = Distortion(k=k, p=tuple(float(c) for c in q["p"]), bumps=bumps_norm)
     params = {"fx": f_px, "fy": f_px, "cx": cx, "cy": cy, "focal_mm": q["focal_mm"], "f_number": q["f_number"],
               "distortion": {"k": list(k), "p": list(dist.p), "bumps_px": bumps.tolist()}}
-    tilt = float(q.get("sensor_tilt_deg", 0.0))
+    tilt = q.get("sensor_tilt_deg", 0.0)
+    tilt = scheimpflug_tilt_deg(rot, focus, q["focal_mm"]) if tilt is None else float(tilt)
     window = q.get("window")
     if tilt:
         params["sensor_tilt_deg"] = tilt

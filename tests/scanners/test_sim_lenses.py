@@ -46,10 +46,28 @@ def test_telecentric_rays_are_parallel_and_spread_over_the_field():
     d = d.reshape(-1, 3)
     assert np.abs(d - d[0]).max() < 1e-14
     assert np.allclose(d[0], lens.rotation[:, 2], atol=1e-14)   # along the optical axis
-    # object field = sensor field / magnification (0.2): 160 px * 5.3 um / 0.2 = 4.24 mm wide
+    # object field = sensor field / magnification
     o = o.reshape(-1, 3) - (o.reshape(-1, 3) @ d[0])[:, None] * d[0]
     width = np.ptp(o @ lens.rotation[:, 0])
-    assert width == pytest.approx((W - 1 - (W - 1) % 7) * 0.0053 / 0.2, rel=0.01)
+    assert width == pytest.approx((W - 1 - (W - 1) % 7) * 0.0053 / lens.magnification, rel=0.01)
+
+
+@pytest.mark.parametrize("family", LENS_FAMILIES)
+def test_a_pixel_sees_less_than_a_display_pixel_but_does_not_resolve_it(family):
+    """The seed's physical interpolation: a camera pixel's footprint on the display is 0.3-1 display
+    pixel (0.2745 mm), so the display's reference points are about as dense as the camera's pixels
+    (a much smaller footprint resolves the display's pixel grid and the decoded phase becomes a
+    staircase); and the display (527 x 296 mm) covers the field at both default stage positions."""
+    lens = make_lens(family, 1280, 1024)
+    u, v = np.meshgrid(np.arange(0, 1280, 8.0), np.arange(0, 1024, 8.0))
+    o, d = lens.rays(u, v)
+    for z in (0.0, 50.0):
+        p = o + (z / d[..., 2])[..., None] * d
+        step = 0.5 * (np.linalg.norm(np.diff(p, axis=1), axis=-1).mean()
+                      + np.linalg.norm(np.diff(p, axis=0), axis=-1).mean()) / 8
+        assert 0.3 <= step / 0.2745 <= 1.0
+        assert (p[..., 0] > 0).all() and (p[..., 0] < 1919 * 0.2745).all()
+        assert (p[..., 1] > 0).all() and (p[..., 1] < 1079 * 0.2745).all()
 
 
 def test_noncentral_rays_do_not_meet_and_follow_snells_law_through_the_window():
@@ -122,12 +140,36 @@ def test_freeform_distortion_is_smooth_at_ten_pixels():
         assert np.abs(second).max() < 0.2          # px over a 10 px step: bumps are >= 20 px wide
 
 
-def test_scheimpflug_sensor_is_tilted():
-    lens = make_lens("scheimpflug", W, H)
-    p = lens.sensor_points(np.array([0.0, W - 1.0]), np.array([H / 2, H / 2]))
+def scheimpflug_blur(lens, z_mm=25.0):
+    """Defocus blur diameters (pixels) over the sensor for the display plane z = z_mm."""
+    u, v = np.meshgrid(np.linspace(0, lens.width - 1, 17), np.linspace(0, lens.height - 1, 13))
+    o, d = lens.rays(u, v)
+    return lens.blur_diameter_px(u, v, o + (z_mm / d[..., 2])[..., None] * d)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_scheimpflug_views_the_display_obliquely_with_its_plane_in_focus(seed):
+    lens = make_lens("scheimpflug", 1280, 1024, seed=seed)
+    view = np.degrees(np.arccos(lens.rotation[2, 2]))            # axis vs display normal
+    assert 25 <= view <= 35
+    # the sensor is tilted (about the axis perpendicular to the viewing plane) by the Scheimpflug rule
+    # tan(tilt) = m tan(object tilt), m = v / F the magnification on the axis
+    p = lens.sensor_points(np.array([0.0, 1279.0]), np.array([512.0, 512.0]))
     tilt = np.degrees(np.arctan2(p[1, 2] - p[0, 2], p[1, 0] - p[0, 0]))
-    assert 3 <= abs(tilt) <= 8
-    assert abs(tilt) == pytest.approx(abs(lens.sensor_tilt_deg))
+    assert abs(tilt) == pytest.approx(abs(lens.sensor_tilt_deg), abs=1e-9)
+    m = lens.focal_mm / (lens.focus_mm - lens.focal_mm)
+    assert abs(np.tan(np.radians(tilt))) == pytest.approx(m * np.tan(np.radians(view)), rel=0.03)
+    assert 1 < abs(tilt) < 4
+    # the plane of sharp focus is the display plane at the middle of the stage travel: the blur circle
+    # is far below a pixel over the whole field; without the tilt its edges would be blurred
+    assert scheimpflug_blur(lens).max() < 0.1
+    untilted = make_lens("scheimpflug", 1280, 1024, seed=seed, sensor_tilt_deg=0.0)
+    assert scheimpflug_blur(untilted).max() > 2.0
+    # at the default stage positions (+-25 mm) the blur is even across the field (a ~2 px disk, the
+    # optics' interpolation of the display's pixels)
+    for z in (0.0, 50.0):
+        b = scheimpflug_blur(lens, z)
+        assert 1.0 < b.min() and b.max() < 1.3 * b.min()
 
 
 def test_distortion_inverse_round_trips():
