@@ -31,6 +31,11 @@ class Figure:
     goal: str = ""
     ok: bool | None = None
 
+    def __post_init__(self):  # numpy scalars from the measurements -> plain Python (JSON, tables)
+        self.value = float(self.value)
+        self.reference_value = None if self.reference_value is None else float(self.reference_value)
+        self.ok = None if self.ok is None else bool(self.ok)
+
     def as_dict(self) -> dict:
         return asdict(self)
 

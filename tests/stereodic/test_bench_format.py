@@ -13,3 +13,12 @@ def test_tables_show_every_figure_and_its_verdict():
     assert md[3].endswith("NO |") and md[4].endswith("|  |")
     txt = format_table(figs).splitlines()
     assert len(txt) == 1 + len(figs) and txt[2].rstrip().endswith("NO")
+
+
+def test_figures_from_numpy_measurements_serialise():
+    import json
+
+    import numpy as np
+    f = Figure("rectify", "row error", np.float64(1e-5), "px", "OpenCV", np.float32(0.0076), "<= 0.01",
+               np.bool_(True))
+    assert json.loads(json.dumps(f.as_dict()))["ok"] is True
