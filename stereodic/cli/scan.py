@@ -34,6 +34,8 @@ def register(sub):
     p.add_argument("--mesh", metavar="MESH.ply", help="also write a Poisson surface mesh")
     p.add_argument("--no-evm", action="store_true",
                    help="triangulate with the pinhole rays (no EVM correction), for comparison")
+    p.add_argument("--smooth", type=float, default=None, metavar="PX",
+                   help="phase filter sigma in virtual pixels before matching (default 3; 0: none)")
     p.add_argument("--outlier-neighbours", type=int, default=20,
                    help="statistical outlier removal: neighbours (default 20; 0 disables)")
     p.add_argument("--outlier-std", type=float, default=3.0,
@@ -42,12 +44,12 @@ def register(sub):
 
 
 def run(args) -> int:
-    from scanners.scan import scan_to_files
+    from scanners.scan import SMOOTH_PX, scan_to_files
     from stereodic.rig import load_rig
     rig = load_rig(args.rig)
     written = scan_to_files(rig, args.dataset, args.out, args.state, args.cameras, args.mesh,
                             corrected=not args.no_evm, neighbours=args.outlier_neighbours,
-                            std_ratio=args.outlier_std)
+                            std_ratio=args.outlier_std, smooth_px=SMOOTH_PX if args.smooth is None else args.smooth)
     for path, n in written:
         print(f"{path}: {n} points")
     return 0

@@ -26,8 +26,10 @@ def register(modes) -> None:
     s.add_argument("--objects", default=",".join(OBJECTS),
                    help=f"comma-separated objects to scan (default {','.join(OBJECTS)})")
     s.add_argument("--periods", type=parse_floats, default=None,
-                   help="projector fringe periods in panel pixels, the longest >= 1280 (default 1280,120,12)")
-    s.add_argument("--steps", type=int, default=3, help="phase steps per period (default 3)")
+                   help="projector fringe periods in panel pixels, the longest >= 1280 (default 1280,160,32,8)")
+    s.add_argument("--steps", type=parse_floats, default=None,
+                   help="phase steps: one number for all periods or one per period (default 16 for the shortest "
+                        "period, 3 for the others)")
     s.add_argument("--supersample", type=int, default=2, help="sub-samples per pixel side (default 2)")
     s.add_argument("--seed", type=int, default=0, help="random seed of lenses, poses and noise")
     s.add_argument("--noise", action=argparse.BooleanOptionalAction, default=True, help="sensor noise (default on)")
@@ -45,7 +47,8 @@ def run(args) -> int:
     if args.width < 16 or args.height < 16:
         raise InputError("--width/--height", f"sensor must be at least 16x16, got {args.width}x{args.height}")
     rig = default_scan_rig(args.width, args.height, args.seed, args.lens, supersample=args.supersample)
-    cap = simulate_scan(args.output, standard_scenes(objects), rig, args.periods or DEFAULT_PERIODS, args.steps,
+    cap = simulate_scan(args.output, standard_scenes(objects), rig, args.periods or DEFAULT_PERIODS,
+                        args.steps[0] if args.steps and len(args.steps) == 1 else args.steps,
                         args.seed, args.noise)
     print(f"wrote {len(cap.frames)} frames of {len(cap.states('cam0'))} scan states, {cap.manifest_path}, "
           f"{cap.root / 'truth.npz'} and {cap.root / 'rig.npz'}")

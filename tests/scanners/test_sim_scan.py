@@ -81,3 +81,17 @@ def test_simulated_scan_dataset_is_complete(tmp_path):
     truth = load_truth(tmp_path)
     assert truth["states"][1]["surfaces"][0]["type"] == "plane"
     assert (tmp_path / "truth_cam0.npz").is_file() and not (tmp_path / "rig.npz").exists()
+
+
+def test_steps_may_differ_per_period(tmp_path):
+    from calib.errors import InputError
+    from scanners.sim.scan import steps_per_period
+    rig = default_scan_rig(48, 32, supersample=1)
+    cap = simulate_scan(tmp_path, standard_scenes(("plane",))[:1], rig, periods=(1280, 160, 32), steps=[3, 4, 6],
+                        build_rig=False)
+    per = {p: sum(1 for f in cap.frames if f.camera == "cam0" and f.pattern.period_px == p) for p in (1280, 160, 32)}
+    assert per == {1280: 3, 160: 4, 32: 6} and cap.extra["projector"]["steps"] == [3, 4, 6]
+    assert steps_per_period((1280, 120, 8), None) == [3, 3, 16]
+    for bad in ([3, 4], [3, 2, 5], 2.5):
+        with pytest.raises(InputError, match="steps"):
+            steps_per_period((1280, 160, 32), bad)

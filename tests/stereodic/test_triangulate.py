@@ -61,3 +61,22 @@ def test_closest_points_of_known_lines():
     assert np.allclose(t.points, [[0, 0, 2.5]]) and np.allclose(t.gap_mm, 5)
     parallel = closest_points(o1, d1, o2, d1)
     assert np.isnan(parallel.points).all()
+
+
+@pytest.mark.parametrize("corrected", [True, False])
+def test_numba_kernel_equals_the_numpy_statement(corrected):
+    """triangulate (fused numba kernel) == closest_points(*rays_at(left), *rays_at(right)), blank rays too."""
+    from stereodic.triangulate import rays_at
+    *_, rig = pair("noncentral", "brown")
+    rng = np.random.default_rng(5)
+    n = 5000
+    xl, rl = rng.uniform(-2, rig.sensor.width + 1, n), rng.uniform(-2, rig.sensor.height + 1, n)
+    xr, rr = xl - rng.uniform(-20, 20, n), rl + rng.normal(0, 0.5, n)
+    xl[:10] = np.nan
+    got = triangulate(rig, xl, xr, rl, rr, corrected=corrected)
+    ref = closest_points(*rays_at(rig, "left", xl, rl, corrected), *rays_at(rig, "right", xr, rr, corrected))
+    assert np.array_equal(np.isnan(got.points), np.isnan(ref.points)) and np.isnan(got.points[:10]).all()
+    ok = np.isfinite(ref.points).all(axis=1)
+    assert ok.sum() > n // 2
+    assert np.abs(got.points[ok] - ref.points[ok]).max() < 1e-9
+    assert np.abs(got.gap_mm[ok] - ref.gap_mm[ok]).max() < 1e-9
