@@ -1,8 +1,11 @@
-"""Rays against the truth: the error of each pixel's ray where it matters, on the working plane.
+"""Rays against the truth: the error of each pixel's ray on the working plane and over the working volume.
 
-The error of a pixel is the distance (mm) between its estimated and true ray on the plane z = z_mm,
+The plane error of a pixel is the distance (mm) between its estimated and true ray on the plane z = z_mm,
 divided by the pixel footprint there (the mean distance between neighbouring true rays on that plane), so
-it reads in camera pixels.
+it reads in camera pixels. A ray is a line, and one can be right on one plane and wrong in direction: the
+volume error is the RMS of the same distance over planes spanning the calibrated stage range and half that
+range again beyond each end, each divided by the footprint on the working plane (so a wrong direction shows
+as an error growing away from the working plane, in the working plane's pixels).
 """
 
 from __future__ import annotations
@@ -42,6 +45,27 @@ def ray_error_px(estimate: PRVM | tuple, truth: PRVM, z_mm: float | None = None,
         valid = np.isfinite(points).all(axis=-1)
     err = np.linalg.norm(points - truth.at_z(z), axis=-1) / fp
     return np.where(valid, err, np.nan)
+
+
+def volume_planes(truth: PRVM, count: int = 11, beyond: float = 0.5) -> np.ndarray:
+    """(count,) planes (WCS z, mm) evenly from `beyond` x the stage range before the first true stage
+    position to as far after the last; just the working plane without a recorded stage range."""
+    z = truth.extra.get("stage_true_z_mm")
+    if z is None or len(z) < 2:
+        return np.array([working_plane(truth)])
+    near, far = float(np.min(z)), float(np.max(z))
+    span = far - near
+    return np.linspace(near - beyond * span, far + beyond * span, count)
+
+
+def volume_error_px(estimate: PRVM, truth: PRVM, planes: np.ndarray | None = None) -> np.ndarray:
+    """(H, W) float64 RMS over `planes` (default `volume_planes`) of the distance between the estimated
+    and true ray on each plane, in camera pixels of the working plane's footprint; NaN where the estimate
+    is not valid."""
+    planes = volume_planes(truth) if planes is None else np.asarray(planes, float)
+    fp = footprint_mm(truth, working_plane(truth))
+    sq = sum(ray_error_px(estimate, truth, z, fp) ** 2 for z in planes)
+    return np.sqrt(sq / len(planes))
 
 
 @dataclass

@@ -3,7 +3,8 @@ tilted sensor, 14 distortion coefficients), fed the same captures, turned into p
 can be compared with the PRVM by the same metric.
 
 Correspondences are WCS points (mm) and image points (pixels): either dense (the decoded display point of
-every `step`-th pixel at every stage position) or the inner corners of displayed chessboards. The display
+every `step`-th pixel at every stage position, every 2nd by default) or the inner corners of displayed
+chessboards. The display
 moves only along the stage axis, so all stage positions share one camera pose; they are given to OpenCV as
 one non-planar "view" (parallel planes as separate planar views are degenerate for its initialisation),
 with the intrinsics initialised from a linear (DLT) projection matrix.
@@ -99,9 +100,11 @@ def calibrate_opencv(object_points: np.ndarray, image_points: np.ndarray, width:
     return OpenCVCamera(k, dist.ravel(), rvecs[0], tvecs[0], float(rms))
 
 
-def dense_correspondences(points_wcs: list[np.ndarray], valid: list[np.ndarray], step: int = 8):
+def dense_correspondences(points_wcs: list[np.ndarray], valid: list[np.ndarray], step: int = 2):
     """(N, 3) WCS points and (N, 2) pixels from decoded positions: points_wcs[i] (H, W, 3) and valid[i]
-    (H, W) per stage position, every `step`-th pixel in both directions."""
+    (H, W) per stage position, every `step`-th pixel in both directions. OpenCV's own noise falls with
+    the number of points: at 1.3 MP every 8th pixel left it at 2x the rig's stage-error floor, every 2nd
+    (650k points, ~4 s) within 25 % of it."""
     obj, img = [], []
     for p, ok in zip(points_wcs, valid):
         h, w = ok.shape

@@ -24,7 +24,7 @@ import numpy as np
 from calib import __version__
 from calib.atomic import write_npz
 from calib.errors import InputError
-from calib.regularise import Smoother, smooth_fields
+from calib.regularise import Adaptive, Smoother, smooth_fields
 
 FORMAT = "stereodic.undistort/1"
 ITERATIONS = 20
@@ -82,7 +82,8 @@ def fit_homography(coord: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return hom
 
 
-def undistort_map(coord: np.ndarray, valid: np.ndarray, smoother: Smoother | None = Smoother()) -> UndistortMap:
+def undistort_map(coord: np.ndarray, valid: np.ndarray,
+                  smoother: Smoother | Adaptive | None = Smoother()) -> UndistortMap:
     """The undistortion map of one decoded stage position.
 
     coord: (2, H, W) display pixels (c, r) seen by each camera pixel; valid: (H, W) bool. The distortion
@@ -97,7 +98,7 @@ def undistort_map(coord: np.ndarray, valid: np.ndarray, smoother: Smoother | Non
     v, u = np.mgrid[0:h, 0:w].astype(np.float64)
     disp = np.stack([ideal_u - u, ideal_v - v])
     if smoother is not None:
-        disp, _ = smooth_fields(disp, valid, smoother)
+        disp = smooth_fields(disp, valid, smoother).fields
     fill = np.where(valid[None], disp, 0.0).astype(np.float32)
     qx, qy = u.astype(np.float32), v.astype(np.float32)
     px, py = qx.copy(), qy.copy()

@@ -2,24 +2,42 @@
 
 Neighbouring pixels' rays differ smoothly, while the phase noise of each pixel is independent. Each ray
 is represented by its points on two planes (x, y at the nearest and farthest stage positions) and each of
-these four fields is fitted locally by a polynomial: a separable Savitzky-Golay filter of degree `order`
-over a (2m+1) x (2m+1) window. A local polynomial reproduces any field of that degree exactly, so real
-distortion (down to features a few windows wide) is not flattened the way a plain blur would; the noise
-variance drops by the filter's centre weight.
+these four fields is fitted locally by a polynomial: a separable local polynomial regression of degree
+`order` over a (2m+1) x (2m+1) window (a Savitzky-Golay filter inside the image). A local polynomial
+reproduces any field of that degree exactly, so real distortion is not flattened the way a plain blur
+would; the noise variance drops by the filter's centre weight.
+
+How large a window? Noise falls as 1/window, but a window much wider than a local distortion bends it.
+`Adaptive` lets the data decide per pixel by Lepski's method: it fits a ladder of windows, each doubling
+the last, and keeps at each pixel the largest window whose fit differs from every smaller window's by at
+most `threshold` standard deviations of that difference. The deviation is known: sigma (the raw field's
+noise, measured locally from the smallest window's residual) times sqrt(v_i - v_j), v the filters'
+variance factors (exact for nested local polynomial fits). Where the field is smooth on the large scale
+(a Brown-Conrady or non-central lens) the largest window wins and the noise falls ~8x below one 43-pixel
+window's; over a local bump the larger windows disagree with the smaller ones by more than their noise
+and are rejected, so the bump keeps a small window. The bias this lets through is at most about the
+noise of the smaller window (the balance that makes the method near-optimal). The chosen window index is
+median-filtered (isolated false alarms of the test), eroded (never above the median) and blurred, and
+the fit interpolated between the two neighbouring windows of the ladder, so the result has no seams.
 
 Masked pixels are handled by removing a global low-order polynomial first, filling the holes of the small
-remainder with its nearest valid value and smoothing the remainder; at the image border the window becomes
-one-sided and twice as long (`Smoother.edge_order`, `edge_span`).
+remainder with its nearest valid value and smoothing the remainder; windows less than `coverage` valid
+are not used beyond the smallest. At the image border the window becomes one-sided and `edge_span` times
+longer (the off-centre evaluation of a polynomial is noisier; one-sided windows as long as the centred
+ones halve the brown lens's border bias but make the fallback windows so noisy that the telecentric
+lens's error triples). Window sums come from running sums
+(numba), so a window costs the same whatever its size.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from math import comb
 
 import cv2
+import numba
 import numpy as np
 from scipy import ndimage
-from scipy.signal import savgol_coeffs
 
 # global polynomial removed before local smoothing (its degree in u and v together)
 BASE_DEGREE = 3
@@ -27,9 +45,9 @@ BASE_DEGREE = 3
 
 @dataclass(frozen=True)
 class Smoother:
-    """half_window m (pixels) and polynomial order of the local fit; edge_order, edge_span: the order
-    and the length (in windows) of the one-sided fit used for the m pixels nearest the image border (a
-    longer window offsets the noise of an off-centre polynomial evaluation)."""
+    """One separable local polynomial fit: half_window m (pixels) and polynomial order; edge_order,
+    edge_span: the order and the length (in windows) of the one-sided fit used for the m pixels nearest
+    the image border (a longer window offsets the noise of an off-centre polynomial evaluation)."""
 
     half_window: int = 20
     order: int = 3
@@ -40,23 +58,215 @@ class Smoother:
     def window(self) -> int:
         return 2 * self.half_window + 1
 
-    def variance_factor(self) -> float:
-        """Noise variance after / before for an interior pixel (the 2-D centre weight)."""
-        c = savgol_coeffs(self.window, self.order)[self.half_window]
-        return float(c * c)
+    def axis_weights(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """For an axis of n pixels: (lo (n,) int, hi (n,) int, coef (n, order+1), var (n,)) such that
+        the fit at pixel i is sum_k coef[i, k] * sum_{lo[i] <= j < hi[i]} ((j - i) / m)^k a[j], and var[i]
+        is that fit's noise variance over the raw one's for white noise.
+        """
+        m = self.half_window
+        i = np.arange(n)
+        ne = min(n, self.edge_span * self.window)
+        lo = np.clip(i - m, 0, None)
+        hi = np.minimum(i + m + 1, n)
+        edge_lo, edge_hi = i < m, i >= n - m
+        lo[edge_lo], hi[edge_lo] = 0, ne
+        lo[edge_hi], hi[edge_hi] = n - ne, n
+        coef = np.zeros((n, self.order + 1))
+        var = np.empty(n)
+        # sums of ((j - i) / m)^p over a window = differences of prefix sums over the offsets j - i
+        offsets = np.arange(-n, n + 1) / m
+        prefix = np.zeros((2 * self.order + 1, 2 * n + 2))
+        for p in range(2 * self.order + 1):
+            np.cumsum(offsets ** p, out=prefix[p, 1:])
+        for deg, rows in ((self.order, ~(edge_lo | edge_hi)), (self.edge_order, edge_lo | edge_hi)):
+            idx = np.flatnonzero(rows)
+            if not len(idx):
+                continue
+            a0, a1 = lo[idx] - idx + n, hi[idx] - idx + n
+            pw = (prefix[:2 * deg + 1, a1] - prefix[:2 * deg + 1, a0]).T        # (rows, 2 deg + 1)
+            a = pw[:, np.add.outer(np.arange(deg + 1), np.arange(deg + 1))]
+            e0 = np.zeros((len(idx), deg + 1, 1))
+            e0[:, 0] = 1.0
+            c = np.linalg.solve(a, e0)[..., 0]               # A^-1 e0: the fit's value at u = 0
+            coef[idx, :deg + 1] = c
+            var[idx] = c[:, 0]                              # e0^T A^-1 e0
+        return lo, hi, coef, var
 
-    def filter_axis(self, a: np.ndarray, axis: int) -> np.ndarray:
-        """Local polynomial smoothing of a 2-D array along one axis (float64)."""
-        m, n = self.half_window, self.window
-        a = np.ascontiguousarray(a if axis == 0 else np.asarray(a).T, np.float64)
-        k = savgol_coeffs(n, self.order, use="dot").reshape(-1, 1)
-        out = cv2.filter2D(a, -1, k, borderType=cv2.BORDER_REPLICATE)
-        ne = min(self.edge_span * n, len(a))     # one-sided windows at both ends, longer to
-        for i in range(m):                       # offset the off-centre evaluation's noise
-            c = savgol_coeffs(ne, self.edge_order, pos=i, use="dot")
-            out[i] = c @ a[:ne]
-            out[-1 - i] = c[::-1] @ a[-ne:]
-        return out if axis == 0 else out.T
+
+
+def _axis_weights(ladder: list[Smoother], n: int) -> tuple[np.ndarray, ...]:
+    """Weights of each ladder window along an axis of n pixels, for the running-sum kernels: (lo, hi
+    (J, n) int64, g (J, n, K) float64, var (J, n) float64, centre, scale) such that window j's fit at
+    pixel i is sum_q g[j, i, q] * sum_{lo <= p < hi} ((p - centre) / scale)^q a[p]: each power of
+    (p - i) / m is expanded binomially in (p - centre) / scale, so that one set of running sums serves
+    every window and pixel."""
+    centre, scale = n // 2, max(n / 2, 1.0)
+    nk = max(s.order for s in ladder) + 1
+    lo, hi = np.empty((len(ladder), n), np.int64), np.empty((len(ladder), n), np.int64)
+    g, var = np.zeros((len(ladder), n, nk)), np.empty((len(ladder), n))
+    i = np.arange(n)
+    for j, s in enumerate(ladder):
+        lo[j], hi[j], coef, var[j] = s.axis_weights(n)
+        m = s.half_window
+        d = (centre - i) / m                    # (p - i) / m = (scale / m) (p - centre) / scale + d
+        for k in range(coef.shape[1]):
+            for q in range(k + 1):
+                g[j, :, q] += coef[:, k] * comb(k, q) * (scale / m) ** q * d ** (k - q)
+    return lo, hi, g, var, float(centre), scale
+
+
+@numba.njit(cache=True, parallel=True)
+def _fit_axis0(a, lo, hi, g, centre, scale):
+    """(J, N, C) float32 window fits along axis 0 of a (N, C): out[j, i, c] = sum_q g[j, i, q] *
+    sum_{lo[j, i] <= p < hi[j, i]} ((p - centre) / scale)^q a[p, c], from float64 running sums over
+    blocks of columns (float32 holds the fits of the small remainder to ~1e-7 of its size)."""
+    n, ncol = a.shape
+    nw, _, nk = g.shape
+    out = np.empty((nw, n, ncol), np.float32)
+    block = 32
+    for b in numba.prange((ncol + block - 1) // block):
+        c0 = b * block
+        nc = min(ncol, c0 + block) - c0
+        cs = np.zeros((n + 1, nk, block))
+        for p in range(n):
+            t = (p - centre) / scale
+            tq = 1.0
+            for q in range(nk):
+                for c in range(nc):
+                    cs[p + 1, q, c] = cs[p, q, c] + tq * a[p, c0 + c]
+                tq *= t
+        for j in range(nw):
+            for i in range(n):
+                l, h = lo[j, i], hi[j, i]
+                for c in range(nc):
+                    v = 0.0
+                    for q in range(nk):
+                        v += g[j, i, q] * (cs[h, q, c] - cs[l, q, c])
+                    out[j, i, c0 + c] = v
+    return out
+
+
+@numba.njit(cache=True, parallel=True)
+def _fit_axis1(a, lo, hi, g, centre, scale):
+    """In place, along the last axis of a (J, R, N), window j for a[j]: as `_fit_axis0`."""
+    nw, nrow, n = a.shape
+    nk = g.shape[2]
+    for jr in numba.prange(nw * nrow):
+        j, r = jr // nrow, jr % nrow
+        cs = np.zeros((n + 1, nk))
+        for p in range(n):
+            t = (p - centre) / scale
+            v = a[j, r, p]
+            for q in range(nk):
+                cs[p + 1, q] = cs[p, q] + v
+                v *= t
+        for i in range(n):
+            l, h = lo[j, i], hi[j, i]
+            v = 0.0
+            for q in range(nk):
+                v += g[j, i, q] * (cs[h, q] - cs[l, q])
+            a[j, r, i] = v
+
+
+@numba.njit(cache=True, parallel=True)
+def _lepski(fits, sigma, var_v, var_u, top, threshold):
+    """(H, W) uint8 index of the largest window j <= top whose fit differs from every smaller window i's
+    by at most threshold standard deviations of the difference, sigma * sqrt(var_i - var_j) (exact for
+    nested local polynomial fits: the larger window's weights are a polynomial on the smaller window, so
+    Cov(f_i, f_j) = Var(f_j))."""
+    nw, h, w = fits.shape
+    index = np.zeros((h, w), np.uint8)
+    for r in numba.prange(h):
+        for c in range(w):
+            s2 = (threshold * sigma[r, c]) ** 2
+            for j in range(1, min(nw, top[r, c] + 1)):
+                vj = var_v[j, r] * var_u[j, c]
+                ok = True
+                for i in range(j):
+                    d = fits[j, r, c] - fits[i, r, c]
+                    if d * d > s2 * (var_v[i, r] * var_u[i, c] - vj):
+                        ok = False
+                        break
+                if not ok:
+                    break
+                index[r, c] = j
+    return index
+
+
+@numba.njit(cache=True, parallel=True)
+def _blend(fits, index, var_v, var_u, base, valid, windows):
+    """At a fractional window index, linear between the two neighbouring windows: (base + fit (H, W)
+    float64, the noise gain sqrt(variance factor) (H, W) float32, the window (H, W) float32); NaN
+    outside valid."""
+    nw, h, w = fits.shape
+    value = np.full((h, w), np.nan)
+    gain = np.full((h, w), np.nan, np.float32)
+    window = np.full((h, w), np.nan, np.float32)
+    for r in numba.prange(h):
+        for c in range(w):
+            if not valid[r, c]:
+                continue
+            x = index[r, c]
+            j0 = min(int(x), nw - 1)
+            j1 = min(j0 + 1, nw - 1)
+            f = x - j0
+            value[r, c] = base[r, c] + (1 - f) * fits[j0, r, c] + f * fits[j1, r, c]
+            gain[r, c] = np.sqrt((1 - f) * var_v[j0, r] * var_u[j0, c] + f * var_v[j1, r] * var_u[j1, c])
+            window[r, c] = (1 - f) * windows[j0] + f * windows[j1]
+    return value, gain, window
+
+
+@numba.njit(cache=True, parallel=True)
+def _residual2(rem, fit, var_v, var_u, valid):
+    """(H, W) float32 (rem - fit)^2 / (1 - v), 0 outside valid: an unbiased estimate of the raw noise
+    variance, E[(raw - fit)^2] = sigma^2 (1 - v) for a local polynomial fit of variance factor v."""
+    h, w = rem.shape
+    out = np.zeros((h, w), np.float32)
+    for r in numba.prange(h):
+        for c in range(w):
+            if valid[r, c]:
+                d = rem[r, c] - fit[r, c]
+                out[r, c] = d * d / max(1.0 - var_v[r] * var_u[c], 1e-3)
+    return out
+
+
+@dataclass(frozen=True)
+class Adaptive:
+    """Window chosen per pixel (Lepski's method) over a ladder of windows doubling from the smallest.
+
+    half_window: the smallest window's half size m (pixels); levels: the number of windows (those wider
+    than the image are dropped); order: the local polynomial's; threshold: how many standard deviations
+    of their difference a window's fit may differ from a smaller one's; coverage: the least fraction of
+    valid pixels in a window for it to be used (beyond the smallest); blend: the half size (in smallest
+    half windows) of the median, erosion and box filters applied to the chosen window index.
+    """
+
+    half_window: int = 20
+    levels: int = 4
+    order: int = 3
+    threshold: float = 3.0
+    coverage: float = 0.995
+    blend: float = 1.0
+
+    @property
+    def window(self) -> int:
+        """The smallest window (pixels)."""
+        return 2 * self.half_window + 1
+
+    def ladder(self) -> list[Smoother]:
+        return [Smoother(self.half_window * 2 ** j, self.order, self.order) for j in range(self.levels)]
+
+
+@dataclass
+class Regularised:
+    """Result of `smooth_fields`. fields: (K, H, W) float64 smoothed, NaN outside valid; noise: (K, H, W)
+    float32 estimated 1-sigma noise of the raw fields; gain: (K, H, W) float32 the noise after / before
+    at each pixel; window: (H, W) float32 the effective window (pixels) used, averaged over the fields."""
+
+    fields: np.ndarray
+    noise: np.ndarray
+    gain: np.ndarray
+    window: np.ndarray
 
 
 def _base(field: np.ndarray, valid: np.ndarray, degree: int = BASE_DEGREE) -> np.ndarray:
@@ -74,40 +284,70 @@ def _base(field: np.ndarray, valid: np.ndarray, degree: int = BASE_DEGREE) -> np
     coef, *_ = np.linalg.lstsq(design(uu[sel], vv[sel]), field[::step, ::step][sel], rcond=None)
     un = 2 * np.arange(w) / max(w - 1, 1) - 1
     vn = 2 * np.arange(h) / max(h - 1, 1) - 1
-    out = np.zeros((h, w))
-    for j in range(degree + 1):                 # sum over j of vn^j * (sum over i of c_ij un^i)
-        row = sum(c * un ** i for c, (i, jj) in zip(coef, terms) if jj == j)
-        out += np.outer(vn ** j, row)
+    c = np.zeros((degree + 1, degree + 1))     # c[j, i]: the coefficient of vn^j un^i
+    for value, (i, j) in zip(coef, terms):
+        c[j, i] = value
+    return np.vander(vn, degree + 1, increasing=True) @ c @ np.vander(un, degree + 1, increasing=True).T
+
+
+def _box_median(index: np.ndarray, levels: int, size: int) -> np.ndarray:
+    """Median over a size x size box of an index map with values 0 .. levels-1: the median is >= j
+    where at least half the box is >= j."""
+    out = np.zeros(index.shape, np.float32)
+    for j in range(1, levels):
+        share = cv2.blur((index >= j).astype(np.float32), (size, size), borderType=cv2.BORDER_REPLICATE)
+        out += share >= 0.5
     return out
 
 
-def smooth_fields(fields: np.ndarray, valid: np.ndarray, smoother: Smoother) -> tuple[np.ndarray, np.ndarray]:
-    """Smooth (K, H, W) fields over the valid pixels.
+def _smooth_index(index: np.ndarray, levels: int, size: int) -> np.ndarray:
+    """The chosen window index made smooth: median (drops the test's isolated false alarms), eroded
+    (so that it nowhere exceeds the median) and box-blurred over size x size pixels."""
+    med = _box_median(index, levels, size)
+    ero = cv2.erode(med, np.ones((size, size), np.uint8), borderType=cv2.BORDER_REPLICATE)
+    return cv2.blur(ero, (size, size), borderType=cv2.BORDER_REPLICATE)
 
-    Returns (smoothed fields (K, H, W) float64, NaN outside `valid`; local noise (K, H, W) float32: the
-    estimated 1-sigma noise of the unsmoothed fields, from the local RMS of raw minus smoothed).
-    """
+
+def smooth_fields(fields: np.ndarray, valid: np.ndarray, smoother: Smoother | Adaptive) -> Regularised:
+    """Smooth (K, H, W) fields over the valid pixels with one window (`Smoother`) or a window chosen
+    per pixel (`Adaptive`)."""
     k, h, w = fields.shape
     if min(h, w) <= smoother.window:
         raise ValueError(f"image ({w}x{h}) is too small for a {smoother.window}-pixel smoothing window")
+    ladder = smoother.ladder() if isinstance(smoother, Adaptive) else [smoother]
+    ladder = [s for s in ladder if s.window < min(h, w)]
+    lo_v, hi_v, g_v, var_v, centre_v, scale_v = _axis_weights(ladder, h)
+    lo_u, hi_u, g_u, var_u, centre_u, scale_u = _axis_weights(ladder, w)
+    vf = valid.astype(np.float32)
     fill_idx = None
     if not valid.all():
         fill_idx = ndimage.distance_transform_edt(~valid, return_distances=False, return_indices=True)
+    box = ladder[0].window
+    count = cv2.blur(vf, (box, box), borderType=cv2.BORDER_REPLICATE)
+    # the largest window allowed at each pixel: one whose valid fraction reaches `coverage`
+    top = np.zeros((h, w), np.uint8)
+    for j, s in enumerate(ladder[1:], 1):
+        top[cv2.blur(vf, (s.window, s.window), borderType=cv2.BORDER_REPLICATE) >= smoother.coverage] = j
+    windows = np.array([s.window for s in ladder], np.float32)
     out = np.empty((k, h, w))
     noise = np.empty((k, h, w), np.float32)
-    vf = valid.astype(np.float32)
-    box = (smoother.window, smoother.window)
-    count = cv2.blur(vf, box, borderType=cv2.BORDER_REPLICATE)
-    centre_1d = savgol_coeffs(smoother.window, smoother.order)[smoother.half_window]
-    keep = 1 - centre_1d ** 2                 # E[(raw - smooth)^2] = sigma^2 (1 - centre weight)
+    gain = np.empty((k, h, w), np.float32)
+    window = np.zeros((h, w), np.float32)
     for i in range(k):
         base = _base(fields[i], valid)
         rem = np.where(valid, fields[i] - base, 0.0)
         if fill_idx is not None:
             rem = rem[fill_idx[0], fill_idx[1]]
-        sm = smoother.filter_axis(smoother.filter_axis(rem, 0), 1)
-        out[i] = np.where(valid, sm + base, np.nan)
-        e2 = np.where(valid, (rem - sm) ** 2, 0.0).astype(np.float32)
-        mean_e2 = cv2.blur(e2, box, borderType=cv2.BORDER_REPLICATE) / np.maximum(count, 1e-6)
-        noise[i] = np.where(valid, np.sqrt(np.maximum(mean_e2, 0) / keep), np.nan)
-    return out, noise
+        fits = _fit_axis0(rem, lo_v, hi_v, g_v, centre_v, scale_v)
+        _fit_axis1(fits, lo_u, hi_u, g_u, centre_u, scale_u)
+        e2 = cv2.blur(_residual2(rem, fits[0], var_v[0], var_u[0], valid), (box, box), borderType=cv2.BORDER_REPLICATE)
+        sigma = np.sqrt(np.maximum(e2, 0) / np.maximum(count, 1e-6))
+        index = np.zeros((h, w), np.float32)
+        if len(ladder) > 1:
+            index = _lepski(fits, sigma, var_v, var_u, top, smoother.threshold)
+            size = 2 * int(round(smoother.blend * ladder[0].half_window)) + 1
+            index = _smooth_index(index, len(ladder), size)
+        out[i], gain[i], win = _blend(fits, index, var_v, var_u, base, valid, windows)
+        noise[i] = np.where(valid, sigma, np.nan)
+        window += win / k
+    return Regularised(out, noise, gain, window)

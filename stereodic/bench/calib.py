@@ -1,10 +1,15 @@
 """Benchmark of the PRVM calibration (issue 3): accuracy per lens family against the simulator's truth
 (unregularised and regularised, the phase-noise bound, OpenCV's 14-coefficient model fed dense
 correspondences and chessboards), and the speed and peak memory of decoding and fitting a 5 MP camera.
+Ray errors are given on the working plane (the issue's figure) and over the working volume
+(`calib.evaluate.volume_error_px`), both in camera pixels of the working plane.
 
 Data: `scanners.sim.calibration.simulate_calibration` with its defaults (1280x1024, periods 60/360/1920,
-3 steps, 2 stage positions, 9 flats, gamma 2.2, noise), plus chessboards; the 5 MP speed data is simulated
-at 2592x2048 (2.6 um pixels, so the display still covers the field) with supersample=1.
+3 steps, 2 stage positions, 9 flats, gamma 2.2, noise), plus chessboards; the telecentric and Scheimpflug
+lenses see ~0.35 display pixels per camera pixel (not ~0.63), so they get a proportionally shorter
+shortest period (`PERIODS`: one period spans ~100 camera pixels either way, docs/calibration.md); the
+5 MP speed data is simulated at 2592x2048 (2.6 um pixels, so the display still covers the field) with
+supersample=1.
 """
 
 from __future__ import annotations
@@ -14,9 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from stereodic.bench import Figure, run_isolated
+from stereodic.bench import Figure, best_time, run_isolated
 
 LENSES = ("brown", "freeform", "noncentral", "telecentric", "scheimpflug")
+# fringe periods (display px) per lens family where the default (60, 360, 1920) is not the right choice
+PERIODS = {"telecentric": (30, 240, 1920), "scheimpflug": (30, 240, 1920)}
 
 
 def phase_noise_bound_px(capture, cal, truth) -> float:
@@ -42,6 +49,18 @@ def phase_noise_bound_px(capture, cal, truth) -> float:
     return float(np.sqrt(np.mean(var[ok])) / fp)
 
 
+def stage_floor(truth) -> dict:
+    """`_stats` of the best rays a calibration can give from the stage's nominal positions: the true rays'
+    points on the true display planes, fitted as if the planes were at the nominal positions (the
+    simulated stage errs by a few micrometres, unknown to every method)."""
+    from calib.prvm import Lines
+    from calib.prvm_file import PRVM
+    zt, zn = truth.extra["stage_true_z_mm"], truth.extra["stage_nominal_z_mm"]
+    lines = Lines.through(zn[0], truth.at_z(zt[0])[..., :2], zn[-1], truth.at_z(zt[-1])[..., :2], truth.valid,
+                          None, None)
+    return _stats(PRVM(lines.origin(), lines.direction(), truth.valid), truth)
+
+
 def _opencv_chessboard(capture, camera, width, height):
     import cv2
 
@@ -63,30 +82,35 @@ def _opencv_chessboard(capture, camera, width, height):
         return None
 
 
+def _stats(prvm, truth) -> dict:
+    """Plane and volume error statistics (camera px) of a PRVM against the truth."""
+    from calib.evaluate import ErrorStats, ray_error_px, volume_error_px
+    return {"plane": ErrorStats.of(ray_error_px(prvm, truth)), "volume": ErrorStats.of(volume_error_px(prvm, truth))}
+
+
 def accuracy(lens: str, width: int, height: int, root: str, chessboard: bool = True) -> dict:
-    """Simulate one lens family and measure every method against its truth; errors in camera pixels."""
+    """Simulate one lens family and measure every method against its truth, each as `_stats`."""
     from calib.calibration import calibrate_camera
     from calib.capture import load_capture
-    from calib.evaluate import ErrorStats, ray_error_px
     from calib.opencv_baseline import calibrate_opencv, dense_correspondences
     from calib.prvm_file import PRVM, load_prvm
     from scanners.sim.calibration import simulate_calibration
     out = Path(root) / lens
-    simulate_calibration(out, lens=lens, width=width, height=height, chessboard=chessboard)
+    simulate_calibration(out, lens=lens, width=width, height=height, chessboard=chessboard,
+                         **({"periods": PERIODS[lens]} if lens in PERIODS else {}))
     capture, truth = load_capture(out), load_prvm(out / "truth.npz")
     cal = calibrate_camera(capture)
     raw = PRVM(cal.raw.origin(), cal.raw.direction(), cal.raw.valid)
-    res = {"raw": ErrorStats.of(ray_error_px(raw, truth)), "reg": ErrorStats.of(ray_error_px(cal.prvm, truth)),
-           "bound": phase_noise_bound_px(capture, cal, truth)}
+    res = {"raw": _stats(raw, truth), "reg": _stats(cal.prvm, truth),
+           "bound": phase_noise_bound_px(capture, cal, truth), "floor": stage_floor(truth)}
     pts = [capture.display_to_wcs(p.coord[0], p.coord[1], p.z_mm) for p in cal.positions]
-    obj, img = dense_correspondences(pts, [p.valid for p in cal.positions], step=8)
-    ocv = calibrate_opencv(obj, img, width, height)
-    o, d = ocv.rays(width, height)
-    res["opencv_dense"] = ErrorStats.of(ray_error_px(PRVM(o, d, np.ones((height, width), bool)), truth))
+    obj, img = dense_correspondences(pts, [p.valid for p in cal.positions])
+    o, d = calibrate_opencv(obj, img, width, height).rays(width, height)
+    res["opencv_dense"] = _stats(PRVM(o, d, np.ones((height, width), bool)), truth)
     board = _opencv_chessboard(capture, "cam0", width, height)
     if board is not None:
         o, d = board.rays(width, height)
-        res["opencv_chess"] = ErrorStats.of(ray_error_px(PRVM(o, d, np.ones((height, width), bool)), truth))
+        res["opencv_chess"] = _stats(PRVM(o, d, np.ones((height, width), bool)), truth)
     return res
 
 
@@ -98,6 +122,15 @@ def decode_and_fit(path: str) -> dict:
     return {"valid": float(cal.prvm.valid.mean())}
 
 
+def regularise_seconds(width: int, height: int) -> float:
+    """Best time (s) of the default regularisation (`auto_smoother`'s smallest window, 43 px) of the four
+    fields of a width x height camera."""
+    from calib.regularise import Adaptive, smooth_fields
+    fields = np.random.default_rng(0).normal(size=(4, height, width))
+    valid = np.ones((height, width), bool)
+    return best_time(lambda: smooth_fields(fields, valid, Adaptive(half_window=21)), repeat=2)
+
+
 def run(quick: bool = False) -> list[Figure]:
     from scanners.sim.calibration import simulate_calibration
     width, height = (320, 256) if quick else (1280, 1024)
@@ -105,26 +138,40 @@ def run(quick: bool = False) -> list[Figure]:
     with tempfile.TemporaryDirectory(prefix="bench_calib_") as root:
         for lens in LENSES:
             r = accuracy(lens, width, height, root, chessboard=not quick)
-            reg, raw = r["reg"], r["raw"]
+            reg, raw, cv = r["reg"], r["raw"], r["opencv_dense"]
             g = f"calib/{lens}"
-            figs.append(Figure(g, "ray error RMS, regularised", reg.rms, "px", goal="<= 0.02", ok=reg.rms <= 0.02))
-            figs.append(Figure(g, "ray error p99, regularised", reg.p99, "px", goal="<= 0.06", ok=reg.p99 <= 0.06))
-            figs.append(Figure(g, "ray error RMS, unregularised", raw.rms, "px", "phase-noise bound", r["bound"],
-                               "<= 1.2x bound", raw.rms <= 1.2 * r["bound"]))
-            cv = r["opencv_dense"].rms
-            ratio_goal = (reg.rms <= 1.5 * cv) if lens == "brown" else (cv >= 10 * reg.rms)
-            figs.append(Figure(g, "ray error RMS vs OpenCV dense", reg.rms, "px", "OpenCV 14-coef, dense", cv,
-                               "<= 1.5x OpenCV" if lens == "brown" else "10x lower", ratio_goal))
+            figs.append(Figure(g, "ray error RMS, regularised (plane)", reg["plane"].rms, "px", goal="<= 0.02",
+                               ok=reg["plane"].rms <= 0.02))
+            figs.append(Figure(g, "ray error p99, regularised (plane)", reg["plane"].p99, "px", goal="<= 0.06",
+                               ok=reg["plane"].p99 <= 0.06))
+            figs.append(Figure(g, "ray error RMS, unregularised (plane)", raw["plane"].rms, "px", "phase-noise bound",
+                               r["bound"], "<= 1.2x bound", raw["plane"].rms <= 1.2 * r["bound"]))
+            # the issue's 10x (and 1.5x) goals are stated for the plane error; the volume figure beside it
+            goal, ok = (("<= 1.5x OpenCV", reg["plane"].rms <= 1.5 * cv["plane"].rms) if lens == "brown" else
+                        ("10x lower", cv["plane"].rms >= 10 * reg["plane"].rms))
+            for where in ("plane", "volume"):
+                ratio = cv[where].rms / reg[where].rms
+                figs.append(Figure(g, f"ray error RMS vs OpenCV dense ({where}), OpenCV/ours {ratio:.1f}",
+                                   reg[where].rms, "px", "OpenCV 14-coef, dense", cv[where].rms,
+                                   *((goal, ok) if where == "plane" else ())))
+            figs.append(Figure(g, "ray error p99, regularised (volume)", reg["volume"].p99, "px"))
+            for where in ("plane", "volume"):
+                figs.append(Figure(g, f"ray error RMS floor set by the stage error ({where})", r["floor"][where].rms,
+                                   "px"))
             if "opencv_chess" in r:
-                figs.append(Figure(g, "ray error RMS vs OpenCV chessboard", reg.rms, "px",
-                                   "OpenCV 14-coef, chessboard", r["opencv_chess"].rms))
+                for where in ("plane", "volume"):
+                    figs.append(Figure(g, f"ray error RMS vs OpenCV chessboard ({where})", reg[where].rms, "px",
+                                       "OpenCV 14-coef, chessboard", r["opencv_chess"][where].rms))
         w5, h5 = (640, 512) if quick else (2592, 2048)
         path = Path(root) / "speed"
-        # a 5 MP sensor of 2.6 um pixels: the field of the 1.3 MP default, covered by the display
-        simulate_calibration(path, lens="brown", width=w5, height=h5, supersample=1,
+        # a 5 MP sensor of 2.6 um pixels: the field of the 1.3 MP default, covered by the display (the
+        # quick run's 10.6 um pixels see 1.3 display pixels: they need 2x2 sub-samples)
+        simulate_calibration(path, lens="brown", width=w5, height=h5, supersample=2 if quick else 1,
                              lens_options={"pixel_mm": 0.0053 * 1280 / w5})
         seconds, peak, _ = run_isolated(decode_and_fit, str(path))
         mp = w5 * h5 / 1e6
+        figs.append(Figure("calib/speed", f"regularisation {mp:.1f} MP (4 fields, window per pixel)",
+                           regularise_seconds(w5, h5), "s", goal="~1-2 s" if not quick else ""))
         figs.append(Figure("calib/speed", f"decode + fit {mp:.1f} MP, 2 positions, 3x3x2 fringes + 9 flats",
                            seconds, "s", goal="<= 10 s" if not quick else "", ok=seconds <= 10 if not quick else None))
         figs.append(Figure("calib/speed", f"peak memory {mp:.1f} MP", peak / 2 ** 30, "GiB",

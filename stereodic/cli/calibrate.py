@@ -15,8 +15,9 @@ def register(sub):
     p.add_argument("--no-regularise", action="store_true",
                    help="keep each pixel's own ray (no spatial regularisation)")
     p.add_argument("--window", type=int, default=None, metavar="PX",
-                   help="regularisation window (odd, camera pixels; default: 26 display pixels, at least 41): "
-                        "larger lowers noise, smaller follows finer distortion")
+                   help="one fixed regularisation window (odd, camera pixels; default: a window chosen per "
+                        "pixel, from 26 display pixels (at least 41) up to 8x that): larger lowers noise, "
+                        "smaller follows finer distortion")
     p.add_argument("--report", metavar="DIR", help="also write PNG pictures (distortion, residual, uncertainty, "
                                                    "mask) and the measured display response there")
     p.add_argument("--reduced", action="store_true",

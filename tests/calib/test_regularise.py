@@ -1,0 +1,116 @@
+import numpy as np
+import pytest
+
+from calib.regularise import Adaptive, Smoother, smooth_fields
+
+H, W = 256, 320
+SIGMA = 0.3                     # white noise of the raw field
+BUMPS = [(90.0, 80.0, 12.0, 2.0), (230.0, 170.0, 18.0, -1.5)]      # u, v, sigma (px), amplitude
+
+
+def _truth() -> tuple[np.ndarray, np.ndarray]:
+    """A smooth field (cubic plus a long wave) with two local Gaussian bumps; and the mask of the pixels
+    farther than 4 sigma from every bump (the smooth region)."""
+    v, u = np.mgrid[0:H, 0:W].astype(float)
+    un, vn = u / W - 0.5, v / H - 0.5
+    field = 40 * un + 25 * vn + 30 * un ** 2 * vn - 20 * vn ** 3 + 3 * np.sin(un * 5.0 + 1.0) * np.cos(vn * 4.0)
+    smooth = np.ones((H, W), bool)
+    for bu, bv, s, a in BUMPS:
+        r2 = (u - bu) ** 2 + (v - bv) ** 2
+        field += a * np.exp(-r2 / (2 * s * s))
+        smooth &= r2 > (4 * s) ** 2
+    return field, smooth
+
+
+def _interior(margin: int) -> np.ndarray:
+    m = np.zeros((H, W), bool)
+    m[margin:-margin, margin:-margin] = True
+    return m
+
+
+def test_local_fit_reproduces_cubics_everywhere():
+    v, u = np.mgrid[0:H, 0:W].astype(float)
+    cubic = 1e-6 * (u ** 3 - 2 * v ** 3) + 1e-4 * u * v - 0.01 * u + 3.0
+    for smoother in (Smoother(10), Smoother(15, 3, 2), Adaptive(half_window=10)):
+        out = smooth_fields(cubic[None], np.ones((H, W), bool), smoother).fields[0]
+        np.testing.assert_allclose(out, cubic, atol=1e-9)
+
+
+def test_fixed_window_noise_factor_matches_monte_carlo():
+    rng = np.random.default_rng(1)
+    sm = Smoother(8)
+    runs = np.stack([smooth_fields(rng.normal(0, SIGMA, (1, 120, 140)), np.ones((120, 140), bool), sm).fields[0]
+                     for _ in range(40)])
+    reg = smooth_fields(rng.normal(0, SIGMA, (1, 120, 140)), np.ones((120, 140), bool), sm)
+    # the predicted noise after smoothing (noise estimate x gain) against the spread over runs,
+    # in the interior and at the border (one-sided windows)
+    predicted = reg.noise[0] * reg.gain[0]
+    measured = runs.std(axis=0)
+    for sel in (np.s_[30:90, 30:110], np.s_[0:4, :], np.s_[:, -4:]):
+        assert np.median(predicted[sel]) == pytest.approx(np.median(measured[sel]), rel=0.15)
+    assert np.median(reg.noise[0]) == pytest.approx(SIGMA, rel=0.05)
+
+
+@pytest.fixture(scope="module")
+def adaptive_runs():
+    """Eight noisy realisations of the field, each regularised with the adaptive and the smallest fixed
+    window."""
+    field, smooth = _truth()
+    rng = np.random.default_rng(0)
+    valid = np.ones((H, W), bool)
+    ada, fix, last = [], [], None
+    for _ in range(8):
+        raw = field + rng.normal(0, SIGMA, (H, W))
+        last = smooth_fields(raw[None], valid, Adaptive(half_window=10))
+        ada.append(last.fields[0])
+        fix.append(smooth_fields(raw[None], valid, Smoother(10)).fields[0])
+    return field, smooth, np.stack(ada), np.stack(fix), last
+
+
+def test_adaptive_lowers_noise_by_the_predicted_factor_where_smooth(adaptive_runs):
+    field, smooth, ada, fix, last = adaptive_runs
+    sel = smooth & _interior(40)
+    err_ada = np.sqrt(np.mean((ada - field)[:, sel] ** 2))
+    err_fix = np.sqrt(np.mean((fix - field)[:, sel] ** 2))
+    predicted = np.sqrt(np.mean((SIGMA * last.gain[0][sel]) ** 2))
+    assert err_ada == pytest.approx(predicted, rel=0.25)
+    # there the largest windows (81 and 161 px) are chosen: 2.5x to 8x less noise than 21 px
+    assert np.median(last.window[sel]) > 80
+    assert err_ada < err_fix / 2.5
+
+
+def test_adaptive_does_not_bias_local_bumps(adaptive_runs):
+    """Near a bump the bias the larger windows could bring stays below the noise of the smallest window
+    (the one that follows the bump), so the error there is no worse than with that window alone."""
+    field, smooth, ada, fix, last = adaptive_runs
+    v, u = np.mgrid[0:H, 0:W]
+    for bu, bv, s, a in BUMPS:
+        near = (u - bu) ** 2 + (v - bv) ** 2 < (2 * s) ** 2
+        noise_ada = np.mean((ada - ada.mean(axis=0))[:, near] ** 2)
+        # the mean of the runs still holds 1/n of their noise variance
+        bias = np.sqrt(np.mean((ada.mean(axis=0) - field)[near] ** 2) - noise_ada / (len(ada) - 1))
+        noise_small = np.sqrt(np.mean((fix - fix.mean(axis=0))[:, near] ** 2))
+        assert bias < noise_small
+        err_ada = np.sqrt(np.mean((ada - field)[:, near] ** 2))
+        err_fix = np.sqrt(np.mean((fix - field)[:, near] ** 2))
+        assert err_ada < 1.15 * err_fix
+        assert np.median(last.window[near]) <= 41                          # small windows chosen there
+
+
+def test_adaptive_handles_masked_pixels():
+    field, _ = _truth()
+    rng = np.random.default_rng(3)
+    valid = np.ones((H, W), bool)
+    valid[100:140, 150:200] = False                      # a hole
+    valid[:, :12] = False                                # a strip the display did not cover
+    raw = np.where(valid, field + rng.normal(0, SIGMA, (H, W)), np.nan)
+    reg = smooth_fields(np.stack([raw, 2 * raw]), valid, Adaptive(half_window=10))
+    assert np.isnan(reg.fields[:, ~valid]).all() and np.isfinite(reg.fields[:, valid]).all()
+    err = np.abs(reg.fields[0] - field)[valid]
+    assert np.sqrt(np.mean(err ** 2)) < 0.5 * SIGMA * 0.3 and err.max() < 5 * SIGMA * 0.3
+    np.testing.assert_allclose(reg.noise[1][valid], 2 * reg.noise[0][valid], rtol=1e-4)
+
+
+def test_too_small_image_is_refused():
+    with pytest.raises(ValueError, match="too small"):
+        smooth_fields(np.zeros((1, 30, 30)), np.ones((30, 30), bool), Adaptive(half_window=20))
