@@ -2,10 +2,11 @@
 rectified virtual phase maps -> 1-D matching along rows -> triangulation -> point cloud.
 
 Steps for one state (one scan) of a `kind: "scan"` dataset:
- 1. decode (`decode_camera`, numba kernels of `scanners.scan_decode` that equal `calib.phase`'s): per
-    fringe period the wrapped phase, modulation and quality flags, corrected for the projector's gamma
-    when the manifest's `projector` block states it (`calib.phase.WaveformCorrection`), then temporal
-    unwrapping into the absolute projector column; flagged pixels become NaN;
+ 1. decode (`decode_camera`, `calib.phase.decode_frames`, the calibration's decoding in one pass over
+    the frames in memory): per fringe period the wrapped phase, modulation and quality flags, corrected
+    for the projector's gamma when the manifest's `projector` block states it
+    (`calib.phase.WaveformCorrection`), then temporal unwrapping (`calib.phase.unwrap_temporal`) into the
+    absolute projector column; flagged pixels become NaN;
  2. rectify (`virtual_phase`): the absolute phase (never the wrapped one) and the modulation are
     interpolated through each camera's IMM into the common virtual image; a virtual pixel any of whose 4
     real neighbours is flagged or blank is NaN (the quality mask is carried along);
@@ -38,8 +39,7 @@ import numpy as np
 from calib.capture import Capture, load_capture
 from calib.decode import DARK_FRACTION, MAX_MISMATCH_SIGMA, MODULATION_FRACTION
 from calib.errors import InputError
-from calib.phase import LOW_MODULATION, UNWRAP, WaveformCorrection
-from scanners.scan_decode import decode_set, unwrap
+from calib.phase import LOW_MODULATION, UNWRAP, WaveformCorrection, decode_frames, unwrap_temporal
 from stereodic.matching import match_rows
 from stereodic.phase_filter import smooth_phase
 from stereodic.rig import Rig
@@ -182,8 +182,8 @@ def decode_camera(capture: Capture, camera: str, sets: dict[float, list], images
         raws = [images[f.file] if images is not None else capture.read(f) for f in sets[period]]
         full = capture.max_value(camera, raws[0])
         try:
-            res = decode_set(raws, [f.pattern.shift_rad for f in sets[period]], full, DARK_FRACTION * full,
-                             MIN_MODULATION_FRACTION * full, _correction(proj, sets[period]))
+            res = decode_frames(raws, [f.pattern.shift_rad for f in sets[period]], full, DARK_FRACTION * full,
+                                MIN_MODULATION_FRACTION * full, _correction(proj, sets[period]))
         except ValueError as exc:
             raise InputError(capture.manifest_path, f"camera {camera!r}, period {period:g} px: {exc}") from None
         stride = max(1, res.modulation.size // 500_000)          # the 90th percentile from a sample
@@ -194,7 +194,7 @@ def decode_camera(capture: Capture, camera: str, sets: dict[float, list], images
         phases.append(res.phase)
         last = res
     try:
-        un = unwrap(periods, phases, int(proj["width_px"]), valid=quality == 0)
+        un = unwrap_temporal(periods, phases, int(proj["width_px"]), valid=quality == 0)
     except ValueError as exc:
         raise InputError(capture.manifest_path, f"camera {camera!r}: {exc}") from None
     for (p_long, p_short), s in zip(zip(periods, periods[1:]), un.mismatch_sigma):
@@ -203,7 +203,7 @@ def decode_camera(capture: Capture, camera: str, sets: dict[float, list], images
                                                     f"is too large for the phase noise (the periods disagree by "
                                                     f"{s:.3f} period RMS, safe <= {MAX_MISMATCH_SIGMA})")
     quality[~un.consistent] |= UNWRAP
-    coord = np.where(quality == 0, un.coord, np.float32(np.nan))
+    coord = np.where(quality == 0, un.coord.astype(np.float32), np.float32(np.nan))
     scale = np.float32(1.0 / full)
     return PhaseMap(coord, last.modulation * scale, last.offset * scale, quality, last.frames)
 

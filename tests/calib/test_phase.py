@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from calib.phase import (DARK, LOW_MODULATION, SATURATED, FringeSums, WaveformCorrection, unwrap_temporal)
+from calib.phase import (DARK, LOW_MODULATION, SATURATED, FringeSums, WaveformCorrection, decode_frames,
+                         unwrap_temporal)
 from calib.patterns import step_shifts
 
 
@@ -82,3 +83,33 @@ def test_waveform_correction_removes_the_gamma_error():
     raw = s.solve(1e12, 0, 0).phase
     assert np.abs(raw - theta).max() > 0.1                  # gamma's periodic error
     assert np.abs(corr(raw) - theta).max() < 1e-3
+
+
+@pytest.mark.parametrize("steps", [3, 4, 16])
+def test_decode_frames_equals_fringe_sums_and_correction(steps):
+    h, w = 60, 400
+    rng = np.random.default_rng(steps)
+    coord = np.linspace(0, 1279, w)[None, :] + np.linspace(0, 30, h)[:, None]
+    shifts = [float(np.angle(np.exp(2j * np.pi * k / steps))) for k in range(steps)]
+    frames = []
+    for d in shifts:
+        lum = ((10 + 120 * (1 + np.cos(2 * np.pi * coord / 32 - d))) / 255.0) ** 2.2
+        img = 20 + 200 * lum * np.linspace(0.2, 1.0, w)[None, :] + rng.normal(0, 1.5, coord.shape)
+        img[:5] = 3                                          # a dark band
+        img[5:8] = 255                                       # saturated
+        frames.append(np.clip(np.rint(img), 0, 255).astype(np.uint8))
+    fix = WaveformCorrection(((10 + 120 * (1 + np.cos(2 * np.pi * np.arange(1024) / 1024))) / 255.0) ** 2.2, shifts)
+    sums = FringeSums((h, w))
+    for f, d in zip(frames, shifts):
+        sums.add(f, d)
+    ref = sums.solve(255, 5.1, 5.1)
+    got = decode_frames(frames, shifts, 255, 5.1, 5.1, fix)
+    assert np.array_equal(got.quality, ref.quality) and (ref.quality != 0).any()
+    ok = ref.quality == 0
+    assert np.abs(np.angle(np.exp(1j * (got.phase - fix(ref.phase))))[ok]).max() < 2e-4
+    np.testing.assert_allclose(got.modulation, ref.modulation, atol=1e-3)
+    np.testing.assert_allclose(got.offset, ref.offset, atol=1e-3)
+    np.testing.assert_allclose(got.noise, ref.noise, rtol=1e-3, atol=1e-3, equal_nan=True)
+    assert np.isnan(got.noise).all() == (steps == 3)
+    with pytest.raises(ValueError, match="3 or more distinct shifts"):
+        decode_frames(frames[:2], shifts[:2], 255, 5.1, 5.1)
