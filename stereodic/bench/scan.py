@@ -318,7 +318,7 @@ def speed(quick: bool, folder: str) -> list[Figure]:
     what = f"{mp:.1f} MP pair, 3 periods x 3 steps ({len(result.points) / 1e6:.2f} M points)"
     figs = [Figure(GROUP, f"decode + rectify + filter + match + triangulate, {what}, images in memory", t, "s",
                    goal="<= 2 s at 5 MP", ok=t <= 2.0 * mp / 5.3 if not quick else None),
-            Figure(GROUP, f"the same, reading the 18 PNG files", t_png, "s")]
+            Figure(GROUP, "the same, reading the 18 PNG files", t_png, "s")]
     tm = best_time(lambda: match_rows(*maps["phase"]), repeat=5)
     rate = maps["phase"][0].size / tm / 1e6
     figs.append(Figure(GROUP, f"1-D matching throughput ({size[0]}x{size[1]} virtual pair, both directions + "

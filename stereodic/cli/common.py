@@ -37,3 +37,57 @@ def parse_floats(text: str) -> list[float]:
         return [float(v) for v in text.split(",") if v.strip()]
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+
+
+def parse_ints(text: str, n: int, what: str) -> list[int]:
+    """'10,20' -> [10, 20] (numbers rounded to whole pixels); InputError naming the option `what` unless
+    there are exactly n of them."""
+    from calib.errors import InputError
+    try:
+        vals = [int(round(float(t))) for t in text.split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) != n:
+        raise InputError(what, f"expected {n} comma-separated numbers, got {text!r}")
+    return vals
+
+
+def dic_grid(args, width: int, height: int, image: str, source: str):
+    """The DIC point grid and seeds from the options --subset, --step, --roi, --mask and --seed, for a
+    reference image of width x height pixels (`image` names it in messages, `source` is the file blamed
+    when no point fits). Returns (grid, seeds [(x, y), ...]); InputError for any option that does not fit.
+    """
+    from calib.errors import InputError
+    from calib.imageio import read_gray
+    from stereodic.dic import make_grid
+    if args.subset < 5 or args.subset % 2 == 0:
+        raise InputError("--subset", f"must be an odd number >= 5, got {args.subset}")
+    if args.step < 1:
+        raise InputError("--step", f"must be >= 1, got {args.step}")
+    roi = None
+    if args.roi:
+        x0, y0, x1, y1 = parse_ints(args.roi, 4, "--roi")
+        if not (0 <= x0 < x1 < width and 0 <= y0 < y1 < height):
+            raise InputError("--roi", f"{args.roi} is not a region inside the {width}x{height} {image}")
+        roi = (x0, y0, x1, y1)
+    mask = None
+    if args.mask:
+        mask = read_gray(args.mask) > 0
+        if mask.shape != (height, width):
+            raise InputError(args.mask, f"mask is {mask.shape[1]}x{mask.shape[0]} but the {image} is "
+                                        f"{width}x{height}")
+    seeds = []
+    for text in args.seed:
+        x, y = parse_ints(text, 2, "--seed")
+        if not (0 <= x < width and 0 <= y < height):
+            raise InputError("--seed", f"{text} is outside the {width}x{height} {image}")
+        if roi and not (roi[0] <= x <= roi[2] and roi[1] <= y <= roi[3]):
+            raise InputError("--seed", f"{text} is outside the region of interest {args.roi}")
+        if mask is not None and not mask[y, x]:
+            raise InputError("--seed", "a seed lies outside the mask")
+        seeds.append((x, y))
+    grid = make_grid(width, height, args.subset, args.step, roi, mask)
+    if not grid.active.any():
+        raise InputError(args.roi and "--roi" or source,
+                         f"no point of the grid has its {args.subset}-pixel subset inside the {image}")
+    return grid, seeds

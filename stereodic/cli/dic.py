@@ -7,7 +7,7 @@ Z, displacements and strains per state).
 
 from __future__ import annotations
 
-from stereodic.cli.dic2d import _ints
+from stereodic.cli.common import dic_grid, parse_ints
 
 
 def register(sub):
@@ -40,39 +40,21 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-def _settings(args, width: int, height: int):
+def _settings(args):
     from calib.errors import InputError
     from stereodic.dic import DicSettings
     from stereodic.dic3d.stereo import StereoSettings
-    if args.subset < 5 or args.subset % 2 == 0:
-        raise InputError("--subset", f"must be an odd number >= 5, got {args.subset}")
-    if args.step < 1:
-        raise InputError("--step", f"must be >= 1, got {args.step}")
     if args.strain_window and (args.strain_window < 3 or args.strain_window % 2 == 0):
         raise InputError("--strain-window", f"must be 0 or an odd number >= 3, got {args.strain_window}")
     if not 0 <= args.min_zncc <= 1:
         raise InputError("--min-zncc", f"must be between 0 and 1, got {args.min_zncc}")
     disparity = None
     if args.disparity:
-        disparity = tuple(_ints(args.disparity, 2, "--disparity"))
+        disparity = tuple(parse_ints(args.disparity, 2, "--disparity"))
         if disparity[0] > disparity[1]:
             raise InputError("--disparity", f"DMIN must not exceed DMAX, got {args.disparity}")
-    roi = None
-    if args.roi:
-        x0, y0, x1, y1 = _ints(args.roi, 4, "--roi")
-        if not (0 <= x0 < x1 < width and 0 <= y0 < y1 < height):
-            raise InputError("--roi", f"{args.roi} is not a region inside the {width}x{height} rectified image")
-        roi = (x0, y0, x1, y1)
-    seeds = []
-    for text in args.seed:
-        x, y = _ints(text, 2, "--seed")
-        if not (0 <= x < width and 0 <= y < height):
-            raise InputError("--seed", f"{text} is outside the {width}x{height} rectified image")
-        if roi and not (roi[0] <= x <= roi[2] and roi[1] <= y <= roi[3]):
-            raise InputError("--seed", f"{text} is outside the region of interest {args.roi}")
-        seeds.append((x, y))
     dic = DicSettings(subset=args.subset, shape=args.shape, min_zncc=args.min_zncc, search_radius=args.search)
-    return StereoSettings(dic, disparity, args.strain_window or None, args.incremental), roi, seeds
+    return StereoSettings(dic, disparity, args.strain_window or None, args.incremental)
 
 
 def run(args) -> int:
@@ -80,10 +62,7 @@ def run(args) -> int:
 
     import numpy as np
 
-    from calib.errors import InputError
     from calib.progress import progress
-    from stereodic.cli.dic2d import _read_mask
-    from stereodic.dic import make_grid
     from stereodic.dic3d.dataset import load_states
     from stereodic.dic3d.output import plot_states, write_csv, write_npz
     from stereodic.dic3d.stereo import StereoDic
@@ -93,14 +72,8 @@ def run(args) -> int:
     rig = load_rig(args.rig)
     width, height = rig.sensor.width, rig.sensor.height
     data = load_states(args.dataset, rig)       # every state and file checked before the work
-    settings, roi, seeds = _settings(args, width, height)
-    mask = _read_mask(args.mask, width, height) if args.mask else None
-    if seeds and mask is not None and not all(mask[y, x] for x, y in seeds):
-        raise InputError("--seed", "a seed lies outside the mask")
-    grid = make_grid(width, height, args.subset, args.step, roi, mask)
-    if not grid.active.any():
-        raise InputError(args.roi and "--roi" or args.rig,
-                         f"no point of the grid has its {args.subset}-pixel subset inside the rectified image")
+    grid, seeds = dic_grid(args, width, height, "rectified image", args.rig)
+    settings = _settings(args)
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     pairs = list(progress(data.rectified(rig), "rectifying", total=len(data)))

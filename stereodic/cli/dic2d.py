@@ -42,24 +42,9 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-def _ints(text: str, n: int, what: str) -> list[int]:
+def _check_args(args) -> None:
+    """The options beyond the grid's (stereodic.cli.common.dic_grid checks those)."""
     from calib.errors import InputError
-    try:
-        vals = [int(round(float(t))) for t in text.split(",")]
-    except ValueError:
-        vals = []
-    if len(vals) != n:
-        raise InputError(what, f"expected {n} comma-separated numbers, got {text!r}")
-    return vals
-
-
-def _check_args(args, width: int, height: int):
-    """Validated (roi, seeds) from the options."""
-    from calib.errors import InputError
-    if args.subset < 5 or args.subset % 2 == 0:
-        raise InputError("--subset", f"must be an odd number >= 5, got {args.subset}")
-    if args.step < 1:
-        raise InputError("--step", f"must be >= 1, got {args.step}")
     if args.strain_window is not None and (args.strain_window < 3 or args.strain_window % 2 == 0):
         raise InputError("--strain-window", f"must be an odd number >= 3, got {args.strain_window}")
     if not 0 <= args.min_zncc <= 1:
@@ -68,32 +53,6 @@ def _check_args(args, width: int, height: int):
         raise InputError("--search", f"must be >= 1 pixel, got {args.search}")
     if args.prefilter < 0:
         raise InputError("--prefilter", f"must be >= 0, got {args.prefilter}")
-    roi = None
-    if args.roi:
-        x0, y0, x1, y1 = _ints(args.roi, 4, "--roi")
-        if not (0 <= x0 < x1 < width and 0 <= y0 < y1 < height):
-            raise InputError("--roi", f"{args.roi} is not a region inside the {width}x{height} reference")
-        roi = (x0, y0, x1, y1)
-    seeds = []
-    for text in args.seed:
-        x, y = _ints(text, 2, "--seed")
-        inside = 0 <= x < width and 0 <= y < height
-        if not inside:
-            raise InputError("--seed", f"{text} is outside the {width}x{height} reference image")
-        if roi and not (roi[0] <= x <= roi[2] and roi[1] <= y <= roi[3]):
-            raise InputError("--seed", f"{text} is outside the region of interest {args.roi}")
-        seeds.append((x, y))
-    return roi, seeds
-
-
-def _read_mask(path: str, width: int, height: int):
-    from calib.errors import InputError
-    from calib.imageio import read_gray
-    mask = read_gray(path)
-    if mask.shape != (height, width):
-        raise InputError(path, f"mask is {mask.shape[1]}x{mask.shape[0]} but the reference is "
-                               f"{width}x{height}")
-    return mask > 0
 
 
 def run(args) -> int:
@@ -102,7 +61,8 @@ def run(args) -> int:
     from calib.errors import InputError
     from calib.imageio import image_size, read_gray
     from calib.progress import progress
-    from stereodic.dic import DicSettings, correlate_sequence, make_grid
+    from stereodic.cli.common import dic_grid
+    from stereodic.dic import DicSettings, correlate_sequence
     from stereodic.dic.output import plot_fields, write_csv, write_npz
     from stereodic.strain import strain_2d
 
@@ -112,14 +72,8 @@ def run(args) -> int:
         w, h = image_size(path)
         if (w, h) != (width, height):
             raise InputError(path, f"image is {w}x{h} but the reference {args.ref} is {width}x{height}")
-    roi, seeds = _check_args(args, width, height)
-    mask = _read_mask(args.mask, width, height) if args.mask else None
-    if seeds and mask is not None and not all(mask[y, x] for x, y in seeds):
-        raise InputError("--seed", "a seed lies outside the mask")
-    grid = make_grid(width, height, args.subset, args.step, roi, mask)
-    if not grid.active.any():
-        raise InputError(args.roi and "--roi" or args.ref,
-                         f"no point of the grid has its {args.subset}-pixel subset inside the image")
+    _check_args(args)
+    grid, seeds = dic_grid(args, width, height, "reference", args.ref)
     settings = DicSettings(subset=args.subset, shape=args.shape, order=3 if args.interp == "cubic" else 5,
                            prefilter_sigma=args.prefilter, min_zncc=args.min_zncc, search_radius=args.search)
 
