@@ -10,16 +10,16 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from calib import __version__
 from calib.atomic import write_npz
 from calib.errors import InputError
+from calib.npzfile import read_npz
 
 FORMAT = "stereodic.prvm/1"
-REQUIRED = ("origin", "direction", "valid", "meta")
+REQUIRED = ("origin", "direction", "valid")
 
 
 @dataclass
@@ -70,23 +70,10 @@ class PRVM:
 
 def load_prvm(path: str | os.PathLike) -> PRVM:
     """Read and check a PRVM file; InputError naming the file if it is not one."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "PRVM file is missing")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except Exception as exc:
-        raise InputError(path, f"not a readable .npz file ({exc.__class__.__name__})") from None
+    meta, arrays = read_npz(path, FORMAT, "PRVM")
     missing = [k for k in REQUIRED if k not in arrays]
     if missing:
         raise InputError(path, f"not a PRVM file: lacks {', '.join(missing)}")
-    try:
-        meta = json.loads(str(arrays.pop("meta")))
-    except json.JSONDecodeError:
-        raise InputError(path, "'meta' is not valid JSON") from None
-    if meta.get("format") != FORMAT:
-        raise InputError(path, f"format is {meta.get('format')!r}, expected {FORMAT!r}")
     origin, direction, valid = arrays.pop("origin"), arrays.pop("direction"), arrays.pop("valid")
     h, w = valid.shape if valid.ndim == 2 else (0, 0)
     if valid.ndim != 2 or origin.shape != (h, w, 3) or direction.shape != (h, w, 3):

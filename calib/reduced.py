@@ -16,7 +16,6 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -24,6 +23,7 @@ import numpy as np
 from calib import __version__
 from calib.atomic import write_npz
 from calib.errors import InputError
+from calib.npzfile import read_npz
 from calib.regularise import Adaptive, Smoother, smooth_fields
 
 FORMAT = "stereodic.undistort/1"
@@ -55,17 +55,11 @@ class UndistortMap:
 
 def load_undistort_map(path: str | os.PathLike) -> UndistortMap:
     """Read an undistortion map; InputError naming the file if it is not one."""
-    path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            meta = json.loads(str(z["meta"]))
-            if meta.get("format") != FORMAT:
-                raise InputError(path, f"format is {meta.get('format')!r}, expected {FORMAT!r}")
-            return UndistortMap(z["map_x"], z["map_y"], z["valid"], z["homography"], meta)
-    except (OSError, KeyError, ValueError) as exc:
-        if isinstance(exc, InputError):
-            raise
-        raise InputError(path, f"not an undistortion map ({exc.__class__.__name__})") from None
+    meta, a = read_npz(path, FORMAT, "undistortion map")
+    missing = [k for k in ("map_x", "map_y", "valid", "homography") if k not in a]
+    if missing:
+        raise InputError(path, f"not an undistortion map: lacks {', '.join(missing)}")
+    return UndistortMap(a["map_x"], a["map_y"], a["valid"], a["homography"], meta)
 
 
 def fit_homography(coord: np.ndarray, valid: np.ndarray) -> np.ndarray:

@@ -46,6 +46,8 @@ from calib import __version__
 from calib.atomic import write_npz
 from calib.errors import InputError
 from calib.intensity import IntensityMatrix
+from calib.npzfile import read_npz
+from calib.prvm_file import FORMAT as PRVM_FORMAT
 from calib.prvm_file import PRVM
 from stereodic.imm import IMM, build_imm
 from stereodic.undistort import intensity_matrix
@@ -301,21 +303,8 @@ def save_rig(path: str | os.PathLike, rig: Rig) -> None:
 
 def load_rig(path: str | os.PathLike) -> Rig:
     """Read a RIG file; InputError naming the file if it is missing or not one."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "rig file is missing")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-        meta = json.loads(str(arrays["meta"]))
-    except KeyError:
-        raise InputError(path, "not a rig file: lacks 'meta'") from None
-    except Exception as exc:
-        raise InputError(path, f"not a readable rig file ({exc.__class__.__name__})") from None
-    if meta.get("format") != FORMAT:
-        raise InputError(path, f"format is {meta.get('format')!r}, expected {FORMAT!r}"
-                               + (" (a camera file: build a rig with `stereodic rig LEFT.npz RIGHT.npz`)"
-                                  if str(meta.get("format", "")).startswith("stereodic.prvm") else ""))
+    meta, arrays = read_npz(path, FORMAT, "rig", advice={
+        PRVM_FORMAT: "a camera file: build a rig with `stereodic rig LEFT.npz RIGHT.npz`"})
     sensor = VirtualSensor.from_dict(meta["sensor"])
     cams = []
     for side in SIDES:

@@ -58,3 +58,19 @@ def test_outputs_get_ordinary_permissions(tmp_path):
     mask = os.umask(0)
     os.umask(mask)
     assert stat.S_IMODE(os.stat(tmp_path / "cam.npz").st_mode) == 0o666 & ~mask
+
+
+def test_stereodic_npz_files_are_told_apart(tmp_path):
+    """One reader for every stereodic .npz: the wrong kind of file is named, with advice where given."""
+    from calib.npzfile import read_npz
+    pinhole_prvm().save(tmp_path / "cam.npz")
+    meta, arrays = read_npz(tmp_path / "cam.npz", "stereodic.prvm/1", "PRVM")
+    assert meta["width"] == 8 and "meta" not in arrays and arrays["origin"].shape == (6, 8, 3)
+    with pytest.raises(InputError, match=r"cam.npz: format is 'stereodic.prvm/1', expected 'stereodic.rig/1' "
+                                         r"\(a camera file\)"):
+        read_npz(tmp_path / "cam.npz", "stereodic.rig/1", "rig", advice={"stereodic.prvm/1": "a camera file"})
+    np.savez(tmp_path / "m.npz", meta=np.array("{not json"))
+    with pytest.raises(InputError, match="m.npz: 'meta' is not valid JSON"):
+        read_npz(tmp_path / "m.npz", "stereodic.rig/1", "rig")
+    with pytest.raises(InputError, match="gone.npz: rig file is missing"):
+        read_npz(tmp_path / "gone.npz", "stereodic.rig/1", "rig")

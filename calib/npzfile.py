@@ -1,0 +1,43 @@
+"""Reading stereodic's `.npz` files: named arrays plus a 0-d `meta` string of JSON whose `format` names
+the kind of file (stereodic.prvm/1, stereodic.rig/1, stereodic.undistort/1, ...). Writing is
+`calib.atomic.write_npz`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from calib.errors import InputError
+
+
+def read_npz(path: str | os.PathLike, fmt: str, what: str,
+             advice: dict[str, str] | None = None) -> tuple[dict, dict[str, np.ndarray]]:
+    """(meta, arrays without meta) of the file at `path`, which must be a `fmt` file.
+
+    what: the kind of file in messages ("PRVM", "rig", ...). advice: for formats a user may pass by
+    mistake, a hint added to the message (e.g. {"stereodic.prvm/1": "a camera file: build a rig ..."}).
+    Raises InputError naming the file: missing, not a readable .npz, no JSON meta, another format.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, f"{what} file is missing")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except Exception as exc:  # numpy raises several types for a file that is not an .npz
+        raise InputError(path, f"not a readable {what} file ({exc.__class__.__name__})") from None
+    if "meta" not in arrays:
+        raise InputError(path, f"not a {what} file: lacks 'meta'")
+    try:
+        meta = json.loads(str(arrays.pop("meta")))
+    except json.JSONDecodeError:
+        raise InputError(path, "'meta' is not valid JSON") from None
+    found = meta.get("format") if isinstance(meta, dict) else None
+    if found != fmt:
+        hint = (advice or {}).get(str(found))
+        raise InputError(path, f"format is {found!r}, expected {fmt!r}" + (f" ({hint})" if hint else ""))
+    return meta, arrays
