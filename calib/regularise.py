@@ -20,13 +20,15 @@ noise of the smaller window (the balance that makes the method near-optimal). Th
 median-filtered (isolated false alarms of the test), eroded (never above the median) and blurred, and
 the fit interpolated between the two neighbouring windows of the ladder, so the result has no seams.
 
-Masked pixels are handled by removing a global low-order polynomial first, filling the holes of the small
-remainder with its nearest valid value and smoothing the remainder; windows less than `coverage` valid
-are not used beyond the smallest. At the image border the window becomes one-sided and `edge_span` times
-longer (the off-centre evaluation of a polynomial is noisier; one-sided windows as long as the centred
-ones halve the brown lens's border bias but make the fallback windows so noisy that the telecentric
-lens's error triples). Window sums come from running sums
-(numba), so a window costs the same whatever its size.
+A global polynomial (`_base`) is removed first and the local fits smooth the remainder: of degree 3,
+or up to 6 where the higher terms are significant (a Brown-Conrady lens's r^4 terms), so that what is
+left for the local fits is small and the large windows fit it without bias up to the border. Masked
+pixels are filled with the remainder's nearest valid value; windows less than `coverage` valid are not
+used beyond the smallest. At the image border a window becomes one-sided and `edge_span` times longer
+(the off-centre evaluation of a polynomial is noisier), and the larger windows fit a line there
+(`Adaptive.edge_order`), which the base has made enough; the smallest keeps the cubic, for a local
+bump near the border. Window sums come from running sums (numba), so a window costs the same whatever
+its size.
 """
 
 from __future__ import annotations
@@ -39,8 +41,11 @@ import numba
 import numpy as np
 from scipy import ndimage
 
-# global polynomial removed before local smoothing (its degree in u and v together)
+# global polynomial removed before local smoothing (`_base`): its least and greatest total degree in u
+# and v, and how much (in noise variances per term) a higher degree's terms must explain to be used
 BASE_DEGREE = 3
+BASE_DEGREE_MAX = 6
+BASE_SIGNIFICANCE = 20.0
 
 
 @dataclass(frozen=True)
@@ -235,7 +240,9 @@ class Adaptive:
     """Window chosen per pixel (Lepski's method) over a ladder of windows doubling from the smallest.
 
     half_window: the smallest window's half size m (pixels); levels: the number of windows (those wider
-    than the image are dropped); order: the local polynomial's; threshold: how many standard deviations
+    than the image are dropped); order: the local polynomial's; edge_order: that of the larger windows'
+    one-sided fits at the image border (lower is less noisy there; the smallest window keeps `order`,
+    so the test can fall back to it where the field bends); threshold: how many standard deviations
     of their difference a window's fit may differ from a smaller one's; coverage: the least fraction of
     valid pixels in a window for it to be used (beyond the smallest); blend: the half size (in smallest
     half windows) of the median, erosion and box filters applied to the chosen window index.
@@ -244,6 +251,7 @@ class Adaptive:
     half_window: int = 20
     levels: int = 4
     order: int = 3
+    edge_order: int = 1
     threshold: float = 3.0
     coverage: float = 0.995
     blend: float = 1.0
@@ -254,7 +262,8 @@ class Adaptive:
         return 2 * self.half_window + 1
 
     def ladder(self) -> list[Smoother]:
-        return [Smoother(self.half_window * 2 ** j, self.order, self.order) for j in range(self.levels)]
+        return [Smoother(self.half_window * 2 ** j, self.order, self.order if j == 0 else self.edge_order)
+                for j in range(self.levels)]
 
 
 @dataclass
@@ -269,25 +278,44 @@ class Regularised:
     window: np.ndarray
 
 
-def _base(field: np.ndarray, valid: np.ndarray, degree: int = BASE_DEGREE) -> np.ndarray:
-    """Least-squares polynomial of total degree `degree` in the normalised pixel coordinates."""
+def _base(field: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """The global polynomial removed before local smoothing, least-squares over every valid pixel, in
+    Legendre polynomials of the normalised pixel coordinates: of total degree `BASE_DEGREE`, or higher
+    (up to `BASE_DEGREE_MAX`) where the higher terms are significant. Each higher degree's terms must
+    lower the residual sum of squares by `BASE_SIGNIFICANCE` times the noise variance per term (the
+    decoded fields' noise is correlated over a few pixels, so terms fitted to noise alone reach a few
+    units); a degree too high for the field only adds its fit's noise, which grows towards the border.
+    The normal equations separate into products of the (H, W) arrays with small per-axis tables, so no
+    design matrix of one row per pixel is built."""
     h, w = field.shape
-    step = max(1, int(np.sqrt(valid.sum() / 20000)))
-    vv, uu = np.mgrid[0:h:step, 0:w:step]
-    sel = valid[::step, ::step] & np.isfinite(field[::step, ::step])
-    terms = [(i, j) for i in range(degree + 1) for j in range(degree + 1 - i)]
-
-    def design(u, v):
-        un, vn = 2 * u / max(w - 1, 1) - 1, 2 * v / max(h - 1, 1) - 1
-        return np.stack([un ** i * vn ** j for i, j in terms], axis=-1)
-
-    coef, *_ = np.linalg.lstsq(design(uu[sel], vv[sel]), field[::step, ::step][sel], rcond=None)
-    un = 2 * np.arange(w) / max(w - 1, 1) - 1
-    vn = 2 * np.arange(h) / max(h - 1, 1) - 1
-    c = np.zeros((degree + 1, degree + 1))     # c[j, i]: the coefficient of vn^j un^i
-    for value, (i, j) in zip(coef, terms):
+    pu = np.polynomial.legendre.legvander(np.linspace(-1, 1, w), BASE_DEGREE_MAX)    # (W, D)
+    pv = np.polynomial.legendre.legvander(np.linspace(-1, 1, h), BASE_DEGREE_MAX)    # (H, D)
+    d = BASE_DEGREE_MAX + 1
+    pairs_u = (pu[:, :, None] * pu[:, None, :]).reshape(w, d * d)
+    pairs_v = (pv[:, :, None] * pv[:, None, :]).reshape(h, d * d)
+    # gram[j, l, i, k] = sum over valid pixels of P_i(u) P_k(u) P_j(v) P_l(v); rhs[j, i] of P_i(u) P_j(v) f
+    gram = (pairs_v.T @ (valid.astype(np.float64) @ pairs_u)).reshape(d, d, d, d)
+    mean = float(np.mean(field[valid]))
+    f0 = np.where(valid, field - mean, 0.0)                       # centred: the residual sums stay exact
+    rhs = pv.T @ f0 @ pu
+    total = float(np.sum(f0 * f0))
+    fits = []                                                     # (terms, coefficients, residual SS)
+    for degree in range(BASE_DEGREE, BASE_DEGREE_MAX + 1):
+        terms = [(i, j) for i in range(degree + 1) for j in range(degree + 1 - i)]
+        a = np.array([[gram[j, l, i, k] for (k, l) in terms] for (i, j) in terms])
+        b = np.array([rhs[j, i] for (i, j) in terms])
+        coef = np.linalg.lstsq(a, b, rcond=None)[0]          # a small or masked image may leave it singular
+        fits.append((terms, coef, total - coef @ b))
+    noise_var = fits[-1][2] / max(int(valid.sum()) - len(fits[-1][0]), 1)
+    chosen = 0
+    for k in range(1, len(fits)):
+        drop = (fits[k - 1][2] - fits[k][2]) / (len(fits[k][0]) - len(fits[k - 1][0]))
+        if drop > BASE_SIGNIFICANCE * noise_var:
+            chosen = k
+    c = np.zeros((d, d))                      # c[j, i]: the coefficient of P_j(v) P_i(u)
+    for value, (i, j) in zip(fits[chosen][1], fits[chosen][0]):
         c[j, i] = value
-    return np.vander(vn, degree + 1, increasing=True) @ c @ np.vander(un, degree + 1, increasing=True).T
+    return pv @ c @ pu.T + mean
 
 
 def _box_median(index: np.ndarray, levels: int, size: int) -> np.ndarray:

@@ -52,11 +52,26 @@ def best_time(fn: Callable[[], object], repeat: int = 3, warmup: int = 1) -> flo
     return best
 
 
+def peak_rss_bytes() -> int:
+    """Peak resident memory (bytes) of this process since it was started (its last exec): VmHWM of
+    /proc/self/status on Linux, else getrusage's ru_maxrss. On Linux ru_maxrss also keeps the memory
+    of the parent at fork, which a spawned child carries through its exec: a bench process grown to
+    2 GiB would lend every child its 2 GiB."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
 def _child(fn, args, conn):
     t0 = time.perf_counter()
     result = fn(*args)
     dt = time.perf_counter() - t0
-    conn.send((dt, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024, result))
+    conn.send((dt, peak_rss_bytes(), result))
     conn.close()
 
 

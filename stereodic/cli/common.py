@@ -20,6 +20,25 @@ def planned(sub, name: str, help_text: str, issue: int) -> argparse.ArgumentPars
     return p
 
 
+def add_simulation_options(p: argparse.ArgumentParser, width: int, height: int, supersample: int | None,
+                           seeded: str, lens: str | None = "the lens family",
+                           supersample_help: str | None = None) -> None:
+    """The options every `simulate` mode shares: --lens (unless `lens` is None: the mode names its lenses
+    its own way), --width and --height (defaults in pixels), --seed (of what is `seeded`), --noise,
+    --supersample (sub-samples per pixel side) and -o DIR."""
+    from scanners.sim.lenses import LENS_FAMILIES
+    if lens is not None:
+        p.add_argument("--lens", choices=LENS_FAMILIES, default="brown", help=f"{lens} (default brown)")
+    p.add_argument("--width", type=int, default=width, help=f"sensor width in pixels (default {width})")
+    p.add_argument("--height", type=int, default=height, help=f"sensor height in pixels (default {height})")
+    p.add_argument("--seed", type=int, default=0, help=f"random seed of {seeded}")
+    p.add_argument("--noise", action=argparse.BooleanOptionalAction, default=True,
+                   help="sensor noise (default on); --no-noise renders the expected images")
+    p.add_argument("--supersample", type=int, default=supersample,
+                   help=supersample_help or f"sub-samples per pixel side (default {supersample})")
+    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
+
+
 def parse_size(text: str) -> tuple[int, int]:
     """'1920x1080' -> (1920, 1080); argparse type."""
     try:

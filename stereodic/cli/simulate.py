@@ -7,16 +7,13 @@ speckled plate under load, two cameras, stereodic/cli/simulate_dic.py).
 
 from __future__ import annotations
 
-import argparse
-
 from stereodic.cli import simulate_dic as dic_mode
 from stereodic.cli import simulate_scan as scan_mode
 from stereodic.cli import simulate_stereo as stereo_mode
-from stereodic.cli.common import parse_floats
+from stereodic.cli.common import add_simulation_options, parse_floats
 
 
 def register(sub):
-    from scanners.sim.lenses import LENS_FAMILIES
     p = sub.add_parser("simulate", help="write a simulated dataset with its ground truth",
                        description="Write a simulated dataset (images + capture.json + truth.npz).")
     modes = p.add_subparsers(dest="mode", metavar="MODE", required=True)
@@ -24,12 +21,7 @@ def register(sub):
                          description="Render a calibration dataset on the simulated rig: flats, phase-shifting "
                                      "fringes (both axes, every period) and optionally chessboards at every "
                                      "stage position, with the true rays in truth.npz.")
-    c.add_argument("--lens", choices=LENS_FAMILIES, default="brown", help="lens family (default brown)")
-    c.add_argument("--width", type=int, default=1280, help="sensor width in pixels (default 1280)")
-    c.add_argument("--height", type=int, default=1024, help="sensor height in pixels (default 1024)")
-    c.add_argument("--seed", type=int, default=0, help="random seed of lens, pose, stage and noise")
-    c.add_argument("--noise", action=argparse.BooleanOptionalAction, default=True,
-                   help="sensor noise (default on); --no-noise renders the expected images")
+    add_simulation_options(c, 1280, 1024, 3, "lens, pose, stage and noise")
     c.add_argument("--periods", type=parse_floats, default=[60, 360, 1920],
                    help="fringe periods in display pixels (default 60,360,1920)")
     c.add_argument("--steps", type=int, default=3, help="phase steps per period, >= 3 (default 3)")
@@ -40,12 +32,10 @@ def register(sub):
     c.add_argument("--low", type=int, default=20, help="fringe minimum level (default 20)")
     c.add_argument("--high", type=int, default=240, help="fringe maximum level (default 240)")
     c.add_argument("--bit-depth", type=int, default=8, help="camera bit depth: 8, 10, 12, 14, 16 (default 8)")
-    c.add_argument("--supersample", type=int, default=3, help="sub-samples per pixel side (default 3)")
     c.add_argument("--cover-glass", type=parse_floats, default=None, metavar="THICK,INDEX",
                    help="display cover glass thickness (mm) and refractive index, e.g. 0.7,1.5")
     c.add_argument("--stage-error-um", type=float, default=3.0, help="RMS stage position error (default 3 um)")
     c.add_argument("--chessboard", action="store_true", help="also render chessboards (OpenCV comparison)")
-    c.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
     c.set_defaults(func=run_calibration)
     stereo_mode.register(modes)                         # `simulate stereo`: stereodic/cli/simulate_stereo.py
     scan_mode.register(modes)                           # `simulate scan`: stereodic/cli/simulate_scan.py

@@ -3,15 +3,12 @@
 
 from __future__ import annotations
 
-import argparse
-
-from stereodic.cli.common import parse_floats
+from stereodic.cli.common import add_simulation_options, parse_floats
 
 OBJECTS = ("sphere", "ballbar", "plane", "freeform")
 
 
 def register(modes) -> None:
-    from scanners.sim.lenses import LENS_FAMILIES
     s = modes.add_parser(
         "scan", help="structured-light scan dataset: projector + two cameras, objects with known shape",
         description="Render a scan dataset: a fringe projector (own lens and gamma) between two cameras casts "
@@ -20,9 +17,6 @@ def register(modes) -> None:
                     "One state per object pose. Writes capture.json (kind scan), the images, truth.npz (the exact "
                     "surfaces), the true camera PRVMs truth_cam0/1.npz and rig.npz (their rectified pair), so "
                     "that `stereodic scan DIR/rig.npz DIR -o cloud.ply` runs at once. See docs/scanner.md.")
-    s.add_argument("--lens", choices=LENS_FAMILIES, default="brown", help="both cameras' lens family (default brown)")
-    s.add_argument("--width", type=int, default=1280, help="sensor width in pixels (default 1280)")
-    s.add_argument("--height", type=int, default=1024, help="sensor height in pixels (default 1024)")
     s.add_argument("--objects", default=",".join(OBJECTS),
                    help=f"comma-separated objects to scan (default {','.join(OBJECTS)})")
     s.add_argument("--periods", type=parse_floats, default=None,
@@ -30,10 +24,7 @@ def register(modes) -> None:
     s.add_argument("--steps", type=parse_floats, default=None,
                    help="phase steps: one number for all periods or one per period (default 16 for the shortest "
                         "period, 3 for the others)")
-    s.add_argument("--supersample", type=int, default=2, help="sub-samples per pixel side (default 2)")
-    s.add_argument("--seed", type=int, default=0, help="random seed of lenses, poses and noise")
-    s.add_argument("--noise", action=argparse.BooleanOptionalAction, default=True, help="sensor noise (default on)")
-    s.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
+    add_simulation_options(s, 1280, 1024, 2, "lenses, poses and noise", lens="both cameras' lens family")
     s.set_defaults(func=run)
 
 

@@ -3,9 +3,7 @@
 
 from __future__ import annotations
 
-import argparse
-
-from stereodic.cli.common import parse_floats
+from stereodic.cli.common import add_simulation_options, parse_floats
 
 
 def register(modes) -> None:
@@ -20,23 +18,19 @@ def register(modes) -> None:
     s.add_argument("--left", choices=LENS_FAMILIES, default="brown", help="left lens family (default brown)")
     s.add_argument("--right", choices=LENS_FAMILIES, default="brown", help="right lens family (default brown)")
     s.add_argument("--lens", choices=LENS_FAMILIES, help="both lens families at once")
-    s.add_argument("--width", type=int, default=1280, help="sensor width in pixels (default 1280)")
-    s.add_argument("--height", type=int, default=1024, help="sensor height in pixels (default 1024)")
     s.add_argument("--pixel-mm", type=float, default=None,
                    help="pixel pitch in mm (default: 0.0053 x 1280 / width, the same field of view)")
     s.add_argument("--baseline", type=float, default=200.0, help="distance between the cameras, mm (default 200)")
     s.add_argument("--distance", type=float, default=400.0, help="distance to the display, mm (default 400)")
-    s.add_argument("--seed", type=int, default=0, help="random seed of lenses, poses, stage and noise")
     s.add_argument("--separate", action="store_true",
                    help="each camera calibrated separately, then a registration dataset")
-    s.add_argument("--noise", action=argparse.BooleanOptionalAction, default=True, help="sensor noise (default on)")
     s.add_argument("--periods", type=parse_floats, default=[60, 360, 1920],
                    help="fringe periods in display pixels (default 60,360,1920)")
     s.add_argument("--positions", type=parse_floats, default=[0.0, 50.0],
                    help="nominal stage positions in mm (default 0,50)")
-    s.add_argument("--supersample", type=int, default=None,
-                   help="sub-samples per pixel side (default max(3, 1280 / width): a sub-sample below a display pixel)")
-    s.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
+    add_simulation_options(s, 1280, 1024, None, "lenses, poses, stage and noise", lens=None,
+                           supersample_help="sub-samples per pixel side (default max(3, 1280 / width): a "
+                                            "sub-sample below a display pixel)")
     s.set_defaults(func=run)
 
 

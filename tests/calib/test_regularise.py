@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from calib.regularise import Adaptive, Smoother, smooth_fields
+from calib.regularise import Adaptive, Smoother, _base, smooth_fields
 
 H, W = 256, 320
 SIGMA = 0.3                     # white noise of the raw field
@@ -95,6 +95,48 @@ def test_adaptive_does_not_bias_local_bumps(adaptive_runs):
         err_fix = np.sqrt(np.mean((fix - field)[:, near] ** 2))
         assert err_ada < 1.15 * err_fix
         assert np.median(last.window[near]) <= 41                          # small windows chosen there
+
+
+def _lstsq_polynomial(field: np.ndarray, valid: np.ndarray, degree: int) -> np.ndarray:
+    """The least-squares polynomial of total degree `degree` over the valid pixels (numpy's lstsq on a
+    monomial design matrix): the independent reference for `_base`."""
+    v, u = np.mgrid[0:H, 0:W].astype(float)
+    un, vn = 2 * u / (W - 1) - 1, 2 * v / (H - 1) - 1
+    design = np.stack([un ** i * vn ** j for i in range(degree + 1) for j in range(degree + 1 - i)], axis=-1)
+    coef, *_ = np.linalg.lstsq(design[valid], field[valid], rcond=None)
+    return design @ coef
+
+
+def _radial_field() -> np.ndarray:
+    """x of a Brown-Conrady lens in pixels: degree 5 in (u, v), centre off the image's."""
+    v, u = np.mgrid[0:H, 0:W].astype(float)
+    x, y = (u - 150) / 200, (v - 130) / 200
+    r2 = x * x + y * y
+    return 200 * x * (1 - 0.3 * r2 + 0.25 * r2 * r2)
+
+
+def test_base_degree_rises_only_for_significant_terms():
+    rng = np.random.default_rng(4)
+    valid = np.ones((H, W), bool)
+    valid[40:90, 200:260] = False
+    v, u = np.mgrid[0:H, 0:W].astype(float)
+    cubic = 1e-6 * (u ** 3 - 2 * v ** 3) + 1e-4 * u * v - 0.01 * u + 3.0
+    for field, degree in ((cubic, 3), (_radial_field(), 5)):
+        raw = field + rng.normal(0, SIGMA, (H, W))
+        np.testing.assert_allclose(_base(raw, valid), _lstsq_polynomial(raw, valid, degree), atol=1e-8)
+
+
+def test_adaptive_follows_radial_distortion_to_the_border():
+    """A Brown-Conrady field is degree 5: after the global polynomial the large windows are unbiased up
+    to the border, where the one-sided line fits keep the noise low."""
+    field = _radial_field()
+    rng = np.random.default_rng(5)
+    border = np.ones((H, W), bool)
+    border[16:-16, 16:-16] = False
+    err = np.stack([smooth_fields((field + rng.normal(0, SIGMA, (H, W)))[None], np.ones((H, W), bool),
+                                  Adaptive(half_window=10)).fields[0] - field for _ in range(4)])
+    assert np.sqrt(np.mean(err[:, _interior(60)] ** 2)) < SIGMA / 50
+    assert np.sqrt(np.mean(err[:, border] ** 2)) < SIGMA / 25
 
 
 def test_adaptive_handles_masked_pixels():
