@@ -21,8 +21,9 @@ median-filtered (isolated false alarms of the test), eroded (never above the med
 the fit interpolated between the two neighbouring windows of the ladder, so the result has no seams.
 
 A global polynomial (`_base`) is removed first and the local fits smooth the remainder: of degree 3,
-or up to 6 where the higher terms are significant (a Brown-Conrady lens's r^4 terms), so that what is
-left for the local fits is small and the large windows fit it without bias up to the border. Masked
+or up to 6 where that models the field to within its noise (a Brown-Conrady lens's r^4 terms; not a
+free-form lens's bumps), so that what is left for the local fits is small and the large windows fit it
+without bias up to the border. Masked
 pixels are filled with the remainder's nearest valid value; windows less than `coverage` valid are not
 used beyond the smallest. At the image border a window becomes one-sided and `edge_span` times longer
 (the off-centre evaluation of a polynomial is noisier), and the larger windows fit a line there
@@ -46,6 +47,7 @@ from scipy import ndimage
 BASE_DEGREE = 3
 BASE_DEGREE_MAX = 6
 BASE_SIGNIFICANCE = 20.0
+BASE_RESIDUAL = 1.5
 
 
 @dataclass(frozen=True)
@@ -281,10 +283,13 @@ class Regularised:
 def _base(field: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """The global polynomial removed before local smoothing, least-squares over every valid pixel, in
     Legendre polynomials of the normalised pixel coordinates: of total degree `BASE_DEGREE`, or higher
-    (up to `BASE_DEGREE_MAX`) where the higher terms are significant. Each higher degree's terms must
+    (up to `BASE_DEGREE_MAX`) where the polynomial is the field's model. A higher degree's terms must
     lower the residual sum of squares by `BASE_SIGNIFICANCE` times the noise variance per term (the
     decoded fields' noise is correlated over a few pixels, so terms fitted to noise alone reach a few
-    units); a degree too high for the field only adds its fit's noise, which grows towards the border.
+    units): a degree too high for the field only adds its fit's noise, which grows towards the border.
+    And what that degree leaves must be noise, within `BASE_RESIDUAL` times the pixel-to-pixel noise
+    variance: where the field has local structure (a free-form lens's bumps), the local fits are its
+    model, and a high-degree polynomial chasing the bumps only makes the remainder harder for them.
     The normal equations separate into products of the (H, W) arrays with small per-axis tables, so no
     design matrix of one row per pixel is built."""
     h, w = field.shape
@@ -295,10 +300,11 @@ def _base(field: np.ndarray, valid: np.ndarray) -> np.ndarray:
     pairs_v = (pv[:, :, None] * pv[:, None, :]).reshape(h, d * d)
     # gram[j, l, i, k] = sum over valid pixels of P_i(u) P_k(u) P_j(v) P_l(v); rhs[j, i] of P_i(u) P_j(v) f
     gram = (pairs_v.T @ (valid.astype(np.float64) @ pairs_u)).reshape(d, d, d, d)
-    mean = float(np.mean(field[valid]))
-    f0 = np.where(valid, field - mean, 0.0)                       # centred: the residual sums stay exact
+    sample = field[::8, ::8][valid[::8, ::8]]
+    mean = float(np.mean(sample if sample.size else field[valid]))
+    f0 = _masked(field - mean, valid)                     # ~centred: the residual sums stay exact
     rhs = pv.T @ f0 @ pu
-    total = float(np.sum(f0 * f0))
+    total = float(np.dot(f0.ravel(), f0.ravel()))
     fits = []                                                     # (terms, coefficients, residual SS)
     for degree in range(BASE_DEGREE, BASE_DEGREE_MAX + 1):
         terms = [(i, j) for i in range(degree + 1) for j in range(degree + 1 - i)]
@@ -306,16 +312,36 @@ def _base(field: np.ndarray, valid: np.ndarray) -> np.ndarray:
         b = np.array([rhs[j, i] for (i, j) in terms])
         coef = np.linalg.lstsq(a, b, rcond=None)[0]          # a small or masked image may leave it singular
         fits.append((terms, coef, total - coef @ b))
-    noise_var = fits[-1][2] / max(int(valid.sum()) - len(fits[-1][0]), 1)
+    n = int(valid.sum())
+    noise_var = fits[-1][2] / max(n - len(fits[-1][0]), 1)
+    fine_var = _white_noise_variance(f0, valid)
     chosen = 0
     for k in range(1, len(fits)):
         drop = (fits[k - 1][2] - fits[k][2]) / (len(fits[k][0]) - len(fits[k - 1][0]))
-        if drop > BASE_SIGNIFICANCE * noise_var:
+        if drop > BASE_SIGNIFICANCE * noise_var and fits[k][2] <= BASE_RESIDUAL * n * fine_var:
             chosen = k
     c = np.zeros((d, d))                      # c[j, i]: the coefficient of P_j(v) P_i(u)
     for value, (i, j) in zip(fits[chosen][1], fits[chosen][0]):
         c[j, i] = value
     return pv @ c @ pu.T + mean
+
+
+def _masked(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """`values` (a new array, changed in place) with 0 outside valid (NaN there included)."""
+    np.putmask(values, ~valid, 0.0)
+    return values
+
+
+def _white_noise_variance(field: np.ndarray, valid: np.ndarray, stride: int = 4) -> float:
+    """The variance of a field's pixel-to-pixel noise, from its second differences along every
+    `stride`-th row and column (over valid triples; a smooth field's second differences are negligible
+    beside the noise's, whose variance they hold 6 times)."""
+    out = []
+    for a, v in ((field[:, ::stride], valid[:, ::stride]), (field[::stride].T, valid[::stride].T)):
+        ok = v[:-2] & v[1:-1] & v[2:]
+        if ok.any():
+            out.append(np.mean((a[:-2] - 2 * a[1:-1] + a[2:])[ok] ** 2) / 6)
+    return float(np.mean(out)) if out else 0.0
 
 
 def _box_median(index: np.ndarray, levels: int, size: int) -> np.ndarray:
@@ -363,7 +389,7 @@ def smooth_fields(fields: np.ndarray, valid: np.ndarray, smoother: Smoother | Ad
     window = np.zeros((h, w), np.float32)
     for i in range(k):
         base = _base(fields[i], valid)
-        rem = np.where(valid, fields[i] - base, 0.0)
+        rem = _masked(fields[i] - base, valid)
         if fill_idx is not None:
             rem = rem[fill_idx[0], fill_idx[1]]
         fits = _fit_axis0(rem, lo_v, hi_v, g_v, centre_v, scale_v)

@@ -115,13 +115,17 @@ def _radial_field() -> np.ndarray:
     return 200 * x * (1 - 0.3 * r2 + 0.25 * r2 * r2)
 
 
-def test_base_degree_rises_only_for_significant_terms():
+def test_base_degree_rises_only_where_the_polynomial_models_the_field():
     rng = np.random.default_rng(4)
     valid = np.ones((H, W), bool)
     valid[40:90, 200:260] = False
     v, u = np.mgrid[0:H, 0:W].astype(float)
     cubic = 1e-6 * (u ** 3 - 2 * v ** 3) + 1e-4 * u * v - 0.01 * u + 3.0
-    for field, degree in ((cubic, 3), (_radial_field(), 5)):
+    # local bumps on the radial field: no global polynomial models it, the local fits must (degree 3)
+    bumpy = _radial_field().copy()
+    for bu, bv in rng.uniform((0, 0), (W, H), (20, 2)):
+        bumpy += 2.0 * np.exp(-((u - bu) ** 2 + (v - bv) ** 2) / (2 * 10.0 ** 2))
+    for field, degree in ((cubic, 3), (_radial_field(), 5), (bumpy, 3)):
         raw = field + rng.normal(0, SIGMA, (H, W))
         np.testing.assert_allclose(_base(raw, valid), _lstsq_polynomial(raw, valid, degree), atol=1e-8)
 
