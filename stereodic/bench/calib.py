@@ -84,8 +84,8 @@ def _opencv_chessboard(capture, camera, width, height):
 
 
 def repeat_noise_px(capture, raw, truth, sensor_seed: int = 1, **simulate) -> float:
-    """RMS (camera px, working plane) of the unregularised rays' random error: half the RMS difference
-    (x sqrt 2) between `raw` and the lines from a second simulation of the same bench (`simulate`:
+    """RMS (camera px, working plane) of the unregularised rays' random error: the RMS difference, over
+    sqrt 2, between `raw` and the lines from a second simulation of the same bench (`simulate`:
     simulate_calibration's arguments) whose camera has other noise (`sensor_seed`). What is left of the
     unregularised error beyond this is systematic (the display's pixel grid, seen through the decoding),
     and is for the regularisation to remove."""
@@ -124,7 +124,8 @@ def accuracy(lens: str, width: int, height: int, root: str, chessboard: bool = T
     cal = calibrate_camera(capture)
     raw = PRVM(cal.raw.origin(), cal.raw.direction(), cal.raw.valid)
     res = {"raw": _stats(raw, truth), "reg": _stats(cal.prvm, truth),
-           "noise": repeat_noise_px(capture, cal.raw, truth, **bench), "bound": phase_noise_bound_px(capture, cal, truth), "floor": stage_floor(truth)}
+           "noise": repeat_noise_px(capture, cal.raw, truth, **bench),
+           "bound": phase_noise_bound_px(capture, cal, truth), "floor": stage_floor(truth)}
     pts = [capture.display_to_wcs(p.coord[0], p.coord[1], p.z_mm) for p in cal.positions]
     obj, img = dense_correspondences(pts, [p.valid for p in cal.positions])
     o, d = calibrate_opencv(obj, img, width, height).rays(width, height)
