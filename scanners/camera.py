@@ -202,7 +202,8 @@ class SimulatedCamera(Camera):
     def set_exposure(self, level: int, z_mm: float, fraction: float = 0.87) -> None:
         """Expose so that the brightest pixel seeing a flat screen at `level` reaches `fraction` of full
         scale at stage position z_mm."""
-        self.sim.set_exposure(self.screen.sim, level, z_mm, fraction)
+        from scanners.sim.pose import DisplayPose
+        self.sim.set_exposure(self.screen.sim, level, DisplayPose.staged(z_mm), fraction)
 
     def grab(self) -> np.ndarray:
         if self.screen.image is None:
@@ -213,7 +214,8 @@ class SimulatedCamera(Camera):
         z = self.true_z_mm()
         rng = np.random.default_rng([self.seed, zlib.crc32(self.screen.image.tobytes()),
                                      round(z * 1e6) & 0xFFFFFFFF, k])
-        return self.sim.render(self.screen.image, self.screen.sim, z, self.noise, rng=rng)
+        from scanners.sim.pose import DisplayPose
+        return self.sim.render(self.screen.image, self.screen.sim, DisplayPose.staged(z), self.noise, rng=rng)
 
 
 # ------------------------------------------------------------------------------------------ specs

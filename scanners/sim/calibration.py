@@ -2,7 +2,9 @@
 (optionally) chessboards, rendered by a simulated camera, written as a `stereodic.capture/1` dataset with
 its ground truth (`truth.npz`, a PRVM file: the true ray of every pixel centre, reference z = 0).
 
-Frame order per stage position (nominal positions in the manifest, true ones in truth.npz): flats at
+Frame order per stage position (nominal positions in the manifest; the true ones in truth.npz, as
+`stage_true_z_mm` and as the display's true poses `display_rotation` (M, 3, 3) and
+`display_translation_mm` (M, 3), X_wcs = R @ X_display + t, `scanners.sim.pose`): flats at
 `flat_levels` (intensity calibration), then fringes for axis x then y, each period, each shift
 2*pi*k/N wrapped to (-pi, pi], then chessboards. Files: `z000/cam0_flat_128.png`,
 `z000/cam0_x_P60_s0.png`, `z000/cam0_chess_0.png`, ... The manifest is written last, so an interrupted
@@ -24,6 +26,7 @@ from calib.progress import progress
 from scanners.sim.camera import SimCamera
 from scanners.sim.display import SimDisplay
 from scanners.sim.lenses import Lens, make_lens
+from scanners.sim.pose import DisplayPose
 from scanners.sim.screens import fringe_shifts, screen_image
 from scanners.sim.sensor import Sensor
 from scanners.sim.stage import SimStage
@@ -38,6 +41,7 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
                          bit_depth: int = 8, supersample: int = 3,
                          cover_glass: CoverGlass | tuple[float, float] | None = None, low: int = 20,
                          high: int = 240, chessboard: bool = False, stage_error_um: float = 3.0,
+                         stage_tilt_deg: float = 0.0, stage_lateral_um: float = 0.0,
                          stage_axis=(0.0, 0.0, 1.0), exposure_fraction: float = 0.87,
                          display: SimDisplay | None = None, lens_options: dict | None = None,
                          camera: str = "cam0", sensor_seed: int | None = None) -> Capture:
@@ -49,7 +53,9 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
     cover_glass: (thickness_mm, refractive_index) or a CoverGlass; low/high: fringe (and chessboard)
     levels; chessboard: add chessboards (squares CHESS_SQUARES) at 5 placements per position, inside
     the field at that position;
-    stage_error_um: RMS stage positioning error; exposure_fraction: brightest fringe pixel / full scale;
+    stage_error_um, stage_tilt_deg, stage_lateral_um: RMS stage errors per position: along the axis,
+    tilt about each of the display's x and y axes (about the display's centre), and across the axis
+    (`scanners.sim.stage.SimStage`); exposure_fraction: brightest fringe pixel / full scale;
     sensor_seed: seed of the camera's gain map and noise (default `seed`; cameras of one rig share the
     stage's seed but each has its own sensor).
     Raises InputError naming the argument for bad arguments or a display that does not cover the field.
@@ -79,22 +85,22 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
     if isinstance(lens, str):
         lens = make_lens(lens, width, height, seed, **(lens_options or {}))
     try:
-        stage = SimStage(tuple(z_nominal), stage_error_um, tuple(stage_axis), seed)
+        stage = SimStage(tuple(z_nominal), stage_error_um, tuple(stage_axis), seed, stage_tilt_deg,
+                         stage_lateral_um, pivot_mm=tuple(np.array(display.size_mm) / 2))
     except ValueError as exc:
         raise InputError("stage", str(exc)) from None
     cam = SimCamera(lens, Sensor(bit_depth=bit_depth), supersample,
                     seed=seed if sensor_seed is None else sensor_seed)
-    cam.set_exposure(display, high, stage.true_mm[0], exposure_fraction, stage.axis)
+    cam.set_exposure(display, high, stage.poses[0], exposure_fraction)
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / MANIFEST).unlink(missing_ok=True)     # an old manifest must not describe half-new images
-    boards = [_chess_placements(cam, display, stage, z) if chessboard else [] for z in stage.true_mm]
+    boards = [_chess_placements(cam, display, pose) if chessboard else [] for pose in stage.poses]
     frames = _frames(camera, z_nominal, flats, periods, steps, low, high, boards)
-    by_z = {z: t for z, t in zip(z_nominal, stage.true_mm)}
     for f in progress(frames, "simulating", total=len(frames)):
         image = screen_image(f.pattern, display.width_px, display.height_px)
-        write_gray(out / f.file, cam.render(image, display, by_z[f.z_mm], noise, stage.axis))
+        write_gray(out / f.file, cam.render(image, display, stage.true_pose(f.z_mm), noise))
 
     _truth(cam, display, stage, seed, noise, camera).save(out / "truth.npz")
     cap = Capture(out, "calibration", {camera: (lens.width, lens.height)}, frames, display.record(),
@@ -134,13 +140,13 @@ def _frames(camera, z_nominal, flats, periods, steps, low, high, boards) -> list
     return frames
 
 
-def _chess_placements(cam: SimCamera, display: SimDisplay, stage: SimStage, z: float) -> list[dict]:
-    """Five board placements (centre and four shifted ones) inside the camera's field at true stage
-    position z: sized from the field's extent (2nd-98th percentile of the display coordinates seen),
+def _chess_placements(cam: SimCamera, display: SimDisplay, pose: DisplayPose) -> list[dict]:
+    """Five board placements (centre and four shifted ones) inside the camera's field at the display's
+    true pose: sized from the field's extent (2nd-98th percentile of the display coordinates seen),
     then shrunk until every corner of every board lies inside the field's outline (an oblique view sees
     a trapezoid, not the box of its extent) by half a square or more (the light border a detector
     needs)."""
-    cr = _field_cr(cam, display, stage, z)
+    cr = cam.view(display, pose).display_cr
     lo, hi = np.percentile(cr.reshape(-1, 2), [2, 98], axis=0)
     outline = np.concatenate([cr[0], cr[1:, -1], cr[-1, -2::-1], cr[-2:0:-1, 0]]).astype(np.float32)
     field = hi - lo
@@ -151,15 +157,8 @@ def _chess_placements(cam: SimCamera, display: SimDisplay, stage: SimStage, z: f
             return boards
         size -= 1
     raise InputError("chessboard", f"the camera sees only {field[0]:.0f}x{field[1]:.0f} display pixels "
-                                   f"at z = {z:g} mm: too few for a {CHESS_SQUARES[0]}x{CHESS_SQUARES[1]} "
+                                   f"at z = {pose.translation[2]:g} mm: too few for a {CHESS_SQUARES[0]}x{CHESS_SQUARES[1]} "
                                    f"chessboard")
-
-
-def _field_cr(cam: SimCamera, display: SimDisplay, stage: SimStage, z: float) -> np.ndarray:
-    """(H, W, 2) display coordinates (c, r) each camera pixel sees at true stage position z."""
-    v = cam.view(display, z, stage.axis)
-    shift = np.array([z * stage.axis[0] / stage.axis[2], z * stage.axis[1] / stage.axis[2]])
-    return (v.points_mm[..., :2] - shift) / np.array(display.pitch_mm)
 
 
 def _boards(size: int, lo: np.ndarray, hi: np.ndarray) -> list[dict]:
@@ -183,12 +182,13 @@ def _inside(outline: np.ndarray, board: dict, margin: float) -> bool:
 
 
 def _truth(cam: SimCamera, display: SimDisplay, stage: SimStage, seed: int, noise: bool, camera: str):
-    """The true PRVM with the rig's other truths: stage positions, gain and vignetting maps, and the
-    display coordinates (c, r) each pixel centre's ray reaches at each true position."""
+    """The true PRVM with the rig's other truths: stage positions, the display's true poses, gain and
+    vignetting maps, and the display coordinates (c, r) each pixel centre's ray reaches at each true
+    pose."""
     lens = cam.lens
     o, d = lens.rays(*lens.pixel_grid())
-    display_cr = np.stack([np.stack(display.hit(o, d, z, stage.axis), axis=-1) for z in stage.true_mm])
-    first = cam.view(display, stage.true_mm[0], stage.axis).points_mm
+    display_cr = np.stack([np.stack(display.hit(o, d, pose), axis=-1) for pose in stage.poses])
+    first = cam.view(display, stage.poses[0]).points_mm
     h, w = lens.height, lens.width
     centre = first[h // 2, w // 2]
     footprint = 0.5 * (np.linalg.norm(np.diff(first, axis=1), axis=-1).mean()
@@ -197,12 +197,16 @@ def _truth(cam: SimCamera, display: SimDisplay, stage: SimStage, seed: int, nois
         camera=camera, dataset="capture.json", seed=seed, noise=noise,
         working_distance_mm=float(lens.axis_depth(centre)), pixel_footprint_mm=float(footprint),
         stage={"nominal_mm": list(stage.nominal_mm), "true_mm": list(stage.true_mm),
-               "axis": list(stage.axis), "error_um": stage.error_um},
+               "axis": list(stage.axis), "error_um": stage.error_um, "tilt_deg": stage.tilt_deg,
+               "lateral_um": stage.lateral_um, "true_tilt_deg": stage.tilts_deg.tolist(),
+               "true_lateral_mm": stage.lateral_mm.tolist()},
         display={"fill_factor": list(display.fill_factor), "stripes": display.stripes,
                  "black_level": display.black_level, "gamma": display.gamma},
         sensor={**cam.sensor.__dict__, "exposure_e": cam.exposure_e, "supersample": cam.supersample,
                 "diffraction_sigma_px": cam.sigma_px})
     prvm.extra = {"stage_nominal_z_mm": np.array(stage.nominal_mm, float),
-                  "stage_true_z_mm": np.array(stage.true_mm, float), "gain": cam.gain,
+                  "stage_true_z_mm": np.array(stage.true_mm, float),
+                  "display_rotation": np.array([p.R for p in stage.poses]),
+                  "display_translation_mm": np.array([p.t for p in stage.poses]), "gain": cam.gain,
                   "vignetting": cam.vignetting, "display_cr": display_cr.astype(np.float32)}
     return prvm

@@ -3,7 +3,7 @@
 Rendering a frame (`SimCamera.render`):
  1. each pixel is sampled at S x S sub-pixel points (area integration); the TRUE ray of every sub-sample
     (`Lens.rays`) is traced through the display's cover glass to its pixel plane -> display coordinates
-    (computed once per display and stage position and cached: rays do not change between patterns);
+    (computed once per display and display pose and cached: rays do not change between patterns);
  2. the display's luminance is averaged over each sub-sample's footprint on the pixel grid (8-bit value
     -> gamma -> black level -> lit sub-pixel stripes and black gaps);
  3. the image-plane radiance is blurred by the thin-lens defocus circle and diffraction, and integrated
@@ -22,6 +22,7 @@ from calib.errors import InputError
 from scanners.sim.defocus import blur_and_integrate
 from scanners.sim.display import SimDisplay
 from scanners.sim.lenses import Lens
+from scanners.sim.pose import DisplayPose
 from scanners.sim.sensor import Sensor
 
 ROWS_PER_CHUNK = 64
@@ -29,17 +30,19 @@ ROWS_PER_CHUNK = 64
 
 @dataclass(frozen=True)
 class View:
-    """Where a camera's sub-samples land on the display's pixel plane at one stage position.
+    """Where a camera's sub-samples land on the display's pixel plane at one display pose.
 
     c, r: (H*S, W*S) float32 display coordinates of the sub-samples (row-major sub-pixel grid);
     window: (wc, wr) a sub-sample's footprint in display pixels; blur_px: (H, W) defocus blur-circle
-    diameters (pixels); points_mm: (H, W, 3) WCS points the pixel centres see (on the pixel plane).
+    diameters (pixels); display_cr: (H, W, 2) float64 mean display coordinates (c, r) of each pixel's
+    sub-samples; points_mm: (H, W, 3) the WCS points on the pixel plane at those coordinates.
     """
 
     c: np.ndarray
     r: np.ndarray
     window: tuple[float, float]
     blur_px: np.ndarray
+    display_cr: np.ndarray
     points_mm: np.ndarray
 
 
@@ -71,17 +74,17 @@ class SimCamera:
     def shape(self) -> tuple[int, int]:
         return self.lens.height, self.lens.width
 
-    def view(self, display: SimDisplay, z_mm: float, stage_axis=(0.0, 0.0, 1.0)) -> View:
-        """The (cached) View of `display` at true stage position `z_mm`; InputError if the display does
-        not cover the whole camera field there or the supersampling is too coarse for its pixel grid."""
-        key = (display, float(z_mm), tuple(stage_axis))
+    def view(self, display: SimDisplay, pose: DisplayPose) -> View:
+        """The (cached) View of `display` at its TRUE `pose`; InputError if the display does not cover
+        the whole camera field there or the supersampling is too coarse for its pixel grid."""
+        key = (display, pose)
         if key not in self._views:
             if len(self._views) >= 2:               # keep memory bounded: ~100 MB per 1.3 MP view
                 self._views.pop(next(iter(self._views)))
-            self._views[key] = self._compute_view(display, float(z_mm), tuple(stage_axis))
+            self._views[key] = self._compute_view(display, pose)
         return self._views[key]
 
-    def _compute_view(self, display, z_mm, stage_axis) -> View:
+    def _compute_view(self, display: SimDisplay, pose: DisplayPose) -> View:
         s, (h, w) = self.supersample, self.shape
         sub = (np.arange(s) + 0.5) / s - 0.5
         us = (np.arange(w)[:, None] + sub[None, :]).ravel()
@@ -90,52 +93,55 @@ class SimCamera:
         for v0 in range(0, h, ROWS_PER_CHUNK):
             vs = (np.arange(v0, min(h, v0 + ROWS_PER_CHUNK))[:, None] + sub[None, :]).ravel()
             o, d = self.lens.rays(*np.meshgrid(us, vs))
-            cc, rr = display.hit(o, d, z_mm, stage_axis)
+            cc, rr = display.hit(o, d, pose)
             c[v0 * s:v0 * s + len(vs)] = cc
             r[v0 * s:v0 * s + len(vs)] = rr
         lo_c, hi_c, lo_r, hi_r = c.min(), c.max(), r.min(), r.max()
         if lo_c < -0.5 or lo_r < -0.5 or hi_c > display.width_px - 0.5 or hi_r > display.height_px - 0.5:
             raise InputError("simulated rig", f"the display ({display.width_px}x{display.height_px} px) does "
-                             f"not cover the camera's field at stage position z = {z_mm:g} mm: the field "
+                             f"not cover the camera's field at {_where(pose)}: the field "
                              f"spans columns {lo_c:.0f}..{hi_c:.0f} and rows {lo_r:.0f}..{hi_r:.0f}; move "
                              f"the camera or the stage positions, or use a longer lens")
         window = (float(np.median(np.abs(np.diff(c, axis=1)))), float(np.median(np.abs(np.diff(r, axis=0)))))
         if max(window) > 1.0:
             need = int(np.ceil(s * max(window)))
-            raise InputError("--supersample", f"a sub-sample covers {max(window):.2f} display pixels at z = "
-                                              f"{z_mm:g} mm; use supersample >= {need}")
+            raise InputError("--supersample", f"a sub-sample covers {max(window):.2f} display pixels at "
+                                              f"{_where(pose)}; use supersample >= {need}")
         cm = c.reshape(h, s, w, s).mean(axis=(1, 3), dtype=np.float64)
         rm = r.reshape(h, s, w, s).mean(axis=(1, 3), dtype=np.float64)
-        ax, ay, az = stage_axis
-        pts = np.stack([cm * display.pitch_mm[0] + z_mm * ax / az, rm * display.pitch_mm[1] + z_mm * ay / az,
-                        np.full_like(cm, z_mm)], axis=-1)
+        pts = pose.to_wcs(np.stack([cm * display.pitch_mm[0], rm * display.pitch_mm[1], np.zeros_like(cm)],
+                                   axis=-1))
         blur = self.lens.blur_diameter_px(*self.lens.pixel_grid(), pts).astype(np.float32)
-        return View(c, r, window, blur, pts)
+        return View(c, r, window, blur, np.stack([cm, rm], axis=-1), pts)
 
-    def irradiance(self, display_image: np.ndarray, display: SimDisplay, z_mm: float,
-                   stage_axis=(0.0, 0.0, 1.0)) -> np.ndarray:
+    def irradiance(self, display_image: np.ndarray, display: SimDisplay, pose: DisplayPose) -> np.ndarray:
         """(H, W) float32 blurred, pixel-integrated display luminance seen by each pixel (relative
         units: 1 = a fully lit display area at value 255), before vignetting and gain."""
-        v = self.view(display, z_mm, stage_axis)
+        v = self.view(display, pose)
         radiance = display.luminance_at(display_image, v.c, v.r, v.window)
         return blur_and_integrate(radiance, self.supersample, v.blur_px, self.sigma_px)
 
-    def render(self, display_image: np.ndarray, display: SimDisplay, z_mm: float, noise: bool = True,
-               stage_axis=(0.0, 0.0, 1.0), rng: np.random.Generator | None = None) -> np.ndarray:
+    def render(self, display_image: np.ndarray, display: SimDisplay, pose: DisplayPose, noise: bool = True,
+               rng: np.random.Generator | None = None) -> np.ndarray:
         """The camera image (uint8, or uint16 above 8 bits) of `display` showing `display_image`
-        ((height_px, width_px) uint8) at TRUE stage position z_mm (mm along the stage axis, as a z
-        coordinate); noise=False gives the expected image, rounded. rng: the noise generator for this
-        frame (default: the camera's own stream)."""
-        e = self.irradiance(display_image, display, z_mm, stage_axis) * (self.vignetting * self.gain
-                                                                        * np.float32(self.exposure_e))
+        ((height_px, width_px) uint8) at its TRUE `pose`; noise=False gives the expected image, rounded.
+        rng: the noise generator for this frame (default: the camera's own stream)."""
+        e = self.irradiance(display_image, display, pose) * (self.vignetting * self.gain
+                                                             * np.float32(self.exposure_e))
         return self.sensor.digitise(e, (self.rng if rng is None else rng) if noise else None)
 
-    def set_exposure(self, display: SimDisplay, level: int, z_mm: float, fraction: float = 0.87,
-                     stage_axis=(0.0, 0.0, 1.0)) -> float:
-        """Choose exposure_e so that the brightest pixel seeing a flat display at `level` reaches
-        `fraction` of full scale (dark offset included); returns it."""
+    def set_exposure(self, display: SimDisplay, level: int, pose: DisplayPose, fraction: float = 0.87) -> float:
+        """Choose exposure_e so that the brightest pixel seeing a flat display at `level` at `pose`
+        reaches `fraction` of full scale (dark offset included); returns it."""
         flat = np.full((display.height_px, display.width_px), level, np.uint8)
-        signal = self.irradiance(flat, display, z_mm, stage_axis) * self.vignetting * self.gain
+        signal = self.irradiance(flat, display, pose) * self.vignetting * self.gain
         target = (fraction - self.sensor.dark_offset) * self.sensor.full_well_e
         self.exposure_e = float(target / signal.max())
         return self.exposure_e
+
+
+def _where(pose: DisplayPose) -> str:
+    """The pose in words, for messages: a stage position, or a general pose."""
+    if pose.is_staged():
+        return f"stage position z = {pose.translation[2]:g} mm"
+    return f"display pose at ({', '.join(f'{x:.1f}' for x in pose.translation)}) mm"

@@ -1,8 +1,9 @@
 """The simulated LCD: 8-bit values through gamma onto a pixel grid with black gaps, under cover glass.
 
 Display coordinates (c, r) are continuous (column, row) in display pixels, pixel centres at integers.
-At stage position z (mm) the pixel plane is z = const in the WCS and display pixel (c, r) lies at
-(c * pitch_x, r * pitch_y, 0) + z * (ax/az, ay/az, 1), (ax, ay, az) the stage axis (DESIGN.md).
+Display pixel (c, r) lies at (c * pitch_x, r * pitch_y, 0) in the display's own frame, which a
+`scanners.sim.pose.DisplayPose` places in the WCS (at stage position z along the stage axis
+(ax, ay, az): (c * pitch_x, r * pitch_y, 0) + z * (ax/az, ay/az, 1), DESIGN.md).
 
 Each display pixel emits from `stripes` vertical sub-pixel stripes (R, G, B of a monochrome grey seen by
 a monochrome camera) that together fill `fill_factor[0]` of its width and `fill_factor[1]` of its
@@ -19,6 +20,7 @@ import numpy as np
 
 from calib.capture import CoverGlass, Display
 from scanners.sim.optics import through_slab
+from scanners.sim.pose import DisplayPose
 
 
 @dataclass(frozen=True)
@@ -72,18 +74,17 @@ class SimDisplay:
                 float(self.fill_factor[1]), int(self.stripes), out)
         return out.reshape(c.shape)
 
-    def hit(self, origin: np.ndarray, direction: np.ndarray, z_mm: float,
-            stage_axis=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+    def hit(self, origin: np.ndarray, direction: np.ndarray, pose: DisplayPose) -> tuple[np.ndarray, np.ndarray]:
         """Display coordinates (c, r) (float64) where WCS rays (origin, direction (..., 3)) reach the
-        pixel plane at stage position z_mm, refracted through the cover glass if there is one."""
+        pixel plane of the display at `pose`, refracted through the cover glass if there is one."""
+        o, d = pose.to_display(origin, direction)
         if self.cover_glass is not None and self.cover_glass.thickness_mm > 0:
             g = self.cover_glass
-            p, _ = through_slab(origin, direction, np.array([0.0, 0.0, z_mm - g.thickness_mm]),
-                                np.array([0.0, 0.0, 1.0]), g.thickness_mm, g.refractive_index)
+            p, _ = through_slab(o, d, np.array([0.0, 0.0, -g.thickness_mm]), np.array([0.0, 0.0, 1.0]),
+                                g.thickness_mm, g.refractive_index)
         else:
-            p = origin + ((z_mm - origin[..., 2]) / direction[..., 2])[..., None] * direction
-        ax, ay, az = stage_axis
-        return (p[..., 0] - z_mm * ax / az) / self.pitch_mm[0], (p[..., 1] - z_mm * ay / az) / self.pitch_mm[1]
+            p = o + (-o[..., 2] / d[..., 2])[..., None] * d
+        return p[..., 0] / self.pitch_mm[0], p[..., 1] / self.pitch_mm[1]
 
 
 @numba.njit(cache=True, inline="always")

@@ -152,8 +152,8 @@ def _boards(lenses, capture, seed: int, supersample: int, squares=(9, 7)):
     lo, hi = np.full(2, -np.inf), np.full(2, np.inf)
     for lens in lenses:
         o, d = lens.rays(*lens.pixel_grid())
-        for z in stage.true_mm:
-            cr = np.stack(display.hit(o, d, z), axis=-1).reshape(-1, 2)
+        for pose in stage.poses:
+            cr = np.stack(display.hit(o, d, pose), axis=-1).reshape(-1, 2)
             lo, hi = np.maximum(lo, np.percentile(cr, 3, 0)), np.minimum(hi, np.percentile(cr, 97, 0))
     field = hi - lo
     size = int(0.6 * min(field[0] / squares[0], field[1] / squares[1]))
@@ -162,10 +162,10 @@ def _boards(lenses, capture, seed: int, supersample: int, squares=(9, 7)):
     cams = []
     for k, lens in enumerate(lenses):
         cam = SimCamera(lens, Sensor(), supersample, seed=seed + 17 * k)
-        cam.set_exposure(display, 240, stage.true_mm[0])
+        cam.set_exposure(display, 240, stage.poses[0])
         cams.append(cam)
     out = []
-    for zn, zt in zip(z_nominal, stage.true_mm):
+    for zn, pose in zip(z_nominal, stage.poses):
         for dx, dy in ((0, 0), (-1, -1), (1, -1), (-1, 1), (1, 1)):
             origin = [int(round((lo + hi)[0] / 2 - board[0] / 2 + dx * slack[0])),
                       int(round((lo + hi)[1] / 2 - board[1] / 2 + dy * slack[1]))]
@@ -174,7 +174,7 @@ def _boards(lenses, capture, seed: int, supersample: int, squares=(9, 7)):
             image = screen_image(pattern, display.width_px, display.height_px)
             cr = chessboard_display_corners(squares, size, origin)
             out.append((zn, capture.display_to_wcs(cr[:, 0], cr[:, 1], zn),
-                        [cam.render(image, display, zt) for cam in cams]))
+                        [cam.render(image, display, pose) for cam in cams]))
     return out
 
 

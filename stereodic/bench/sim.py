@@ -31,14 +31,15 @@ def _dataset(width: int, height: int, positions: tuple) -> int:
 
 
 def run(quick: bool = False) -> list[Figure]:
+    from scanners.sim.pose import DisplayPose
     w, h = (320, 256) if quick else (1280, 1024)
     size = f"{w}x{h}"
     cam, display, fringe = _render_setup(w, h)
-    cam.view(display, 0.0)                       # the first view also compiles the kernels
+    cam.view(display, DisplayPose.staged(0.0))   # the first view also compiles the kernels
     t0 = time.perf_counter()
-    cam.view(display, 10.0)
+    cam.view(display, DisplayPose.staged(10.0))
     geometry = time.perf_counter() - t0
-    render = best_time(lambda: cam.render(fringe, display, 0.0), repeat=3)
+    render = best_time(lambda: cam.render(fringe, display, DisplayPose.staged(0.0)), repeat=3)
     positions = (0.0,) if quick else (0.0, 50.0)
     seconds, peak, frames = run_isolated(_dataset, w, h, positions)
     return [

@@ -9,7 +9,10 @@ from calib.errors import InputError
 from scanners.sim.camera import SimCamera
 from scanners.sim.display import SimDisplay
 from scanners.sim.lenses import make_lens
+from scanners.sim.pose import DisplayPose
 from scanners.sim.sensor import Sensor
+
+staged = DisplayPose.staged
 
 W, H = 160, 128
 SMOOTH = SimDisplay(fill_factor=(1.0, 1.0), stripes=1)      # no pixel gaps: a flat is uniform
@@ -21,9 +24,9 @@ def flat(level):
 
 def test_flat_frame_shows_the_vignetting_and_gain_that_were_set():
     cam = SimCamera(make_lens("brown", W, H, vignetting=-0.2), Sensor(bit_depth=16, prnu=0.02), seed=5)
-    cam.set_exposure(SMOOTH, 255, 0.0, fraction=0.8)
+    cam.set_exposure(SMOOTH, 255, staged(0.0), fraction=0.8)
     n = 16
-    mean = np.mean([cam.render(flat(255), SMOOTH, 0.0).astype(float) for _ in range(n)], axis=0)
+    mean = np.mean([cam.render(flat(255), SMOOTH, staged(0.0)).astype(float) for _ in range(n)], axis=0)
     conv = cam.sensor.full_well_e / cam.sensor.max_dn
     electrons = (mean - cam.sensor.dark_offset * cam.sensor.max_dn) * conv
     product = electrons / cam.exposure_e                        # = vignetting * gain (flat luminance 1)
@@ -43,9 +46,9 @@ def test_flat_frame_shows_the_vignetting_and_gain_that_were_set():
 
 def test_noise_variance_is_shot_plus_read_noise():
     cam = SimCamera(make_lens("brown", W, H), Sensor(bit_depth=16, read_noise_e=20.0), seed=1)
-    cam.set_exposure(SMOOTH, 200, 0.0, fraction=0.5)
-    clean = cam.render(flat(200), SMOOTH, 0.0, noise=False).astype(float)
-    a, b = (cam.render(flat(200), SMOOTH, 0.0).astype(float) for _ in range(2))
+    cam.set_exposure(SMOOTH, 200, staged(0.0), fraction=0.5)
+    clean = cam.render(flat(200), SMOOTH, staged(0.0), noise=False).astype(float)
+    a, b = (cam.render(flat(200), SMOOTH, staged(0.0)).astype(float) for _ in range(2))
     conv = cam.sensor.full_well_e / cam.sensor.max_dn
     electrons = (clean - cam.sensor.dark_offset * cam.sensor.max_dn) * conv
     predicted = np.mean(electrons + 20.0 ** 2) / conv ** 2
@@ -55,9 +58,9 @@ def test_noise_variance_is_shot_plus_read_noise():
 def test_mean_of_noisy_renders_converges_to_the_noise_free_render():
     cam = SimCamera(make_lens("freeform", W, H), Sensor(bit_depth=16), seed=2)
     img = np.tile(np.uint8(20 + 220 * (np.arange(1920) % 37 > 18)), (1080, 1))
-    cam.set_exposure(SimDisplay(), 240, 20.0)
-    clean = cam.render(img, SimDisplay(), 20.0, noise=False).astype(float)
-    frames = np.array([cam.render(img, SimDisplay(), 20.0).astype(float) for _ in range(64)])
+    cam.set_exposure(SimDisplay(), 240, staged(20.0))
+    clean = cam.render(img, SimDisplay(), staged(20.0), noise=False).astype(float)
+    frames = np.array([cam.render(img, SimDisplay(), staged(20.0)).astype(float) for _ in range(64)])
     err = {n: np.sqrt(np.mean((frames[:n].mean(axis=0) - clean) ** 2)) for n in (4, 16, 64)}
     assert err[4] / err[16] == pytest.approx(2.0, rel=0.15)
     assert err[4] / err[64] == pytest.approx(4.0, rel=0.15)
@@ -66,13 +69,13 @@ def test_mean_of_noisy_renders_converges_to_the_noise_free_render():
 def test_bit_depth_and_saturation():
     for bits, dtype in ((8, np.uint8), (12, np.uint16)):
         cam = SimCamera(make_lens("brown", W, H), Sensor(bit_depth=bits), seed=0)
-        cam.set_exposure(SMOOTH, 128, 0.0, fraction=0.9)
-        img = cam.render(flat(255), SMOOTH, 0.0)
+        cam.set_exposure(SMOOTH, 128, staged(0.0), fraction=0.9)
+        img = cam.render(flat(255), SMOOTH, staged(0.0))
         assert img.dtype == dtype
         assert img.max() == 2 ** bits - 1                       # 255 is ~4.5x as bright as 128: saturated
         assert (img == 2 ** bits - 1).mean() > 0.9
         # Black: the ADC's dark offset plus the display's black level (1/1000 of white) through the optics.
-        dark = cam.render(flat(0), SMOOTH, 0.0, noise=False)
+        dark = cam.render(flat(0), SMOOTH, staged(0.0), noise=False)
         e = cam.exposure_e * SMOOTH.black_level * cam.vignetting * cam.gain
         expected = 0.01 * (2 ** bits - 1) + e * (2 ** bits - 1) / cam.sensor.full_well_e
         assert np.abs(dark - expected).max() <= 0.51
@@ -80,8 +83,8 @@ def test_bit_depth_and_saturation():
 
 def test_default_exposure_puts_the_brightest_fringe_near_full_scale():
     cam = SimCamera(make_lens("brown", W, H))
-    cam.set_exposure(SimDisplay(), 240, 0.0)
-    img = cam.render(flat(240), SimDisplay(), 0.0, noise=False)
+    cam.set_exposure(SimDisplay(), 240, staged(0.0))
+    img = cam.render(flat(240), SimDisplay(), staged(0.0), noise=False)
     assert 0.85 * 255 <= img.max() <= 0.9 * 255
 
 
@@ -91,7 +94,7 @@ def column_hit(lens, display, z, c0, rows):
     out = []
     for v in rows:
         o, d = lens.rays(u, np.full_like(u, v))
-        c, _ = display.hit(o, d, z)
+        c, _ = display.hit(o, d, staged(z))
         out.append(np.interp(c0, c, u) if c[-1] > c[0] else np.interp(c0, c[::-1], u[::-1]))
     return np.array(out)
 
@@ -103,11 +106,11 @@ def test_a_bright_display_column_appears_where_the_true_rays_meet_it(glass):
     display = SimDisplay(fill_factor=(1.0, 1.0), stripes=1, cover_glass=glass)
     z = 25.0
     o, d = lens.rays(np.array([W / 2]), np.array([H / 2]))
-    c0 = int(round(SMOOTH.hit(o, d, z)[0][0]))
+    c0 = int(round(SMOOTH.hit(o, d, staged(z))[0][0]))
     img = flat(0)
     img[:, c0] = 255
-    cam.set_exposure(display, 255, z, fraction=0.5)
-    render = cam.render(img, display, z, noise=False).astype(float)
+    cam.set_exposure(display, 255, staged(z), fraction=0.5)
+    render = cam.render(img, display, staged(z), noise=False).astype(float)
     rows = np.arange(10, H - 10, 9)
     signal = render[rows] - np.median(render)
     uu = np.arange(W)
@@ -121,7 +124,7 @@ def test_a_bright_display_column_appears_where_the_true_rays_meet_it(glass):
         theta = np.arccos(d[:, 2])
         shift = glass.thickness_mm * (np.tan(theta) - np.tan(np.arcsin(np.sin(theta) / 1.5)))
         dc = -shift * d[:, 0] / np.hypot(d[:, 0], d[:, 1]) / display.pitch_mm[0]     # display px
-        c_pair = SMOOTH.hit(*lens.rays(np.array([W / 2 - 1, W / 2 + 1]), np.full(2, H / 2)), z)[0]
+        c_pair = SMOOTH.hit(*lens.rays(np.array([W / 2 - 1, W / 2 + 1]), np.full(2, H / 2)), staged(z))[0]
         du = dc / ((c_pair[1] - c_pair[0]) / 2)                     # camera px
         assert np.abs(du).min() > 0.5                             # the glass moves the line visibly
         expected = expected - du
@@ -136,8 +139,8 @@ def test_defocus_lowers_fringe_contrast_as_the_thin_lens_blur_circle_says():
     linear = SimDisplay(gamma=1.0, black_level=0.0, fill_factor=(1.0, 1.0), stripes=1)
     contrast = {}
     for z in (0.0, 40.0):
-        view = cam.view(linear, z)
-        row = cam.irradiance(img, linear, z)[H // 2, 20:-20]
+        view = cam.view(linear, staged(z))
+        row = cam.irradiance(img, linear, staged(z))[H // 2, 20:-20]
         contrast[z] = (row.max() - row.min()) / (row.max() + row.min())
         blur = float(np.median(view.blur_px))
         cam_period = period / np.median(np.diff(view.c, axis=1)) / cam.supersample   # camera px
@@ -156,11 +159,11 @@ def test_the_default_bench_display_covers_the_camera_field():
     u = np.concatenate([np.arange(1280.0), np.arange(1280.0), np.zeros(1024), np.full(1024, 1279.0)])
     v = np.concatenate([np.zeros(1280), np.full(1280, 1023.0), np.arange(1024.0), np.arange(1024.0)])
     for z in (0.0, 50.0):
-        c, r = display.hit(*lens.rays(u, v), z)
+        c, r = display.hit(*lens.rays(u, v), staged(z))
         assert c.min() > 0 and r.min() > 0 and c.max() < 1919 and r.max() < 1079
 
 
 def test_a_display_that_does_not_cover_the_field_is_an_input_error():
     cam = SimCamera(make_lens("brown", W, H, target_mm=(0.0, 0.0, 0.0)))     # aims at the display's corner
     with pytest.raises(InputError, match="does not cover"):
-        cam.view(SimDisplay(), 0.0)
+        cam.view(SimDisplay(), staged(0.0))

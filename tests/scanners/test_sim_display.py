@@ -6,6 +6,8 @@ import pytest
 from calib.capture import CoverGlass, Pattern
 from scanners.sim.display import SimDisplay
 from scanners.sim.screens import fringe_shifts, screen_image
+from scanners.sim.optics import rotation
+from scanners.sim.pose import DisplayPose
 from scanners.sim.stage import SimStage
 
 
@@ -54,8 +56,8 @@ def test_cover_glass_shifts_the_seen_point_as_a_refracting_plate(angle_deg):
     a = np.radians(angle_deg)
     d = np.array([[np.sin(a) * np.cos(0.3), np.sin(a) * np.sin(0.3), np.cos(a)]])
     o = np.array([[100.0, 80.0, 0.0]])
-    c0, r0 = plain.hit(o, d, z)
-    c1, r1 = glass.hit(o, d, z)
+    c0, r0 = plain.hit(o, d, DisplayPose.staged(z))
+    c1, r1 = glass.hit(o, d, DisplayPose.staged(z))
     shift = np.hypot(c1 - c0, r1 - r0)[0] * plain.pitch_mm[0]        # along the display plane, mm
     theta_t = np.arcsin(np.sin(a) / n)
     lateral = t * np.sin(a - theta_t) / np.cos(theta_t)             # perpendicular to the ray
@@ -67,8 +69,8 @@ def test_cover_glass_shifts_the_seen_point_as_a_refracting_plate(angle_deg):
 def test_stage_axis_moves_the_display_sideways():
     d = SimDisplay()
     o, dirn = np.array([[50.0, 40.0, 0.0]]), np.array([[0.0, 0.0, 1.0]])
-    c0, r0 = d.hit(o, dirn, 100.0)
-    c1, r1 = d.hit(o, dirn, 100.0, stage_axis=(0.01, -0.02, 1.0))
+    c0, r0 = d.hit(o, dirn, DisplayPose.staged(100.0))
+    c1, r1 = d.hit(o, dirn, DisplayPose.staged(100.0, (0.01, -0.02, 1.0)))
     assert (c1 - c0)[0] * d.pitch_mm[0] == pytest.approx(-1.0)
     assert (r1 - r0)[0] * d.pitch_mm[1] == pytest.approx(2.0)
 
@@ -77,8 +79,39 @@ def test_stage_true_positions_differ_by_micrometres():
     s = SimStage((0.0, 25.0, 50.0), error_um=3.0, seed=4)
     err = np.array(s.true_mm) - np.array(s.nominal_mm)
     assert 0 < np.abs(err).max() < 0.02
-    assert s.true_position(25.0) == s.true_mm[1]
+    assert s.true_pose(25.0).translation == (0.0, 0.0, s.true_mm[1])
     assert SimStage((0.0, 50.0), error_um=0.0).true_mm == (0.0, 50.0)
+
+
+def test_tilted_display_is_hit_where_the_tilted_plane_is():
+    # an independent plane intersection: the plane through the pose's origin, normal R @ z
+    rot = rotation("y", 0.2) @ rotation("x", -0.1)
+    pose = DisplayPose(rot, (3.0, -2.0, 120.0))
+    rng = np.random.default_rng(1)
+    o = np.c_[rng.uniform(-50, 50, (20, 2)), np.zeros(20)]
+    d = np.c_[rng.uniform(-0.3, 0.3, (20, 2)), np.ones(20)]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    display = SimDisplay()
+    c, r = display.hit(o, d, pose)
+    n, t0 = rot[:, 2], np.array(pose.translation)
+    p = o + (((t0 - o) @ n) / (d @ n))[:, None] * d
+    local = (p - t0) @ rot                      # R^T (p - t)
+    assert np.allclose(local[:, 2], 0, atol=1e-9)
+    assert np.allclose(c * display.pitch_mm[0], local[:, 0], atol=1e-9)
+    assert np.allclose(r * display.pitch_mm[1], local[:, 1], atol=1e-9)
+
+
+def test_stage_tilt_and_lateral_errors_have_their_stated_size():
+    nominal = tuple(np.linspace(0, 100, 400))
+    s = SimStage(nominal, error_um=3.0, seed=2, tilt_deg=0.01, lateral_um=5.0, pivot_mm=(260.0, 150.0))
+    assert np.std(s.tilts_deg) == pytest.approx(0.01, rel=0.1)
+    assert np.std(s.lateral_mm) * 1e3 == pytest.approx(5.0, rel=0.1)
+    # each pose rotates about the pivot: the pivot lands at its nominal place plus the lateral shift
+    for pose, z, (lx, ly), (ax, ay) in zip(s.poses, s.true_mm, s.lateral_mm, np.radians(s.tilts_deg)):
+        assert np.allclose(pose.to_wcs([260.0, 150.0, 0.0]), [260.0 + lx, 150.0 + ly, z], atol=1e-12)
+        assert np.allclose(pose.R, rotation("y", ay) @ rotation("x", ax), atol=1e-15)
+    # the z errors are the same draws as without tilt (datasets keep their stage positions)
+    assert SimStage(nominal, error_um=3.0, seed=2).true_mm == s.true_mm
 
 
 def test_fringe_image_is_the_design_formula_rounded():
