@@ -133,7 +133,7 @@ def _open_devices(args, stack: contextlib.ExitStack, stage_url: str | None):
     """Stage (or None), screen (or None) and cameras, all closed when `stack` closes."""
     from scanners.camera import open_camera
     from scanners.display import open_screen
-    from scanners.stage import open_stage
+    from scanners.stage_url import open_stage
     stage = screen = None
     if stage_url is not None:
         stage = stack.enter_context(open_stage(stage_url))
