@@ -53,9 +53,10 @@ def run(args) -> int:
 
     check_output(args.output)
     names = [n.strip() for n in args.camera.split(",")] if args.camera else None
-    fmt, cams, out = import_calibration(args.calibration, args.format, size=args.size, units=args.units,
-                                        cameras=names, model=args.model, virtual_size=args.virtual_size,
-                                        pitch_mm=args.pitch, plane_z_mm=args.plane_z)
+    imp = import_calibration(args.calibration, args.format, size=args.size, units=args.units, cameras=names,
+                             model=args.model, virtual_size=args.virtual_size, pitch_mm=args.pitch,
+                             plane_z_mm=args.plane_z)
+    fmt, cams, out = imp.format, imp.cameras, imp.result
     flipped = "" if np.allclose(out.meta["world_from_rig"] if isinstance(out, PRVM) else out.world_from_rig,
                                 np.eye(4)) else " (rays in the file's frame turned to look along +z)"
     if isinstance(out, PRVM):

@@ -12,8 +12,11 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from dataclasses import dataclass
+
 from calib.camera_models import CameraModel
 from calib.errors import InputError
+from calib.prvm_file import PRVM
 
 FORMATS = ("opencv", "vic3d", "dice", "mrcal", "kalibr")
 UNITS = {"mm": 1.0, "m": 1000.0}
@@ -75,6 +78,17 @@ def select(cams: list[CameraModel], names: list[str] | None, where) -> list[Came
     return out
 
 
+@dataclass
+class Imported:
+    """What `import_calibration` made: the file's format, the cameras used, their PRVMs (internal frame)
+    and the result: the one camera's PRVM, or the rig (a `stereodic.rig.Rig`)."""
+
+    format: str
+    cameras: list[CameraModel]
+    prvms: list[PRVM]
+    result: object
+
+
 def import_calibration(paths: list[str | os.PathLike], fmt: str = "auto", *, size=None, units=None,
                        cameras: list[str] | None = None, model: str = "pinhole", virtual_size=None,
                        pitch_mm=None, plane_z_mm: float | None = None):
@@ -84,7 +98,7 @@ def import_calibration(paths: list[str | os.PathLike], fmt: str = "auto", *, siz
     defaults to the cameras' working point). The rays are in the internal frame of
     `calib.camera_models.prvms_of`; the rig's (or the PRVM's meta) world_from_rig leads back to the file's
     world frame. `cameras` picks one or two cameras by name or index (default: all, which must be one or
-    two). Returns (format, cameras used, PRVM or Rig)."""
+    two)."""
     from calib.camera_models import prvms_of
     from stereodic.rig import build_rig
     fmt, cams = read_calibration(paths, fmt, size=size, units=units)
@@ -96,9 +110,9 @@ def import_calibration(paths: list[str | os.PathLike], fmt: str = "auto", *, siz
     dataset = f"imported from {os.fspath(where)}"
     prvms = prvms_of(cams, where=where, dataset=dataset)
     if len(prvms) == 1:
-        return fmt, cams, prvms[0]
+        return Imported(fmt, cams, prvms, prvms[0])
     w, h = virtual_size if virtual_size else (None, None)
     rig = build_rig(prvms[0], prvms[1], model, w, h, pitch_mm,
                     prvms[0].reference_z_mm if plane_z_mm is None else plane_z_mm,
                     (f"{where}#{cams[0].name}", f"{where}#{cams[1].name}"))
-    return fmt, cams, rig
+    return Imported(fmt, cams, prvms, rig)
