@@ -10,9 +10,8 @@ the file has none.
 from __future__ import annotations
 
 import os
-from pathlib import Path
-
 from dataclasses import dataclass
+from pathlib import Path
 
 from calib.camera_models import CameraModel
 from calib.errors import InputError

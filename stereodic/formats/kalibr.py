@@ -44,7 +44,13 @@ def read(path: Path) -> list[CameraModel]:
             raise InputError(path, f"{name}: distortion model {c['distortion_model']!r} is not supported "
                                    f"(radtan, equidistant)")
         lens = DISTORTIONS[c["distortion_model"]]
-        k = [float(v) for v in c["distortion_coeffs"] or []]
+        try:
+            k = [float(v) for v in c["distortion_coeffs"] or []]
+            fu, fv, pu, pv = (float(v) for v in c["intrinsics"])
+            w, h = (int(v) for v in c["resolution"])
+        except (TypeError, ValueError):
+            raise InputError(path, f"{name}: intrinsics, distortion_coeffs and resolution must be lists of "
+                                   f"numbers (4, the model's, 2)") from None
         if lens == "opencv" and len(k) not in (0, 4, 5, 8, 12, 14):
             raise InputError(path, f"{name}: radtan has 4 coefficients, got {len(k)}")
         if lens == "equidistant" and len(k) > 4:
@@ -56,7 +62,5 @@ def read(path: Path) -> list[CameraModel]:
             if T.shape != (4, 4):
                 raise InputError(path, f"{name}: T_cn_cnm1 is not 4x4")
             R, t = T[:3, :3] @ R, T[:3, :3] @ t + T[:3, 3]
-        fu, fv, pu, pv = (float(v) for v in c["intrinsics"])
-        w, h = (int(v) for v in c["resolution"])
         cams.append(CameraModel(fu, fv, pu, pv, 0.0, lens, k, R, t, w, h, name))
     return cams
