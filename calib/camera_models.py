@@ -361,6 +361,9 @@ def prvm_of(cam: CameraModel, *, world_from_internal: np.ndarray | None = None, 
 def prvms_of(cams: list[CameraModel], *, where=None, dataset: str = "") -> list[PRVM]:
     """The PRVMs of the cameras of one file in one internal frame (`internal_frame`), origins on the plane
     through their working point (`convergence_z`; z = 0 of the internal frame for a single camera)."""
+    for cam in cams:
+        if cam.width is None or cam.height is None:
+            raise InputError(where, f"camera {cam.name!r} has no image size")
     wfi = internal_frame(cams)
     z = convergence_z(cams, wfi) if len(cams) > 1 else 0.0
     return [prvm_of(c, world_from_internal=wfi, reference_z_mm=z, where=where, dataset=dataset) for c in cams]

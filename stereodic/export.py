@@ -73,10 +73,10 @@ def export_text(cameras: dict[str, VirtualCamera], fmt: str, world_from_rig: np.
     """The file text of `cameras` (name -> virtual camera) in format `fmt` (one of FORMATS), poses moved
     to the world frame by `world_from_rig` (4x4, rig frame -> world; identity when None). The OpenCV YAML
     and the mrcal model hold one camera."""
+    m = np.eye(4) if world_from_rig is None else np.asarray(world_from_rig, np.float64)
     if fmt == "json":
-        return json.dumps({"format": "stereodic.virtual-cameras/1",
+        return json.dumps({"format": "stereodic.virtual-cameras/1", "world_from_rig": m.tolist(),
                            "cameras": [camera_json(n, c) for n, c in cameras.items()]}, indent=1) + "\n"
-    m = np.eye(4) if world_from_rig is None else world_from_rig
     pinholes = [in_world(pinhole_of(c), m) for c in cameras.values()]
     if fmt == "vic3d":
         return vic3d.write([p.model(n) for p, n in zip(pinholes, cameras)])
