@@ -33,12 +33,10 @@ class DicStates:
         return len(self.left)
 
     def rectified(self, rig: Rig) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        """The rectified (left, right) images of each state, in order, read one state at a time; float32
-        (`rectify_pair(exact=True)`: the interpolated grey levels are not rounded, which would add noise)."""
+        """The rectified (left, right) images of each state, in order, read one state at a time."""
         cap = self.capture
         for lf, rf in zip(self.left, self.right):
-            yield rectify_pair(rig, cap.read(lf), cap.read(rf), where=(str(cap.path(lf)), str(cap.path(rf))),
-                               exact=True)
+            yield rectify_pair(rig, cap.read(lf), cap.read(rf), where=(str(cap.path(lf)), str(cap.path(rf))))
 
 
 def load_states(dataset: str | os.PathLike, rig: Rig) -> DicStates:
