@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import re
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from calib.errors import InputError
@@ -21,6 +22,14 @@ def read_head(path: Path, limit: int = 1 << 20) -> str:
     if b"\0" in raw:
         raise InputError(path, "not a calibration file (binary content)")
     return raw.decode("utf-8", errors="replace")
+
+
+def parse_xml(path: Path):
+    """The root element of an XML file; InputError naming it if it is not readable XML."""
+    try:
+        return ET.parse(path).getroot()
+    except ET.ParseError as exc:
+        raise InputError(path, f"not readable XML ({exc})") from None
 
 
 def legacy_dice_values(text: str) -> list[str] | None:

@@ -18,14 +18,13 @@ TX TY TZ), then the image height and width; its lens model is K1R1_K2R2_K3R3 and
 
 from __future__ import annotations
 
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 
 from calib.camera_models import CameraModel
 from calib.errors import InputError
-from stereodic.formats.detect import legacy_dice_values, read_head
+from stereodic.formats.detect import legacy_dice_values, parse_xml, read_head
 from stereodic.formats.vic3d import cardan_to_matrix
 
 OPENCV_ORDER = ("K1", "K2", "P1", "P2", "K3", "K4", "K5", "K6", "S1", "S2", "S3", "S4", "T1", "T2")
@@ -107,10 +106,7 @@ def _relative(cams: list[CameraModel]) -> list[CameraModel]:
 
 
 def _read_xml(path: Path) -> list[CameraModel]:
-    try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as exc:
-        raise InputError(path, f"not readable XML ({exc})") from None
+    root = parse_xml(path)
     top = _params(root)
     if top.get("xml_file_format") != "DICe_xml_camera_system_file":
         raise InputError(path, "not a DICe camera system file (xml_file_format is not DICe_xml_camera_system_file)")

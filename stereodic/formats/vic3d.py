@@ -13,7 +13,6 @@ looking along -z: `calib.camera_models.prvms_of` handles that.
 
 from __future__ import annotations
 
-import xml.etree.ElementTree as ET
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
@@ -21,6 +20,7 @@ import numpy as np
 
 from calib.camera_models import CameraModel
 from calib.errors import InputError
+from stereodic.formats.detect import parse_xml
 
 
 def cardan_to_matrix(alpha: float, beta: float, gamma: float) -> np.ndarray:
@@ -54,10 +54,7 @@ def _numbers(text: str | None, n: int, where, what: str) -> list[float]:
 
 def read(path: Path) -> list[CameraModel]:
     """The cameras of a VIC-3D project/calibration XML, by id order."""
-    try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as exc:
-        raise InputError(path, f"not readable XML ({exc})") from None
+    root = parse_xml(path)
     cal = root if root.tag == "calibration" else root.find(".//calibration")
     if cal is None or not cal.findall("camera"):
         raise InputError(path, "has no <calibration> with <camera> entries")
