@@ -110,3 +110,20 @@ def dic_grid(args, width: int, height: int, image: str, source: str):
         raise InputError(args.roi and "--roi" or source,
                          f"no point of the grid has its {args.subset}-pixel subset inside the {image}")
     return grid, seeds
+
+
+def check_output(path) -> None:
+    """InputError naming the option's value unless `path` can be written as a file: not an existing folder,
+    and its nearest existing parent a writable folder (checked before any work starts)."""
+    import os
+    from pathlib import Path
+
+    from calib.errors import InputError
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(p, "is a folder; the output is a file")
+    parent = p.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK):
+        raise InputError(p, f"cannot be written ({parent} is not a writable folder)")

@@ -46,13 +46,16 @@ class StereoSettings:
     """dic: the 2-D engine's settings (subset, shape, ...); disparity: (dmin, dmax) pixels of the row
     search of the seeds (x_right - x_left), None = half the image width either way; strain_window: grid
     points per side of the strain fit (odd), None = no strain; incremental: see the module docstring;
-    max_gap_px: largest distance between the two rays, in virtual pixel pitches, of a trusted point."""
+    max_gap_px: largest distance between the two rays, in virtual pixel pitches, of a trusted point;
+    vertical_search: rows above and below the row that the seed search also covers (0: the row only; more
+    for a rig whose calibration no longer fits its images, whose matches sit off the row)."""
 
     dic: DicSettings = DicSettings()
     disparity: tuple[int, int] | None = None
     strain_window: int | None = 5
     incremental: bool = False
     max_gap_px: float = 1.0
+    vertical_search: int = 0
 
 
 @dataclass
@@ -133,7 +136,7 @@ class StereoDic:
 
     def stereo_match(self, left: np.ndarray, right: np.ndarray) -> PointResult:
         """left -> right on the grid: row-search seeds, IC-GN, propagation (state 0)."""
-        f = correlate_pair(left, right, self.grid, self.s.dic, self.seeds, search=row_seed_search(*self.disparity))
+        f = correlate_pair(left, right, self.grid, self.s.dic, self.seeds, search=row_seed_search(*self.disparity, rows=self.s.vertical_search))
         return f.points
 
     def run(self, pairs: Sequence[tuple[np.ndarray, np.ndarray]]) -> Iterator[StereoState]:
