@@ -19,15 +19,17 @@ DEVICES = """devices:
              manual                                                        you move it when asked
              serial options: baud, timeout (s), retries, move_timeout (s), home=auto|yes|no, tolerance_um;
              zaber: device, axis, microstep_um; grbl: axis, feed (mm/min);
-             emulated: speed (mm/s), travel (mm), transport=pty|socket, fault=KIND@MOVE
+             emulated: speed (mm/s), travel (mm), transport=pty|socket, fault=KIND@MOVE,
+             axis_deg=AX,AY (the simulated carriage's travel off the screen normal, degrees)
   --display  screen[:N]          full screen on monitor N (0-based), 1:1 pixels (pygame)
              file:DIR?size=WxH   write the patterns to DIR instead (headless)
              sim                 the simulated display
   --camera   cv:INDEX[?exposure_ms=E&gain=G&size=WxH&discard=N]
                                                         an OpenCV VideoCapture device
              folder:DIR[?size=WxH&timeout=S]            photos taken by hand arriving in DIR
-             sim[:LENS][?size=WxH&seed=N]               the simulated camera (needs --display sim and
-                                                        an emulated stage)
+             sim[:LENS][?size=WxH&seed=N&pixel_um=P&tilt=TX,TY&roll=R]
+                                                        the simulated camera (needs --display sim and
+                                                        an emulated stage); tilt/roll aim it (degrees)
   Cameras are named cam0, cam1, ... in the order given.
 """
 
@@ -139,10 +141,11 @@ def _open_devices(args, stack: contextlib.ExitStack, stage_url: str | None):
         stage = stack.enter_context(open_stage(stage_url))
     if getattr(args, "display", None) is not None:
         screen = stack.enter_context(open_screen(args.display, args.settle_ms / 1000, args.vsync))
-    true_z = None
+    true_z, axis = None, (0.0, 0.0, 1.0)
     if stage is not None:
         true_z = stage.emulator.true_position_mm if stage.emulator is not None else stage.position_mm
-    cameras = [stack.enter_context(open_camera(spec, f"cam{i}", screen, true_z))
+        axis = stage.emulator.travel_axis if stage.emulator is not None else axis
+    cameras = [stack.enter_context(open_camera(spec, f"cam{i}", screen, true_z, axis))
                for i, spec in enumerate(args.camera)]
     return stage, screen, cameras
 
