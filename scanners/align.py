@@ -205,10 +205,10 @@ class AlignSession:
                                         "slipping coupling, a loose carriage, or another stage?")
         return axis, [first, second]
 
-    def model_note(self, described: str) -> str:
+    def model_note(self, described: str = "") -> str:
         """One line on the rays used (`described`: e.g. the intrinsics file)."""
         if self.intrinsics is None:
-            return f"rays: {described}"
+            return f"rays: {described or {'prvm': 'a PRVM', 'pinhole': 'an OpenCV pinhole'}[self.model.kind]}"
         i = self.intrinsics
         if i.fixed:
             return f"rays: pattern alone, focal length {i.focal_px:.0f} px (given)"

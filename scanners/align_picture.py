@@ -95,12 +95,13 @@ def _cross(canvas, centre, arm, angle_rad, colour, thick) -> None:
                  cv2.LINE_AA, SHIFT)
 
 
-def _inset(canvas: np.ndarray, offset_px: np.ndarray, roll_deg: float, tolerance_px: float, colour: tuple,
-           corner: tuple[int, int], side: int, status: str, scale: float) -> None:
+def _inset(canvas: np.ndarray, offset_px: np.ndarray, roll_deg: float, tolerance_px: float, tolerance_deg: float,
+           colour: tuple, corner: tuple[int, int], side: int, status: str, scale: float) -> None:
     """The two centres magnified: the expected crosshair in the middle, the captured one at the offset
     times the zoom, the tolerance circle at the same zoom, an arrow the way the captured centre must
     move. The zoom puts the tolerance circle at a fifth of the inset, or less when the captured centre
-    would fall outside."""
+    would fall outside; the captured crosshair's roll is magnified too (a roll of the tolerance shows
+    as 10 degrees, at most 45)."""
     x0, y0 = corner
     panel = canvas[y0:y0 + side, x0:x0 + side]
     panel[:] = (panel * 0.2).astype(np.uint8)
@@ -115,15 +116,17 @@ def _inset(canvas: np.ndarray, offset_px: np.ndarray, roll_deg: float, tolerance
     _cross(canvas, c, room, 0.0, EXPECTED, thick)
     cv2.circle(canvas, tuple(_pts(c)[0, 0]), round(tolerance_px * gain * ONE), EXPECTED, thick, cv2.LINE_AA, SHIFT)
     p = c + offset_px * gain
-    _cross(canvas, p, 0.45 * room, np.radians(roll_deg), colour, thick)
+    turn = min(10 / tolerance_deg, 45 / max(abs(roll_deg), 1e-9))
+    _cross(canvas, p, 0.45 * room, np.radians(roll_deg * turn), colour, thick)
     cv2.circle(canvas, tuple(_pts(p)[0, 0]), round(0.06 * room * ONE), colour, thick, cv2.LINE_AA, SHIFT)
     gap = np.linalg.norm(c - p)
     if gap > 0.15 * room:
         tip = p + (c - p) * (1 - 0.06 * room / gap)
         cv2.arrowedLine(canvas, tuple(_pts(p)[0, 0]), tuple(_pts(tip)[0, 0]), colour, thick, cv2.LINE_AA, SHIFT,
                         min(0.5, 0.15 * room / gap))
-    cv2.putText(canvas, f"zoom x{gain:.1f}", (x0 + round(12 * scale), y0 + side - round(12 * scale)), font,
-                0.6 * scale, TEXT, max(1, round(1.5 * scale)), cv2.LINE_AA)
+    caption = (x0 + round(12 * scale), y0 + side - round(12 * scale))
+    cv2.putText(canvas, f"zoom x{gain:.1f}, roll x{turn:.0f}", caption, font, 0.6 * scale, TEXT,
+                max(1, round(1.5 * scale)), cv2.LINE_AA)
 
 
 def fused_picture(size: tuple[int, int], measurement, pitch_mm, tolerance_deg: float,
@@ -171,8 +174,8 @@ def fused_picture(size: tuple[int, int], measurement, pitch_mm, tolerance_deg: f
     if side < 0.2 * h:                                   # no room under the text: the other side's bottom
         side = int(0.3 * h)
         x0 = w - margin - side if x0 == margin else margin
-    _inset(canvas, rd.line_of_sight_px - foot, rd.roll_deg, tol_px, colour, (x0, h - margin - side), side,
-           "SQUARE" if within else "NOT SQUARE", scale)
+    _inset(canvas, rd.line_of_sight_px - foot, rd.roll_deg, tol_px, tolerance_deg, colour,
+           (x0, h - margin - side), side, "SQUARE" if within else "NOT SQUARE", scale)
     return canvas
 
 

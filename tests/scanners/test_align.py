@@ -10,16 +10,18 @@ import dataclasses
 import functools
 import json
 
+import cv2
 import numpy as np
 import pytest
 
 from calib.alignment import PinholeRays, PrvmRays, Reading, StageAxis
+from calib.imageio import write_gray, write_rgb
 from calib.pinhole import PinholeCamera
 from scanners.align import AlignRecord, AlignSession, AlignSettings, default_periods, readout, run
 from scanners.align_advice import camera_advice, stage_advice
 from scanners.align_picture import EXPECTED, OUTSIDE, WITHIN, fused_picture
 from scanners.camera import SimulatedCamera
-from scanners.display import SimScreen
+from scanners.display import SimScreen, open_screen
 from scanners.errors import HardwareError
 from scanners.sim.aim import aim, true_alignment
 from scanners.sim.display import SimDisplay
@@ -29,6 +31,7 @@ from scanners.sim.pose import DisplayPose
 from scanners.stage import open_stage
 from stereodic.cli import main
 from stereodic.virtual import fit_optical_centre
+from tests.scanners.xvfb import read_back, virtual_screen
 
 SIZE = (320, 256)
 PIXEL_UM = 21.2                      # the field of the default 1280x1024 camera at a quarter of its pixels
@@ -248,7 +251,6 @@ def one_line(capsys) -> str:
 
 
 def test_a_camera_that_does_not_see_the_pattern(tmp_path, capsys):
-    from calib.imageio import write_gray
     rng = np.random.default_rng(0)
     for i in range(4):
         write_gray(tmp_path / "photos" / f"{i}.png", rng.integers(0, 12, (48, 64)).astype(np.uint8))
@@ -305,3 +307,61 @@ def test_the_record_is_complete_after_every_update(tmp_path):
     assert seen == [1, 2]
     assert sorted(p.name for p in (tmp_path / "rec").iterdir()) == ["fused_0000.png", "fused_0001.png",
                                                                      "readings.json"]
+
+
+# ----------------------------------------------------------------------------------------- on a real screen
+
+class MirroredScreen(SimScreen):
+    """The simulated LCD (which the simulated camera looks at) mirrored on a real full-screen window."""
+
+    def __init__(self, window):
+        super().__init__()
+        self.window = window
+
+    def _show(self, image):
+        super()._show(image)
+        self.window.show(image)
+
+    def pressed(self):
+        return self.window.pressed()
+
+
+@pytest.mark.display
+def test_the_live_aid_on_a_full_screen_stops_on_escape(tmp_path):
+    """The fused picture reaches the full-screen window pixel for pixel (read back through the X
+    server), and Esc pressed on it ends a session that had no update limit."""
+    pytest.importorskip("Xlib")
+    from Xlib import XK, X
+    from Xlib import display as xdisplay
+    from Xlib.ext import xtest
+    with virtual_screen(1920, 1080) as name:
+        window = open_screen("screen:0", settle_s=0.0)
+        try:
+            screen = MirroredScreen(window)
+            cam = SimulatedCamera("cam0", screen, lambda: 0.0, "brown", SIZE, 0, pixel_um=PIXEL_UM,
+                                  aim=(0.6, -0.3, 0.4))
+            cam.set_exposure(240, 0.0)
+            s = AlignSession(screen, cam, screen.pitch_mm, prvm_rays("brown"),
+                             settings=AlignSettings(default_periods(screen.size), hold_s=5.0))
+            record = AlignRecord(tmp_path / "rec")
+            shots = []
+
+            def press_escape(line):            # after the first update is on the screen
+                if shots:
+                    raise AssertionError("Esc did not stop the session")
+                shots.append(read_back(name))
+                x = xdisplay.Display(name)
+                code = x.keysym_to_keycode(XK.string_to_keysym("Escape"))
+                xtest.fake_input(x, X.KeyPress, code)
+                xtest.fake_input(x, X.KeyRelease, code)
+                x.sync()
+                x.close()
+
+            done = run(s, updates=0, record=record, report=press_escape, interactive=True)
+        finally:
+            window.close()
+    assert len(done) == 1 and len(shots) == 1
+    write_rgb(tmp_path / "screenshot.png", shots[0])
+    sent = cv2.imread(str(tmp_path / "rec" / "fused_0000.png"))[:, :, ::-1]
+    assert np.array_equal(shots[0], sent)
+    assert near(shots[0], OUTSIDE).sum() > 2000 and near(shots[0], EXPECTED).sum() > 2000

@@ -1,6 +1,7 @@
 """Pattern display: the file sink, the simulated screen and, on a virtual X screen (Xvfb), the real
 full-screen window read back pixel for pixel through the X server."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -23,6 +24,21 @@ def test_file_screen_writes_what_it_shows(tmp_path):
     assert sorted(p.name for p in (tmp_path / "shown").iterdir()) == ["00000.png", "00001.png"]
     assert np.array_equal(read_gray(tmp_path / "shown" / "00001.png"), b)
     assert FileScreen(tmp_path / "shown", (64, 48))._next == 2     # a second run continues the numbering
+
+
+def test_colour_pictures(tmp_path):
+    picture = np.random.default_rng(2).integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    screen = FileScreen(tmp_path, (64, 48))
+    screen.show(picture)
+    assert np.array_equal(cv2.imread(str(tmp_path / "00000.png"))[:, :, ::-1], picture)
+    sim = SimScreen()
+    rgb = np.zeros((1080, 1920, 3), np.uint8)
+    rgb[..., 0], rgb[..., 1], rgb[..., 2] = 200, 100, 50
+    sim.show(rgb)
+    assert sim.image.shape == (1080, 1920) and (sim.image == round(0.299 * 200 + 0.587 * 100 + 0.114 * 50)).all()
+    with pytest.raises(ValueError, match="needs uint8 64x48"):
+        screen.show(np.zeros((48, 64, 4), np.uint8))
+    assert screen.pressed() == []
 
 
 def test_wrong_pattern_size_is_refused(tmp_path):
