@@ -149,11 +149,18 @@ class AlignSession:
             raise self._not_seen(f"the flat grey levels show no response ({exc})") from None
 
     def measure(self, z_mm: float | None = None, model=None) -> Measurement:
-        """Show the fringe set, decode it and read the camera's alignment. model: the rays to use (default:
-        the session's, or the pattern-alone estimate updated with this view). PatternNotSeen when too
-        few pixels decode the pattern."""
+        """Show the fringe set, capture it and `process` it."""
         start = time.monotonic()
         frames = {key: [self._grab(img) for img in images] for key, images in self.patterns.items()}
+        return self.process(frames, z_mm, model, start)
+
+    def process(self, frames: dict, z_mm: float | None = None, model=None, start: float | None = None
+                ) -> Measurement:
+        """Decode a captured fringe set ({(axis, period): [frames]}) and read the camera's alignment.
+        model: the rays to use (default: the session's, or the pattern-alone estimate updated with this
+        view); start: when the update began (time.monotonic()). PatternNotSeen when too few pixels decode
+        the pattern."""
+        start = time.monotonic() if start is None else start
         try:
             dm = decode_display(frames, self.shifts, self.screen.size, self.full_scale, self.correction)
         except ValueError as exc:
@@ -161,7 +168,8 @@ class AlignSession:
         need = max(MIN_PIXELS, MIN_FRACTION * dm.valid.size)
         if dm.valid.sum() < need:
             raise self._not_seen(f"only {dm.valid_fraction:.1%} of its pixels decode it")
-        hom = fit_homography(dm.coord, dm.valid)
+        step = max(1, int(np.sqrt(dm.valid.sum() / 5000)))       # a few thousand points fix a homography
+        hom = np.diag([step, step, 1.0]) @ fit_homography(dm.coord[:, ::step, ::step], dm.valid[::step, ::step])
         if model is None:
             model = self.model if self.model is not None else self.intrinsics.update(hom, self.pitch_mm)
         try:
@@ -171,7 +179,8 @@ class AlignSession:
             raise self._not_seen(str(exc)) from None
         return Measurement(dm, hom, model, fit, reading, z_mm, time.monotonic() - start)
 
-    def _refit(self, m: Measurement, model) -> Measurement:
+    def refit(self, m: Measurement, model) -> Measurement:
+        """The same decoded view read through other rays."""
         fit = fit_display_pose(model, m.display_map.coord, m.display_map.valid, self.pitch_mm)
         return Measurement(m.display_map, m.homography, model, fit, read_alignment(model, fit, self.pitch_mm),
                            m.z_mm, m.seconds)
@@ -198,7 +207,7 @@ class AlignSession:
         if self.intrinsics is not None and not self.intrinsics.fixed:
             for _ in range(3):
                 model = self.intrinsics.scale_focal(axis.commanded_mm / axis.travel_mm)
-                first, second = self._refit(first, model), self._refit(second, model)
+                first, second = self.refit(first, model), self.refit(second, model)
                 axis = stage_axis(first.fit, second.fit, travel)
         elif axis.travel_mm < MIN_TRAVEL_FRACTION * axis.commanded_mm:
             raise HardwareError(fault + f"the display moved {axis.travel_mm:.2f} mm relative to the camera: a "

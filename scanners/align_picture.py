@@ -46,16 +46,16 @@ def _border(width: int, height: int, n: int = 32) -> tuple[np.ndarray, np.ndarra
 
 
 def _camera_layer(canvas: np.ndarray, mean: np.ndarray, valid: np.ndarray, homography: np.ndarray) -> None:
-    """Lay the camera's picture (dimmed) into the canvas where the camera sees the display."""
+    """Lay the camera's picture (dimmed, grey 40..190) into the canvas where the camera sees the display."""
     h, w = canvas.shape[:2]
-    ref = mean[valid] if valid.any() else mean.ravel()
+    ref = mean[valid][::17] if valid.any() else mean.ravel()
     lo, hi = np.percentile(ref, [1, 99]) if ref.size else (0.0, 1.0)
-    grey = np.clip((mean - lo) / max(hi - lo, 1e-6), 0, 1) * 150 + 40
-    grey = np.where(valid, grey, 0).astype(np.float32)
-    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
-    warped = cv2.warpPerspective(grey, homography, (w, h), flags=flags, borderValue=0)
-    inside = cv2.warpPerspective(valid.astype(np.float32), homography, (w, h), flags=flags, borderValue=0) > 0.5
-    canvas[inside] = np.rint(warped[inside])[:, None].astype(np.uint8)
+    grey = cv2.convertScaleAbs(mean, alpha=150 / max(hi - lo, 1e-6), beta=40 - 150 * lo / max(hi - lo, 1e-6))
+    grey = np.clip(grey, 40, 190)
+    grey[~valid] = 0
+    warped = cv2.warpPerspective(grey, homography, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                 borderValue=0)
+    np.copyto(canvas, warped[:, :, None], where=(warped >= 20)[:, :, None])
 
 
 def _wrap(lines: list[tuple[str, tuple]], width: int, size: float, thick: int) -> list[tuple[str, tuple]]:
