@@ -124,30 +124,19 @@ def _truth(camera, screen, stage, z_mm: float) -> dict:
 
 def run(args) -> int:
     from calib.atomic import write_json
-    from calib.errors import InputError
     from scanners import align
-    from scanners.camera import SimulatedCamera, open_camera
-    from scanners.display import PygameScreen, SimScreen, open_screen
-    from scanners.stage import open_stage
+    from scanners.camera import SimulatedCamera
+    from scanners.display import PygameScreen
+    from stereodic.cli.common import display_pitch, open_devices
     headless = args.display == "sim" or args.display.startswith("file:")
     _check(args, headless)
     record = align.AlignRecord(args.output) if args.output is not None else None
     model = _intrinsics(args.intrinsics)
     hold = (0.0 if headless else 0.6) if args.hold_ms is None else args.hold_ms / 1000
     with contextlib.ExitStack() as stack:
-        stage = stack.enter_context(open_stage(args.stage)) if args.stage is not None else None
-        screen = stack.enter_context(open_screen(args.display, args.settle_ms / 1000, args.vsync))
-        true_z, axis = (lambda: 0.0), (0.0, 0.0, 1.0)
-        if stage is not None:
-            true_z = stage.emulator.true_position_mm if stage.emulator is not None else stage.position_mm
-            axis = stage.emulator.travel_axis if stage.emulator is not None else axis
-        camera = stack.enter_context(open_camera(args.camera, "cam0", screen, true_z, axis))
-        if isinstance(screen, SimScreen):
-            pitch = screen.pitch_mm
-        else:
-            if not args.pitch_mm or len(args.pitch_mm) > 2 or min(args.pitch_mm) <= 0:
-                raise InputError("--pitch-mm", "give the display's pixel pitch in mm (PX or PX,PY)")
-            pitch = tuple(args.pitch_mm) * (2 // len(args.pitch_mm))
+        stage, screen, (camera,) = open_devices(stack, args.stage, args.display, [args.camera],
+                                                args.settle_ms / 1000, args.vsync, still_z_mm=0.0)
+        pitch = display_pitch(screen, args.pitch_mm)
         periods = tuple(args.periods) if args.periods else align.default_periods(screen.size)
         settings = align.AlignSettings(periods, args.steps, args.low, args.high,
                                        tolerance_deg=args.tolerance_deg, average=args.average, hold_s=hold)

@@ -241,7 +241,7 @@ def test_command_line_end_to_end(tmp_path, capsys):
     assert truth["stage_axis"]["angle_x_deg"] == pytest.approx(0.25)
     assert (out / "stage.png").is_file() and st["advice"][0].startswith("tilt the screen 0.25 deg: its right edge")
     err = capsys.readouterr().err
-    assert "stage axis 0.2" in err and "update 1: tilt x +3.0" in err
+    assert "stage axis 0.2" in err and "update 1: tilt x +" in err and "tilt the camera down 3.00 deg" in err
 
 
 def one_line(capsys) -> str:
@@ -365,3 +365,22 @@ def test_the_live_aid_on_a_full_screen_stops_on_escape(tmp_path):
     sent = cv2.imread(str(tmp_path / "rec" / "fused_0000.png"))[:, :, ::-1]
     assert np.array_equal(shots[0], sent)
     assert near(shots[0], OUTSIDE).sum() > 2000 and near(shots[0], EXPECTED).sum() > 2000
+
+
+@pytest.mark.slow
+def test_through_a_calibrated_prvm(tmp_path):
+    """The whole way on the simulated bench: acquire and calibrate the camera where it stands, aim it
+    elsewhere, align it through the calibrated (not the true) PRVM."""
+    camera = f"sim:brown?size={SIZE[0]}x{SIZE[1]}&pixel_um={PIXEL_UM}"
+    assert main(["acquire", "calibration", "--stage", STAGE, "--display", "sim", "--camera", camera,
+                 "--settle-ms", "0", "-o", str(tmp_path / "cal")]) == 0
+    assert main(["calibrate", str(tmp_path / "cal"), "-o", str(tmp_path / "cam0.npz")]) == 0
+    assert main(["align", "--display", "sim", "--camera", camera + "&tilt=-1.5,0.8&roll=-0.4", "--stage",
+                 STAGE + "&axis_deg=-0.3,0.45", "--intrinsics", str(tmp_path / "cam0.npz"), "--frames", "1",
+                 "-o", str(tmp_path / "align")]) == 0
+    data = json.loads((tmp_path / "align" / "readings.json").read_text())
+    truth = json.loads((tmp_path / "align" / "truth.json").read_text())
+    for key in ("tilt_x_deg", "tilt_y_deg", "roll_deg"):
+        assert abs(data["updates"][0][key] - truth["camera"][key]) < 0.05, key
+    for key in ("angle_x_deg", "angle_y_deg"):
+        assert abs(data["stage"][key] - truth["stage_axis"][key]) < 0.05, key
