@@ -6,7 +6,10 @@ them (`calib.live_decode.flat_correction`: the intensity calibration of tip 3.6,
 phase error of the display's gamma). Each update (`measure`) then shows a quick fringe set (both axes,
 by default two periods, the longest spanning the display and one 16 times shorter, 3 steps each: 12
 frames), decodes it on the fly (`calib.live_decode.decode_display`), fits the display's pose through
-the camera's rays (`calib.alignment`) and reads the camera's tilt, roll and distance. The rays are a
+the camera's rays (`calib.alignment`) and reads the camera's tilt, roll and distance. Between full sets
+(every `full_every`-th update) an update shows only the shortest period (6 frames) and takes the fringe
+order from the last map (`calib.live_decode.track_display`); when the camera moved too far for that
+(fewer pixels agree, or they agree less well), the update is taken again in full. The rays are a
 PRVM's or a pinhole calibration's when given, else the pattern-alone estimate
 (`calib.alignment.PatternIntrinsics`). `measure_stage` measures at two stage positions and turns the
 two poses into the stage axis; a display that did not move as far as the stage says (less than half)
@@ -34,7 +37,7 @@ from calib.alignment import (PatternIntrinsics, PinholeRays, PoseFit, PrvmRays, 
 from calib.atomic import write_json
 from calib.errors import InputError
 from calib.imageio import write_rgb
-from calib.live_decode import DisplayMap, decode_display, flat_correction
+from calib.live_decode import DisplayMap, decode_display, flat_correction, track_display
 from calib.patterns import flat_image, fringe_image, step_shifts
 from calib.reduced import fit_homography
 from scanners.align_advice import camera_advice, stage_advice, stage_direction
@@ -48,7 +51,12 @@ FORMAT = "stereodic.align/1"
 # a camera sees the pattern when at least this fraction of its pixels (and MIN_PIXELS) decode it
 MIN_FRACTION = 0.05
 MIN_PIXELS = 500
-# the display must move at least this fraction of the stage's commanded travel
+# a tracked update is taken again in full when fewer pixels than this fraction of the last map's decode
+# it, or their median disagreement with that map exceeds MAX_TRACK_MISMATCH (periods)
+MIN_TRACKED = 0.8
+MAX_TRACK_MISMATCH = 0.1
+# the display must move at least this fraction of the stage's commanded travel (and the display points
+# seen by the camera this fraction of what that travel moves them)
 MIN_TRAVEL_FRACTION = 0.5
 
 
@@ -68,7 +76,8 @@ class AlignSettings:
     """periods: fringe periods (display pixels; the longest must span the display); steps: phase steps;
     low, high: fringe levels; flats: grey levels of the response measurement (3 or more);
     tolerance_deg: the squareness tolerance; average: frames averaged per image; hold_s: how long the
-    fused picture stays on the display after each update."""
+    fused picture stays on the display after each update; full_every: every how many updates the full
+    fringe set is shown (1: always; in between only the shortest period, tracked)."""
 
     periods: tuple[float, ...]
     steps: int = 3
@@ -78,17 +87,19 @@ class AlignSettings:
     tolerance_deg: float = 0.2
     average: int = 1
     hold_s: float = 0.5
+    full_every: int = 4
 
     def to_json(self) -> dict:
         return {"periods": list(self.periods), "steps": self.steps, "low": self.low, "high": self.high,
-                "flats": list(self.flats), "tolerance_deg": self.tolerance_deg, "average": self.average}
+                "flats": list(self.flats), "tolerance_deg": self.tolerance_deg, "average": self.average,
+                "full_every": self.full_every}
 
 
 @dataclass
 class Measurement:
     """One update: what each pixel saw (`display_map`), the homography display pixels -> image pixels,
     the camera model used, the display's pose in its frame, the reading; z_mm: the stage position (None
-    without a stage); seconds: how long the update took."""
+    without a stage); seconds: how long the update took; frames: how many fringe frames it showed."""
 
     display_map: DisplayMap
     homography: np.ndarray
@@ -97,6 +108,7 @@ class Measurement:
     reading: Reading
     z_mm: float | None
     seconds: float
+    frames: int
 
 
 class AlignSession:
@@ -120,8 +132,11 @@ class AlignSession:
         self.patterns = {(axis, float(p)): [fringe_image(w, h, axis, p, d, settings.low, settings.high)
                                             for d in self.shifts]
                          for axis in ("x", "y") for p in sorted(settings.periods, reverse=True)}
+        self.shortest = {key: images for key, images in self.patterns.items() if key[1] == min(settings.periods)}
         self.full_scale = 2 ** camera.bit_depth - 1
         self.correction = None
+        self.last_map: DisplayMap | None = None       # the map the next tracked update is unwrapped with
+        self.tracked_since_full = 0
 
     def _grab(self, image: np.ndarray) -> np.ndarray:
         self.screen.show(image)
@@ -148,21 +163,43 @@ class AlignSession:
         except ValueError as exc:
             raise self._not_seen(f"the flat grey levels show no response ({exc})") from None
 
-    def measure(self, z_mm: float | None = None, model=None) -> Measurement:
-        """Show the fringe set, capture it and `process` it."""
+    def measure(self, z_mm: float | None = None, model=None, *, full: bool = False) -> Measurement:
+        """Show the fringe set (the full one when `full`, at the first update, every `full_every`-th and
+        when tracking fails; else the shortest period, tracked), capture it and `process` it."""
         start = time.monotonic()
-        frames = {key: [self._grab(img) for img in images] for key, images in self.patterns.items()}
-        return self.process(frames, z_mm, model, start)
+        track = (not full and self.last_map is not None and len(self.patterns) > len(self.shortest)
+                 and self.tracked_since_full + 1 < self.settings.full_every)
+        shown = self.shortest if track else self.patterns
+        frames = {key: [self._grab(img) for img in images] for key, images in shown.items()}
+        if track:
+            last = self.last_map
+            try:
+                m = self.process(frames, z_mm, model, start, previous=last)
+            except PatternNotSeen:
+                m = None
+            if (m is None or m.display_map.valid.sum() < MIN_TRACKED * last.valid.sum()
+                    or max(s[0] for s in m.display_map.mismatch_sigma.values()) > MAX_TRACK_MISMATCH):
+                return self.measure(z_mm, model, full=True)          # moved too far: the full set
+            self.tracked_since_full += 1
+        else:
+            m = self.process(frames, z_mm, model, start)
+            self.tracked_since_full = 0
+        self.last_map = m.display_map
+        return m
 
-    def process(self, frames: dict, z_mm: float | None = None, model=None, start: float | None = None
-                ) -> Measurement:
+    def process(self, frames: dict, z_mm: float | None = None, model=None, start: float | None = None,
+                previous: DisplayMap | None = None) -> Measurement:
         """Decode a captured fringe set ({(axis, period): [frames]}) and read the camera's alignment.
         model: the rays to use (default: the session's, or the pattern-alone estimate updated with this
-        view); start: when the update began (time.monotonic()). PatternNotSeen when too few pixels decode
+        view); start: when the update began (time.monotonic()); previous: the map to take the fringe
+        order from (then `frames` holds one period per axis). PatternNotSeen when too few pixels decode
         the pattern."""
         start = time.monotonic() if start is None else start
         try:
-            dm = decode_display(frames, self.shifts, self.screen.size, self.full_scale, self.correction)
+            if previous is None:
+                dm = decode_display(frames, self.shifts, self.screen.size, self.full_scale, self.correction)
+            else:
+                dm = track_display(frames, self.shifts, previous, self.full_scale, self.correction)
         except ValueError as exc:
             raise self._not_seen(f"its fringes do not decode consistently ({exc})") from None
         need = max(MIN_PIXELS, MIN_FRACTION * dm.valid.size)
@@ -177,32 +214,38 @@ class AlignSession:
             reading = read_alignment(model, fit, self.pitch_mm)
         except ValueError as exc:
             raise self._not_seen(str(exc)) from None
-        return Measurement(dm, hom, model, fit, reading, z_mm, time.monotonic() - start)
+        return Measurement(dm, hom, model, fit, reading, z_mm, time.monotonic() - start,
+                           sum(len(f) for f in frames.values()))
 
     def refit(self, m: Measurement, model) -> Measurement:
         """The same decoded view read through other rays."""
         fit = fit_display_pose(model, m.display_map.coord, m.display_map.valid, self.pitch_mm)
         return Measurement(m.display_map, m.homography, model, fit, read_alignment(model, fit, self.pitch_mm),
-                           m.z_mm, m.seconds)
+                           m.z_mm, m.seconds, m.frames)
 
     def measure_stage(self, stage: Stage, positions) -> tuple[StageAxis, list[Measurement]]:
         """The stage axis from measurements at the two `positions` (mm), both with the same camera model.
         Without intrinsics the known travel fixes the focal length (`PatternIntrinsics.scale_focal`).
-        HardwareError when the camera sees the display where it was (it moved less than a display pixel
-        at the median pixel), or, with known intrinsics, when it moved less than MIN_TRAVEL_FRACTION of
-        the commanded travel."""
+        HardwareError when the display points the camera's pixels see moved less than MIN_TRAVEL_FRACTION
+        of what the travel would move them (median over the pixels), or, with known intrinsics, when the
+        display moved less than MIN_TRAVEL_FRACTION of the commanded travel."""
         stage.move_to(positions[0])
-        first = self.measure(positions[0])
+        first = self.measure(positions[0], full=True)
         stage.move_to(positions[1])
-        second = self.measure(positions[1], model=first.model)
+        second = self.measure(positions[1], model=first.model, full=True)
+        self.last_map = None                          # the camera is read next at another position
         travel = positions[1] - positions[0]
         both = first.display_map.valid & second.display_map.valid
-        shift = np.linalg.norm(second.display_map.coord - first.display_map.coord, axis=0)[both]
-        moved = float(np.median(shift)) if shift.size else 0.0
+        a, b = first.display_map.coord[:, both], second.display_map.coord[:, both]
+        moved = float(np.median(np.linalg.norm(b - a, axis=0))) if a.size else 0.0
+        # moving the display by `travel` along its normal changes its scale by travel / distance
+        radius = np.median(np.linalg.norm(a - first.reading.line_of_sight_px[:, None], axis=0)) if a.size else 0.0
+        expected = abs(travel) / first.reading.distance_mm * radius
         fault = f"{stage.name}: it reports moving {abs(travel):g} mm, but "
-        if moved < 1.0:
-            raise HardwareError(fault + f"the camera sees the display where it was (moved {moved:.2f} display px): "
-                                        "a slipping coupling, a loose carriage, or another stage?")
+        if moved < MIN_TRAVEL_FRACTION * expected:
+            raise HardwareError(fault + f"the camera sees the display where it was (moved {moved:.2f} display px, "
+                                        f"{expected:.0f} expected): a slipping coupling, a loose carriage, or "
+                                        "another stage?")
         axis = stage_axis(first.fit, second.fit, travel)
         if self.intrinsics is not None and not self.intrinsics.fixed:
             for _ in range(3):
@@ -283,7 +326,7 @@ class AlignRecord:
 def _entry(m: Measurement, session: AlignSession) -> dict:
     rd, tol = m.reading, session.settings.tolerance_deg
     entry = {"z_mm": m.z_mm, **rd.to_json(), "square": rd.square_within(tol), "advice": camera_advice(rd, tol),
-             "valid_fraction": m.display_map.valid_fraction, "seconds": m.seconds}
+             "valid_fraction": m.display_map.valid_fraction, "frames": m.frames, "seconds": m.seconds}
     if session.intrinsics is not None:
         entry["focal_px"] = session.intrinsics.focal_px
         entry["focal_measured"] = session.intrinsics.focal_measured

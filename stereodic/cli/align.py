@@ -52,6 +52,9 @@ def register(sub):
     p.add_argument("--periods", type=parse_floats, default=None,
                    help="fringe periods in display pixels (default: the display's longer side and 1/16 of it)")
     p.add_argument("--steps", type=int, default=3, help="phase steps per period (default 3)")
+    p.add_argument("--full-every", type=int, default=4, metavar="N",
+                   help="show the full fringe set every N updates, in between only the shortest period "
+                        "(half the frames; default 4, 1 = always the full set)")
     p.add_argument("--low", type=int, default=20, help="fringe minimum level (default 20)")
     p.add_argument("--high", type=int, default=240, help="fringe maximum level (default 240)")
     p.add_argument("--settle-ms", type=float, default=100.0,
@@ -77,6 +80,8 @@ def _check(args, headless: bool):
         raise InputError("--positions", f"expected two distinct stage positions, got {args.positions}")
     if args.steps < 3:
         raise InputError("--steps", f"need >= 3 phase steps, got {args.steps}")
+    if args.full_every < 1:
+        raise InputError("--full-every", f"must be >= 1, got {args.full_every}")
     if not 0 <= args.low < args.high <= 255:
         raise InputError("--low/--high", "levels must be 0..255 with low < high")
     if args.periods is not None and (len(args.periods) < 2 or min(args.periods) <= 0):
@@ -138,8 +143,8 @@ def run(args) -> int:
                                                 args.settle_ms / 1000, args.vsync, still_z_mm=0.0)
         pitch = display_pitch(screen, args.pitch_mm)
         periods = tuple(args.periods) if args.periods else align.default_periods(screen.size)
-        settings = align.AlignSettings(periods, args.steps, args.low, args.high,
-                                       tolerance_deg=args.tolerance_deg, average=args.average, hold_s=hold)
+        settings = align.AlignSettings(periods, args.steps, args.low, args.high, tolerance_deg=args.tolerance_deg,
+                                       average=args.average, hold_s=hold, full_every=args.full_every)
         session = align.AlignSession(screen, camera, pitch, model, settings=settings, focal_px=args.focal_px)
         described = {"prvm": f"PRVM {args.intrinsics}", "pinhole": f"pinhole {args.intrinsics}"}.get(
             getattr(model, "kind", ""), "")

@@ -24,10 +24,12 @@ from scanners.camera import SimulatedCamera
 from scanners.display import SimScreen, open_screen
 from scanners.errors import HardwareError
 from scanners.sim.aim import aim, true_alignment
+from scanners.sim.camera import SimCamera
 from scanners.sim.display import SimDisplay
 from scanners.sim.lenses import make_lens
 from scanners.sim.optics import rotation
 from scanners.sim.pose import DisplayPose
+from scanners.sim.sensor import Sensor
 from scanners.stage import open_stage
 from stereodic.cli import main
 from stereodic.virtual import fit_optical_centre
@@ -128,6 +130,25 @@ def test_stage_axis_within_005_deg(family, axis_deg):
     assert np.degrees(np.arccos(min(1.0, axis.axis @ truth))) < 0.05
     assert axis.travel_mm == pytest.approx(50.0 / truth[2], abs=0.2) and axis.rotation_deg < 0.02
     assert [m.z_mm for m in ms] == [0.0, 50.0]
+
+
+def test_tracked_updates_follow_a_turning_camera():
+    """Between full sets only the shortest period is shown, its fringe order taken from the last map;
+    a turn too large for that (here 3 degrees, 76 display px at the screen, more than a quarter of the
+    120 px period) is measured again in full, and every reading is the truth's."""
+    s, cam = session("freeform", (1.0, -0.5, 0.2), prvm_rays("freeform"))
+    s.calibrate_response()
+    assert s.measure().frames == 12
+    lens = cam.sim.lens
+    for about, angle, frames in (("x", 0.15, 6), ("y", -0.1, 6), ("y", 3.0, 12), ("x", -0.2, 6)):
+        lens = _turned(lens, about, angle)              # the person turns the camera about its centre
+        cam.sim = SimCamera(lens, Sensor(bit_depth=8), 3, seed=0)
+        cam.set_exposure(240, 0.0)
+        m = s.measure()
+        err, _ = errors(m, cam)
+        assert m.frames == frames, (about, angle)
+        assert max(abs(err[k]) for k in ("tilt_x_deg", "tilt_y_deg", "roll_deg")) < 0.05, (about, angle, err)
+    assert [s.measure().frames for _ in range(3)] == [6, 6, 12]       # and every 4th update in full
 
 
 def test_a_stage_that_does_not_move_is_a_hardware_fault():
