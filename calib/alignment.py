@@ -90,7 +90,7 @@ class PinholeRays:
     distortion coefficients; every ray leaves the origin. kind: "pinhole" (a calibration file) or
     "pattern" (estimated from the pattern alone)."""
 
-    def __init__(self, K, dist, width: int, height: int, kind: str = "pinhole"):
+    def __init__(self, K, dist, width: int, height: int, *, kind: str = "pinhole"):
         self.K = np.asarray(K, np.float64).reshape(3, 3)
         self.dist = np.zeros(5) if dist is None else np.asarray(dist, np.float64).ravel()
         self.width, self.height, self.kind = int(width), int(height), kind
@@ -326,7 +326,7 @@ class PatternIntrinsics:
     `focal_measured` is False. A known stage travel fixes it better (`scale_focal`): single views no
     longer change it then. focal_px: a known focal length (pixels) instead."""
 
-    def __init__(self, width: int, height: int, focal_px: float | None = None):
+    def __init__(self, width: int, height: int, *, focal_px: float | None = None):
         self.width, self.height = int(width), int(height)
         self.fixed = focal_px is not None
         self.focal_px = float(focal_px) if focal_px is not None else float(np.hypot(width, height))

@@ -66,7 +66,7 @@ def _decode_set(frames: list[np.ndarray], shifts, full_scale: float, correction:
     return res
 
 
-def decode_display(frames: dict, shifts, display_size: tuple[int, int], full_scale: float,
+def decode_display(frames: dict, shifts, display_size: tuple[int, int], full_scale: float, *,
                    correction: WaveformCorrection | None = None) -> DisplayMap:
     """Decode both axes of a fringe set.
 
@@ -105,8 +105,8 @@ def decode_display(frames: dict, shifts, display_size: tuple[int, int], full_sca
     return DisplayMap(coord, quality == 0, quality, mean, mismatch)
 
 
-def track_display(frames: dict, shifts, previous: DisplayMap, full_scale: float,
-                  correction: WaveformCorrection | None = None, *, tolerance: float = 0.25) -> DisplayMap:
+def track_display(frames: dict, shifts, previous: DisplayMap, full_scale: float, *,
+                  correction: WaveformCorrection | None = None, tolerance: float = 0.25) -> DisplayMap:
     """Decode one period per axis, unwrapped against a previous map of the same camera.
 
     frames: {(axis, period_px): [N frames]} with one period for "x" and one for "y"; previous: the map

@@ -126,7 +126,7 @@ class AlignSession:
                                           f"display ({screen.size[0]}x{screen.size[1]})")
         self.screen, self.camera, self.model, self.settings = screen, camera, model, settings
         self.pitch_mm = (float(pitch_mm[0]), float(pitch_mm[1]))
-        self.intrinsics = PatternIntrinsics(*camera.size, focal_px) if model is None else None
+        self.intrinsics = PatternIntrinsics(*camera.size, focal_px=focal_px) if model is None else None
         self.shifts = step_shifts(settings.steps)
         w, h = screen.size
         self.patterns = {(axis, float(p)): [fringe_image(w, h, axis, p, d, settings.low, settings.high)
@@ -197,9 +197,10 @@ class AlignSession:
         start = time.monotonic() if start is None else start
         try:
             if previous is None:
-                dm = decode_display(frames, self.shifts, self.screen.size, self.full_scale, self.correction)
+                dm = decode_display(frames, self.shifts, self.screen.size, self.full_scale,
+                                    correction=self.correction)
             else:
-                dm = track_display(frames, self.shifts, previous, self.full_scale, self.correction)
+                dm = track_display(frames, self.shifts, previous, self.full_scale, correction=self.correction)
         except ValueError as exc:
             raise self._not_seen(f"its fringes do not decode consistently ({exc})") from None
         need = max(MIN_PIXELS, MIN_FRACTION * dm.valid.size)

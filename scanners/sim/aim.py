@@ -46,7 +46,7 @@ def true_alignment(lens: Lens, display: SimDisplay, pose: DisplayPose) -> dict:
             "foot_px": [float(x) for x in centre[:2] / pitch]}
 
 
-def aim(lens: Lens, tilt_x_deg: float, tilt_y_deg: float, roll_deg: float, display: SimDisplay | None = None,
+def aim(lens: Lens, tilt_x_deg: float, tilt_y_deg: float, roll_deg: float, *, display: SimDisplay | None = None,
         pose: DisplayPose = DisplayPose()) -> Lens:
     """A copy of `lens` turned so that its true readings against `display` at `pose` (default: the
     default display at stage position 0) are the given tilts and roll (degrees), its line of sight

@@ -36,7 +36,7 @@ def test_decodes_the_true_display_points(camera):
     correction = flat_correction(levels, [camera.render(flat_image(1920, 1080, v), DISPLAY, POSE) for v in levels],
                                  255, 20, 240, SHIFTS)
     assert correction.max_error > 0.2                  # gamma 2.2 bends a 3-step fringe by 0.25 rad
-    got = decode_display(fringes(camera), SHIFTS, (1920, 1080), 255, correction)
+    got = decode_display(fringes(camera), SHIFTS, (1920, 1080), 255, correction=correction)
     truth = np.moveaxis(camera.view(DISPLAY, POSE).display_cr, -1, 0)
     err = np.linalg.norm(got.coord - truth, axis=0)[got.valid]
     assert got.valid_fraction > 0.99
@@ -47,7 +47,7 @@ def test_decodes_the_true_display_points(camera):
 
 def test_without_the_response_the_periods_disagree(camera):
     with pytest.raises(ValueError, match="disagree by 0.2"):
-        decode_display(fringes(camera), SHIFTS, (1920, 1080), 255, None)
+        decode_display(fringes(camera), SHIFTS, (1920, 1080), 255)
 
 
 def test_a_camera_that_sees_nothing_decodes_nothing():
