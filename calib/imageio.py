@@ -47,6 +47,15 @@ def read_gray(path: str | os.PathLike) -> np.ndarray:
     return img
 
 
+def write_rgb(path: str | os.PathLike, img: np.ndarray) -> None:
+    """Write an (H, W, 3) uint8 RGB image as PNG (or any format cv2 writes by extension), atomically."""
+    if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
+        raise ValueError(f"write_rgb wants an (H, W, 3) uint8 array, got {img.shape} {img.dtype}")
+    with atomic_output(path) as tmp:
+        if not cv2.imwrite(str(tmp), img[:, :, ::-1]):
+            raise OSError(f"{path}: could not write image")
+
+
 def write_gray(path: str | os.PathLike, img: np.ndarray) -> None:
     """Write a 2-D uint8/uint16 image as PNG or TIFF (by extension), atomically."""
     if img.ndim != 2 or img.dtype not in (np.uint8, np.uint16):

@@ -39,6 +39,38 @@ def add_simulation_options(p: argparse.ArgumentParser, width: int, height: int, 
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
 
 
+def open_devices(stack, stage_url: str | None, display_spec: str | None, camera_specs: list[str],
+                 settle_s: float = 0.15, vsync: bool = False, still_z_mm: float | None = None):
+    """The stage (or None), the screen (or None) and the cameras (named cam0, cam1, ...) from their
+    command-line specs, each closed when `stack` (a contextlib.ExitStack) closes. A simulated camera sees
+    the simulated display at the emulated stage's true position along its true travel direction; without
+    a stage at stage position `still_z_mm` (None: it needs a stage)."""
+    from scanners.camera import open_camera
+    from scanners.display import open_screen
+    from scanners.stage import open_stage
+    stage = stack.enter_context(open_stage(stage_url)) if stage_url is not None else None
+    screen = stack.enter_context(open_screen(display_spec, settle_s, vsync)) if display_spec is not None else None
+    true_z, axis = (None if still_z_mm is None else (lambda: still_z_mm)), (0.0, 0.0, 1.0)
+    if stage is not None:
+        true_z = stage.emulator.true_position_mm if stage.emulator is not None else stage.position_mm
+        axis = stage.emulator.travel_axis if stage.emulator is not None else axis
+    cameras = [stack.enter_context(open_camera(spec, f"cam{i}", screen, true_z, axis))
+               for i, spec in enumerate(camera_specs)]
+    return stage, screen, cameras
+
+
+def display_pitch(screen, pitch_mm: list[float] | None) -> tuple[float, float]:
+    """The display's pixel pitch (x, y) in mm: the simulated display's own, else `--pitch-mm` (PX or
+    PX,PY); InputError when a real screen has none."""
+    from calib.errors import InputError
+    from scanners.display import SimScreen
+    if isinstance(screen, SimScreen):
+        return screen.pitch_mm
+    if not pitch_mm or len(pitch_mm) > 2 or min(pitch_mm) <= 0:
+        raise InputError("--pitch-mm", "give the display's pixel pitch in mm (PX or PX,PY)")
+    return tuple(float(p) for p in pitch_mm) * (2 // len(pitch_mm))
+
+
 def parse_size(text: str) -> tuple[int, int]:
     """'1920x1080' -> (1920, 1080); argparse type."""
     try:
