@@ -39,7 +39,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calib.pinhole import undistort_exact
+from calib.camera_models import CameraModel, unproject
 from calib.prvm_file import PRVM
 
 # a view whose display normal is within this angle of the camera's axis does not fix the focal length
@@ -99,9 +99,9 @@ class PinholeRays:
 
     def rays(self, u, v) -> tuple[np.ndarray, np.ndarray]:
         u, v = np.broadcast_arrays(np.asarray(u, np.float64), np.asarray(v, np.float64))
-        xy = undistort_exact(np.stack([u.ravel(), v.ravel()], axis=-1), self.K, self.dist)
-        d = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        k = self.K
+        model = CameraModel(k[0, 0], k[1, 1], k[0, 2], k[1, 2], k[0, 1], "opencv", self.dist)
+        d, _ = unproject(model, np.stack([u.ravel(), v.ravel()], axis=-1))
         return np.zeros(u.shape + (3,)), d.reshape(u.shape + (3,))
 
 
