@@ -26,7 +26,8 @@ distance), and the two real fields must overlap on the plane.
 
 RIG file (`.npz`, "stereodic.rig/1", no pickles): `meta` (0-d str JSON: format, model, sensor (the
 VirtualSensor), baseline_mm, working_distance_mm, cameras: {left, right: name, centre, file, real
-width/height, dataset, wcs}, software) and per side S in (left, right): `S_map_x`, `S_map_y` (Hv, Wv)
+width/height, dataset, wcs}, world_from_rig (4x4 nested list, the rigid transform from the rig's frame to
+the frame its results are reported in; absent = identity), software) and per side S in (left, right): `S_map_x`, `S_map_y` (Hv, Wv)
 float32 (the IMM in cv2.remap form, -1 where blank), `S_valid` (Hv, Wv) bool, `S_direction`
 (Hv, Wv, 3) float64 (model-less unit directions through each virtual pixel centre, NaN where blank), and
 the camera's intensity matrix as `S_im_*` when its PRVM has one.
@@ -81,12 +82,16 @@ class RigCamera:
 class Rig:
     """The rectified virtual stereo pair: one VirtualSensor on the Rectified Common FOV Plane and the two
     cameras on it. model: "pinhole" (the Virtual PRVMs are the pinhole rays, EVM = model-less - pinhole)
-    or "modelless" (the Virtual PRVMs are the model-less rays, EVM zero); the images are the same."""
+    or "modelless" (the Virtual PRVMs are the model-less rays, EVM zero); the images are the same.
+    world_from_rig: (4, 4) float64 rigid transform from the rig's frame (the WCS its rays are in) to the
+    frame its 3D results are reported in (identity for a rig from two PRVMs; a rig imported from another
+    program's calibration carries that file's world frame)."""
 
     sensor: VirtualSensor
     left: RigCamera
     right: RigCamera
     model: str = "pinhole"
+    world_from_rig: np.ndarray = field(default_factory=lambda: np.eye(4))
 
     def camera(self, side: str) -> RigCamera:
         if side not in SIDES:
@@ -103,6 +108,15 @@ class Rig:
         """Distance of both optical centres from the common plane (they are equal: the plane is parallel
         to the baseline)."""
         return float((self.sensor.origin - self.left.centre) @ self.sensor.normal)
+
+    def to_world(self, points: np.ndarray, vectors: bool = False) -> np.ndarray:
+        """(..., 3) rig-frame points (mm) in the reporting frame: world_from_rig applied (its rotation
+        alone for `vectors`, e.g. displacements). An identity transform returns the input unchanged."""
+        T = np.asarray(self.world_from_rig, np.float64)
+        if np.array_equal(T, np.eye(4)):
+            return points
+        out = points @ T[:3, :3].T
+        return out if vectors else out + T[:3, 3]
 
     def virtual_camera(self, side: str) -> VirtualCamera:
         """The pinhole virtual camera of `side`: the common sensor and that camera's centre."""
@@ -138,6 +152,7 @@ class Rig:
                 "baseline_mm": self.baseline.tolist(), "working_distance_mm": self.working_distance_mm,
                 "cameras": {s: {"name": self.camera(s).name, "centre": self.camera(s).centre.tolist(),
                                 **self.camera(s).info} for s in SIDES},
+                "world_from_rig": np.asarray(self.world_from_rig, np.float64).tolist(),
                 "software": f"stereodic {__version__}"}
 
 
@@ -320,4 +335,22 @@ def load_rig(path: str | os.PathLike) -> Rig:
                   (int(info["real_width"]), int(info["real_height"])))
         im = IntensityMatrix.from_arrays(arrays, prefix=f"{side}_im_") if f"{side}_im_offset" in arrays else None
         cams.append(RigCamera(name, centre, imm, arrays[f"{side}_direction"].astype(np.float64), im, info))
-    return Rig(sensor, cams[0], cams[1], meta.get("model", "pinhole"))
+    return Rig(sensor, cams[0], cams[1], meta.get("model", "pinhole"), _world_from_rig(path, meta))
+
+
+def _world_from_rig(path, meta: dict) -> np.ndarray:
+    """The meta's world_from_rig (identity when absent); InputError naming the file unless it is a 4x4
+    rigid transform (rotation with determinant +1, last row 0 0 0 1)."""
+    if "world_from_rig" not in meta:
+        return np.eye(4)
+    try:
+        T = np.asarray(meta["world_from_rig"], np.float64)
+    except (TypeError, ValueError):
+        T = np.zeros(0)
+    if T.shape != (4, 4) or not np.isfinite(T).all():
+        raise InputError(path, "world_from_rig is not a 4x4 matrix of numbers")
+    R = T[:3, :3]
+    if (np.abs(R.T @ R - np.eye(3)).max() > 1e-9 or np.linalg.det(R) < 0
+            or np.abs(T[3] - (0, 0, 0, 1)).max() > 1e-12):
+        raise InputError(path, "world_from_rig is not a rigid transform (rotation and translation)")
+    return T
