@@ -20,7 +20,7 @@ from calib.errors import InputError
 
 # In the order `stereodic --help` lists them.
 COMMANDS = ["demo", "simulate", "patterns", "calibrate", "undistort", "rig", "rectify", "scan", "dic2d",
-            "dic", "export", "bench", "acquire", "show"]
+            "dic", "strain", "speckle", "export", "bench", "acquire", "show"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -21,7 +21,7 @@ from stereodic.dic.initial_guess import search_integer
 from stereodic.dic.interpolation import BSplineImage
 from stereodic.dic.outliers import inconsistent
 from stereodic.dic.propagation import guesses_from_lattice, propagate
-from stereodic.dic.texture import estimate_noise, predicted_noise
+from stereodic.dic.texture import estimate_noise, predicted_noise, sssig
 
 
 @dataclass(frozen=True)
@@ -83,13 +83,16 @@ class DicField:
     reference position (pixels, NaN where not OK; for incremental DIC, summed over the steps); `points`:
     this image's registration, flat in grid order (for incremental DIC, of the step from the previous
     image, with the subsets taken around the points' positions there); noise_px (ny, nx): the predicted
-    random error of each point (pixels, `texture.predicted_noise`, NaN where the subset leaves the image)."""
+    random error of each point (pixels, `texture.predicted_noise`, NaN where the subset leaves the image);
+    incremental (ny, nx) bool: the points registered from the previous image (`stereodic.dic.sequence`),
+    None for a single pair."""
 
     grid: Grid
     points: PointResult
     u: np.ndarray
     v: np.ndarray
     noise_px: np.ndarray
+    incremental: np.ndarray | None = None
 
     @property
     def zncc(self) -> np.ndarray:
@@ -309,6 +312,7 @@ class ImageRef:
     image: np.ndarray
     bspline: BSplineImage
     _sigma: float | None = field(default=None, repr=False, compare=False)
+    _sssig: dict = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def prepare(cls, image: np.ndarray, settings: DicSettings = DicSettings(),
@@ -323,6 +327,12 @@ class ImageRef:
         if self._sigma is None:
             self._sigma = estimate_noise(self.image)
         return self._sigma
+
+    def noise(self, xs: np.ndarray, ys: np.ndarray, half: int) -> np.ndarray:
+        """`texture.predicted_noise` of subsets at (xs, ys) in this image (its SSSIG maps kept per size)."""
+        if half not in self._sssig:
+            self._sssig[half] = sssig(self.bspline, half)
+        return predicted_noise(self.bspline, xs, ys, half, self.sigma, self._sssig[half])
 
 
 def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid: Grid, xs: np.ndarray,
@@ -360,7 +370,7 @@ def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid
         redo = carry[(solver.status[carry] != OK) | ~(solver.zncc[carry] >= s.seed_zncc)]
         solver.done[redo] = 0
     solver.fill(seeds)
-    noise = predicted_noise(ref.bspline, xs, ys, s.half, ref.sigma)
+    noise = ref.noise(xs, ys, s.half)
     solver.screen(noise)
     return solver.result(), noise
 

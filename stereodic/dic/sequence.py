@@ -3,7 +3,7 @@
 Every point is registered directly against the reference image, each image starting from the previous
 image's warps (`register_image`): the reference subset is compared with every image, so errors do not
 add up over the sequence. A point whose match against the reference decorrelates - its ZNCC falls below
-`switch_zncc`, or it diverges, is left unreached or inconsistent - switches to incremental
+`switch_zncc`, or it diverges, is left unreached, inconsistent or outside the image - switches to incremental
 (updated-reference) correlation for good: from then on it is registered from the previous image to the
 current one, its subset taken around its position in the previous image, and its displacement goes on
 counting from its reference position (u, v are always relative to the reference image: the positions
@@ -25,15 +25,18 @@ from dataclasses import dataclass
 from typing import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
+from scipy import ndimage
 
 from stereodic.dic.correlate import DicField, DicSettings, ImageRef, PointResult, register_image, seed_indices
 from stereodic.dic.grid import Grid
-from stereodic.dic.icgn import DIVERGED, INCONSISTENT, LOW_ZNCC, OK, UNREACHED
+from stereodic.dic.icgn import DIVERGED, INCONSISTENT, LOW_ZNCC, OK, OUTSIDE, UNREACHED
 from stereodic.dic.interpolation import BSplineImage
 
 SWITCH_ZNCC = 0.9  # default: a point whose ZNCC against the reference falls below switches to incremental
-DECORRELATED = (LOW_ZNCC, DIVERGED, UNREACHED, INCONSISTENT)  # failures an updated reference can cure
+# failures an updated reference can cure (a subset "outside" the image may be one whose warp went astray)
+DECORRELATED = (LOW_ZNCC, DIVERGED, UNREACHED, INCONSISTENT, OUTSIDE)
 
+ANCHOR = 2  # grid points around a switch candidate whose direct points are also registered incrementally
 CARRY_KEYS = ("incremental", "x", "y", "ok", "lost", "lost_status")
 
 
@@ -117,8 +120,11 @@ def register_steps(previous: ImageRef, img: np.ndarray, img_b: BSplineImage, gri
                    ) -> tuple[PointResult, np.ndarray] | tuple[None, None]:
     """The incremental points and the switch `candidates`, registered from the previous image (subsets
     around their positions carry.x, carry.y there) to `img`. Incremental points start from the last
-    step's translation, candidates from their direct match's translation less their last displacement;
-    lost points are skipped with their status. (None, None) when there is none of either."""
+    step's translation; with the candidates go the direct points measured in both images within ANCHOR
+    grid points of them, as anchors they can be reached from (their start, and that of the candidates whose direct match
+    converged, is the direct match's translation less the last displacement; the other candidates are
+    reached from their neighbours); lost points are skipped with their status. (None, None) when there is
+    nothing to register."""
     track = (carry.incremental & ~carry.lost) | candidates
     if not track.any() and not carry.incremental.all():
         return None, None
@@ -132,12 +138,16 @@ def register_steps(previous: ImageRef, img: np.ndarray, img_b: BSplineImage, gri
                             np.full(n, UNREACHED, np.int8))
     if candidates.any():
         X, Y = grid.points()
+        near = ndimage.binary_dilation(candidates.reshape(grid.shape), np.ones((2 * ANCHOR + 1,) * 2, bool)).ravel()
+        anchors = near & ~carry.incremental & carry.ok & (direct.status == OK) & ~candidates
+        track |= anchors
+        fresh = candidates | anchors
         du = direct.warp[:, 0] - (carry.x - X)
         dv = direct.warp[:, nb] - (carry.y - Y)
-        usable = candidates & np.isfinite(du) & np.isfinite(dv) & (direct.status != UNREACHED)
-        start.warp[candidates] = 0.0
+        usable = fresh & np.isfinite(du) & np.isfinite(dv) & np.isin(direct.status, (OK, LOW_ZNCC))
+        start.warp[fresh] = 0.0
         start.warp[usable, 0], start.warp[usable, nb] = du[usable], dv[usable]
-        start.status[candidates] = np.where(usable[candidates], OK, UNREACHED)
+        start.status[fresh] = np.where(usable[fresh], OK, UNREACHED)
     skip = ~track | carry.lost
     status = np.where(carry.lost, carry.lost_status, UNREACHED).astype(np.int8)
     return register_image(previous, img, img_b, grid, carry.x, carry.y, settings, seeds=seeds, search=search,
@@ -187,7 +197,8 @@ def merge_track(grid: Grid, carry: TrackCarry, direct: PointResult | None, direc
         x, y = np.where(ok, new_x, carry.x), np.where(ok, new_y, carry.y)
     nxt = TrackCarry(direct if direct is not None else carry.direct, steps if steps is not None else carry.step,
                      incr, x, y, ok, lost, lost_status, carry.images + 1)
-    return DicField(grid, res, u.reshape(grid.shape), v.reshape(grid.shape), noise.reshape(grid.shape)), nxt
+    return DicField(grid, res, u.reshape(grid.shape), v.reshape(grid.shape), noise.reshape(grid.shape),
+                    incr.reshape(grid.shape)), nxt
 
 
 def track_image(ref: ImageRef, previous: ImageRef, img: np.ndarray, img_b: BSplineImage, grid: Grid,

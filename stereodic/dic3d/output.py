@@ -30,18 +30,9 @@ from calib.atomic import atomic_output
 from calib.npz_stream import write_stacked_npz
 from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import STATUS_NAMES
-from stereodic.dic.output import save_map
+from stereodic.dic.output import STRAIN_COLUMNS, fmt, save_map
 from stereodic.dic3d.stereo import CameraMatch, StereoSettings, StereoState
 from stereodic.strain_measures import StrainMeasure
-
-STRAIN_COLUMNS = (("exx", "exx", "%.7f"), ("eyy", "eyy", "%.7f"), ("exy", "exy", "%.7f"),
-                  ("e_major", "major", "%.7f"), ("e_minor", "minor", "%.7f"), ("e_angle", "angle_deg", "%.4f"),
-                  ("e_vm", "von_mises", "%.7f"))
-
-
-def _fmt(fmt: str, a: np.ndarray) -> list[str]:
-    return [fmt % v for v in np.asarray(a).tolist()]
-
 
 def csv_columns(has_strain: bool) -> list[str]:
     cols = ["state", "x", "y"]
@@ -61,19 +52,19 @@ def csv_rows(grid: Grid, st: StereoState) -> str:
     X, Y = grid.points()
     flat = lambda a: np.asarray(a).reshape((-1,) + np.shape(a)[2:])[act]  # noqa: E731
     ints = lambda a: flat(a).astype(int).astype(str).tolist()  # noqa: E731
-    cols = [[str(st.state)] * int(act.sum()), _fmt("%g", X[act]), _fmt("%g", Y[act])]
+    cols = [[str(st.state)] * int(act.sum()), fmt("%g", X[act]), fmt("%g", Y[act])]
     for m in (st.left, st.right):
-        cols += [_fmt("%.6f", flat(m.u)), _fmt("%.6f", flat(m.v)), _fmt("%.6f", flat(m.zncc)), ints(m.ok),
+        cols += [fmt("%.6f", flat(m.u)), fmt("%.6f", flat(m.v)), fmt("%.6f", flat(m.zncc)), ints(m.ok),
                  names[flat(m.status)].tolist()]
     for m in (st.left, st.right):
         real = flat(m.real)
-        cols += [_fmt("%.6f", real[:, 0]), _fmt("%.6f", real[:, 1])]
+        cols += [fmt("%.6f", real[:, 0]), fmt("%.6f", real[:, 1])]
     pts, disp = flat(st.points), flat(st.displacement)
-    cols += [_fmt("%.6f", pts[:, i]) for i in range(3)] + [_fmt("%.6f", disp[:, i]) for i in range(3)]
-    cols += [_fmt("%.6f", flat(st.gap_mm)), ints(st.converged), flat(st.status).astype(str).tolist(),
+    cols += [fmt("%.6f", pts[:, i]) for i in range(3)] + [fmt("%.6f", disp[:, i]) for i in range(3)]
+    cols += [fmt("%.6f", flat(st.gap_mm)), ints(st.converged), flat(st.status).astype(str).tolist(),
              ints(st.incremental)]
     if st.measure is not None:
-        cols += [_fmt(f, flat(getattr(st.measure, field))) for _, field, f in STRAIN_COLUMNS]
+        cols += [fmt(f, flat(getattr(st.measure, field))) for _, field, f in STRAIN_COLUMNS]
         cols += [ints(st.measure.valid)]
     return "".join(",".join(row) + "\n" for row in zip(*cols))
 

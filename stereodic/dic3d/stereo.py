@@ -47,7 +47,6 @@ from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import OK, STATUS_NAMES, UNREACHED
 from stereodic.dic.sequence import (DECORRELATED, SWITCH_ZNCC, TrackCarry, merge_track, prefetch, register_direct,
                                     register_steps, switch_candidates)
-from stereodic.dic.texture import predicted_noise
 from stereodic.rig import Rig
 from stereodic.strain import Strain, strain_3d
 from stereodic.strain_measures import StrainMeasure, measure_strain
@@ -266,7 +265,7 @@ def _reference_state(run: StereoRun, pair: PreparedPair) -> tuple[StereoState, S
     ref_st = subset_status(run.ref.bspline, X, Y, s)
     ref_st[~g.active.ravel()] = UNREACHED
     zero = np.where(ref_st == OK, 0.0, np.nan).reshape(g.shape)
-    left_noise = predicted_noise(run.ref.bspline, X, Y, s.half, run.ref.sigma).reshape(g.shape)
+    left_noise = run.ref.noise(X, Y, s.half).reshape(g.shape)
     left = CameraMatch(zero, zero.copy(), np.where(ref_st == OK, 1.0, np.nan).reshape(g.shape),
                        ref_st.reshape(g.shape), left_noise)
     right = _match(g, stereo, X, Y, noise)
@@ -360,7 +359,7 @@ def _stereo_at(pair: PreparedPair, s: DicSettings, xs: np.ndarray, ys: np.ndarra
         r = correlate_points(pair.left_b, pair.right_b, xs[track], ys[track], res.warp[track], s)
         res.warp[track], res.zncc[track], res.iterations[track], res.status[track] = (
             r.warp, r.zncc, r.iterations, r.status)
-        noise[track] = predicted_noise(pair.left_b, xs[track], ys[track], s.half, pair.left_ref().sigma)
+        noise[track] = pair.left_ref().noise(xs[track], ys[track], s.half)
     return res, noise
 
 
