@@ -168,7 +168,7 @@ def run(args) -> int:
         print(f"{out}: resuming a run with {done} of {n} states done")
     active = int(grid.active.sum())
     state0 = run_states(store, data, rig, grid, seeds, settings, report=lambda st: note(_summary(st, active)))
-    c0 = state0.converged
+    c0 = state0.left.ok & state0.right.ok         # matched, whether or not the rays meet
     X, Y = (a.reshape(grid.shape) for a in grid.points())
     report = epipolar.check(rig, X[c0], Y[c0], (X + state0.right.u)[c0], (Y + state0.right.v)[c0],
                             state0.right.noise_px[c0])

@@ -44,7 +44,7 @@ def epipolar_error(rig: Rig, xl: np.ndarray, yl: np.ndarray, xr: np.ndarray, yr:
     d0 = _signed_distance(rig, xl, yl, xr, yr)
     d1 = _signed_distance(rig, xl, yl, xr, yr + 1.0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return d0 / (d0 - d1)
+        return d0 / (d1 - d0)
 
 
 @dataclass
