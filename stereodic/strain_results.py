@@ -14,7 +14,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
-import numpy as np
 
 from calib.errors import InputError
 from calib.npz_stream import iter_slices

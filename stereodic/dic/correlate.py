@@ -157,6 +157,7 @@ class _PairSolver:
         self.warp, self.zncc, self.iters, self.status = _arrays(xs.size, settings.nparams)
         self.done = (~grid.active.ravel()).astype(np.int8)
         self.fit = quadratic_fit_matrix(settings.half)
+        self.seedable = np.ones(xs.size, bool)  # where automatic seeds may be tried
 
     def solve(self, idx: np.ndarray) -> None:
         """Solve points `idx` from the warps already in self.warp."""
@@ -234,8 +235,8 @@ class _PairSolver:
 
     def grow(self, seeds: Sequence[int], stride: int) -> None:
         """Propagate (every `stride` points) from what is solved, then from `seeds`, then from
-        automatic seeds among the pending points on the lattice (nearest to the centre of the pending
-        ones first), up to max_seeds attempts. Seeds without texture are flagged and skipped; if
+        automatic seeds among the pending seedable points on the lattice (nearest to the centre of the
+        pending ones first), up to max_seeds attempts. Seeds without texture are flagged and skipped; if
         points remain after the first seed, all pending points without texture are flagged so that
         seeds avoid them."""
         ny, nx = self.grid.shape
@@ -251,7 +252,7 @@ class _PairSolver:
                  for k in seeds] if lattice.size else []
         screened = False
         while attempts < self.s.max_seeds:
-            pending = np.flatnonzero((self.done == 0) & on_lattice)
+            pending = np.flatnonzero((self.done == 0) & on_lattice & (self.seedable | bool(queue)))
             if pending.size == 0:
                 break
             if queue:
@@ -347,8 +348,10 @@ def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid
     translations with `translation_only`); points that fail from there, or end below the seed ZNCC,
     start again from their neighbours. The others are reached by reliability-guided propagation from
     these and from seeds (`seeds`: flat grid indices; `search`: the seeds' integer search, see
-    `correlate_sequence`). skip: (N,) bool points left alone, reported with `skip_status` (N,) int8
-    (default UNREACHED). Returns the registration and the predicted random error (N,) of each point
+    `correlate_sequence`); with a start that measured points, automatic seeds are tried only at those
+    (a point that failed in the previous image is reached from its neighbours, not searched for again at
+    every image). skip: (N,) bool points left alone, reported with `skip_status` (N,) int8 (default
+    UNREACHED). Returns the registration and the predicted random error (N,) of each point
     (pixels, `texture.predicted_noise` at (xs, ys) in the reference)."""
     s = settings
     nb = s.nparams // 2
@@ -357,6 +360,8 @@ def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid
         solver.done[skip] = 1
         solver.status[skip] = UNREACHED if skip_status is None else skip_status[skip]
     if start is not None:
+        if (start.status == OK).any():
+            solver.seedable = start.status == OK
         carry = np.flatnonzero((start.status == OK) & (solver.done == 0))
         if translation_only:
             solver.warp[carry] = 0.0

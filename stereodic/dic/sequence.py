@@ -36,6 +36,7 @@ SWITCH_ZNCC = 0.9  # default: a point whose ZNCC against the reference falls bel
 # failures an updated reference can cure (a subset "outside" the image may be one whose warp went astray)
 DECORRELATED = (LOW_ZNCC, DIVERGED, UNREACHED, INCONSISTENT, OUTSIDE)
 
+MARGIN = 2  # pixels: a subset this far inside the image whose match went "outside" may have a stray warp
 ANCHOR = 2  # grid points around a switch candidate whose direct points are also registered incrementally
 CARRY_KEYS = ("incremental", "x", "y", "ok", "lost", "lost_status")
 
@@ -103,15 +104,22 @@ def register_direct(ref: ImageRef, img: np.ndarray, img_b: BSplineImage, grid: G
                           skip=carry.incremental)
 
 
-def switch_candidates(direct: PointResult | None, carry: TrackCarry, switch_zncc: float) -> np.ndarray:
+def switch_candidates(direct: PointResult | None, carry: TrackCarry, switch_zncc: float, shape: tuple[int, int],
+                      half: int) -> np.ndarray:
     """(N,) bool: direct points measured in the last image whose match against the reference fell below
-    `switch_zncc` or failed in a way an updated reference can cure (module docstring); none while the
-    last image is the reference itself, or with switch_zncc = 0."""
+    `switch_zncc` or failed in a way an updated reference can cure (module docstring) - "outside" only
+    where the subset, of half-width `half` at the point's last position, lay inside the image (`shape`,
+    rows and columns) by MARGIN pixels; none while the last image is the reference itself, or with
+    switch_zncc = 0."""
     n = carry.incremental.size
     if direct is None or carry.images == 0 or switch_zncc <= 0:
         return np.zeros(n, bool)
-    low = ~(direct.zncc >= switch_zncc) | np.isin(direct.status, DECORRELATED)
-    return low & np.isin(direct.status, (OK,) + DECORRELATED) & carry.ok & ~carry.incremental
+    h, w = shape
+    inside = ((carry.x - half >= MARGIN) & (carry.x + half <= w - 1 - MARGIN) & (carry.y - half >= MARGIN)
+              & (carry.y + half <= h - 1 - MARGIN))
+    failed = np.isin(direct.status, DECORRELATED) & ((direct.status != OUTSIDE) | inside)
+    low = (direct.status == OK) & ~(direct.zncc >= switch_zncc)
+    return (low | failed) & carry.ok & ~carry.incremental
 
 
 def register_steps(previous: ImageRef, img: np.ndarray, img_b: BSplineImage, grid: Grid, carry: TrackCarry,
@@ -207,7 +215,7 @@ def track_image(ref: ImageRef, previous: ImageRef, img: np.ndarray, img_b: BSpli
     """One deformed image of a sequence (module docstring): `ref` the reference image, `previous` the last
     image (the reference itself for the first deformed image). Returns its field and the next carry."""
     direct, dnoise = register_direct(ref, img, img_b, grid, carry, settings, seeds=seeds, search=search)
-    cand = switch_candidates(direct, carry, switch_zncc)
+    cand = switch_candidates(direct, carry, switch_zncc, img.shape, settings.half)
     steps, snoise = register_steps(previous, img, img_b, grid, carry, direct, cand, settings, seeds=seeds,
                                    search=search)
     switched = np.zeros_like(cand)

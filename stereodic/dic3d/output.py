@@ -31,7 +31,7 @@ from calib.npz_stream import write_stacked_npz
 from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import STATUS_NAMES
 from stereodic.dic.output import STRAIN_COLUMNS, fmt, save_map
-from stereodic.dic3d.stereo import CameraMatch, StereoSettings, StereoState
+from stereodic.dic3d.stereo import NO_REFERENCE, RAY_GAP, CameraMatch, StereoSettings, StereoState
 from stereodic.strain_measures import StrainMeasure
 
 def csv_columns(has_strain: bool) -> list[str]:
@@ -95,15 +95,33 @@ def npz_keys(has_strain: bool) -> list[str]:
 _MEASURE = {c: f for c, f, _ in STRAIN_COLUMNS} | {"strain_valid": "valid"}
 
 
+_COMBINED = ("ok", RAY_GAP, NO_REFERENCE)  # status codes 0-2; 3: "left:<status>", 4: "right:<status>"
+
+
+def _status_code(st: StereoState) -> np.ndarray:
+    code = np.select([st.status == "ok", st.status == RAY_GAP, st.status == NO_REFERENCE,
+                      ~st.left.ok], [0, 1, 2, 3], 4).astype(np.int8)
+    return code
+
+
+def _status_strings(code: np.ndarray, left_status: np.ndarray, right_status: np.ndarray) -> np.ndarray:
+    names = np.array(STATUS_NAMES, dtype=object)
+    out = np.array(_COMBINED, dtype=object)[np.minimum(code, 2)]
+    out[code == 3] = "left:" + names[left_status[code == 3]]
+    out[code == 4] = "right:" + names[right_status[code == 4]]
+    return out
+
+
 def state_arrays(st: StereoState) -> dict[str, np.ndarray]:
-    """A state's arrays: those of dic.npz (`npz_keys`) and `status` (the combined status strings)."""
+    """A state's arrays: those of dic.npz (`npz_keys`) and `status_code` (the combined status: 0 ok, 1
+    ray_gap, 2 no_reference, 3 the left camera's, 4 the right camera's)."""
     out = {"state": np.array(st.state)}
     for cam in ("left", "right"):
         m = getattr(st, cam)
         out.update({f"{cam}_{k}": getattr(m, k) for k in ("u", "v", "zncc", "status", "noise_px")})
         out[f"{cam}_x0"], out[f"{cam}_y0"] = m.real[..., 0], m.real[..., 1]
     out.update(points=st.points, displacement=st.displacement, gap_mm=st.gap_mm, converged=st.converged,
-               incremental=st.incremental, status=st.status.astype(str))
+               incremental=st.incremental, status_code=_status_code(st))
     if st.measure is not None:
         out.update({key: getattr(st.measure, f) for key, f in _MEASURE.items()})
     return out
@@ -120,7 +138,8 @@ def state_from_arrays(a, measure: str | None) -> StereoState:
         m = StrainMeasure(measure, *(np.array(a[key]) for key in _MEASURE))
     return StereoState(int(a["state"]), cam("left"), cam("right"), np.array(a["points"]),
                        np.array(a["displacement"]), np.array(a["gap_mm"]), np.array(a["converged"]),
-                       np.array(a["status"]).astype(object), None, np.array(a["incremental"]), m)
+                       _status_strings(np.array(a["status_code"]), np.array(a["left_status"]),
+                                       np.array(a["right_status"])), None, np.array(a["incremental"]), m)
 
 
 def write_npz(path: str | os.PathLike, grid: Grid, values: Callable[[str], Iterable[np.ndarray]], count: int,

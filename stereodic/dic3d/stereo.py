@@ -44,7 +44,7 @@ import numpy as np
 from stereodic.dic import BSplineImage, DicSettings, ImageRef, PointResult, correlate_points, row_seed_search
 from stereodic.dic.correlate import register_image, seed_indices, subset_status
 from stereodic.dic.grid import Grid
-from stereodic.dic.icgn import OK, STATUS_NAMES, UNREACHED
+from stereodic.dic.icgn import OK, OUTSIDE, STATUS_NAMES, UNREACHED
 from stereodic.dic.sequence import (DECORRELATED, SWITCH_ZNCC, TrackCarry, merge_track, prefetch, register_direct,
                                     register_steps, switch_candidates)
 from stereodic.rig import Rig
@@ -52,6 +52,7 @@ from stereodic.strain import Strain, strain_3d
 from stereodic.strain_measures import StrainMeasure, measure_strain
 from stereodic.triangulate import triangulate
 
+CROSS_DECORRELATED = tuple(c for c in DECORRELATED if c != OUTSIDE)
 RAY_GAP = "ray_gap"        # combined statuses beyond the 2-D engine's
 NO_REFERENCE = "no_reference"
 
@@ -297,10 +298,10 @@ def solve_state(run: StereoRun, k: int, pair: PreparedPair, carry: StereoCarry |
         cdir, cdn = register_image(run.ref, pair.right, pair.right_b, g, X, Y, s, seeds=run.seed_idx, start=start,
                                    skip=lc.incremental)
         prev_u, prev_v = np.where(np.isfinite(lu), lu, prev_u), np.where(np.isfinite(lv), lv, prev_v)
-    cand = switch_candidates(ldir, lc, st.switch_zncc)
-    if cdir is not None and st.switch_zncc > 0:
-        low = ~(cdir.zncc >= st.switch_zncc) | np.isin(cdir.status, DECORRELATED)
-        cand |= low & np.isin(cdir.status, (OK,) + DECORRELATED) & lc.ok & ~lc.incremental & (carry.cross.status == OK)
+    cand = switch_candidates(ldir, lc, st.switch_zncc, pair.left.shape, s.half)
+    if cdir is not None and st.switch_zncc > 0:   # a right subset outside the right image stays outside
+        low = ((cdir.status == OK) & ~(cdir.zncc >= st.switch_zncc)) | np.isin(cdir.status, CROSS_DECORRELATED)
+        cand |= low & lc.ok & ~lc.incremental & (carry.cross.status == OK)
     prev_ref = run.ref if previous is None else previous.left_ref()
     lsteps, lsn = register_steps(prev_ref, pair.left, pair.left_b, g, lc, ldir, cand, s, seeds=run.seed_idx)
     stereo, snoise, xs, ys = carry.stereo, None, None, None

@@ -7,7 +7,7 @@ so that results stream to disk state by state and an interrupted run resumes whe
   states are finished, from state 0 on), `outputs` (the options the combined files were last written
   with, once they were).
 - `DIR/states/state{k:06d}.npz`: the result of state k (`output.state_arrays`: dic.npz's arrays of that
-  state, and the status strings);
+  state, and the combined status);
   `DIR/states/carry.npz`: what the state after the last finished one needs (`StereoCarry`).
 Every file is written atomically, in the order state file, carry, manifest: wherever a run stops, the
 folder is consistent and the run resumes after the carry's state (a state file beyond it is computed
