@@ -5,6 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 
+# The library's defaults, repeated here so that building the parser imports nothing heavy (`--help`
+# stays instant); tests/stereodic/test_cli.py checks that they equal stereodic.dic.sequence.SWITCH_ZNCC
+# and stereodic.strain_measures.MEASURES.
+SWITCH_ZNCC = 0.9
+STRAIN_MEASURES = ("green-lagrange", "euler-almansi", "log", "engineering")
+
 
 def planned(sub, name: str, help_text: str, issue: int) -> argparse.ArgumentParser:
     """Register a command of DESIGN.md that this version does not have yet: it says so and exits 1."""

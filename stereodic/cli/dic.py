@@ -14,8 +14,7 @@ from stereodic.cli.common import dic_grid, parse_ints
 
 
 def register(sub):
-    from stereodic.dic.sequence import SWITCH_ZNCC
-    from stereodic.strain_measures import MEASURES
+    from stereodic.cli.common import STRAIN_MEASURES as MEASURES, SWITCH_ZNCC
     p = sub.add_parser("dic", help="stereo 3D digital image correlation",
                        description="Stereo 3D-DIC on the rectified virtual pair: 3D shape, 3D displacement and "
                                    "surface strain of every state of an experiment: a `kind: dic` dataset, two "

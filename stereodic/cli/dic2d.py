@@ -14,8 +14,7 @@ from __future__ import annotations
 
 
 def register(sub):
-    from stereodic.dic.sequence import SWITCH_ZNCC
-    from stereodic.strain_measures import MEASURES
+    from stereodic.cli.common import STRAIN_MEASURES as MEASURES, SWITCH_ZNCC
     p = sub.add_parser("dic2d", help="2D subset digital image correlation",
                        description="2D subset DIC: displacements (and strains) of deformed images against a "
                                    "reference, on a grid of points.")

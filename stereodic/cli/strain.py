@@ -11,7 +11,7 @@ from __future__ import annotations
 
 
 def register(sub):
-    from stereodic.strain_measures import MEASURES
+    from stereodic.cli.common import STRAIN_MEASURES as MEASURES
     p = sub.add_parser("strain", help="strain recomputed from saved DIC results",
                        description="Strain of saved DIC results (a `dic` output folder or a `dic2d` NPZ) with "
                                    "another window or measure, without correlating again.")
