@@ -26,14 +26,12 @@ def register(sub):
 
 
 def run(args) -> int:
-    from pathlib import Path
-
     import numpy as np
 
     from calib.atomic import write_json, write_npz
     from calib.errors import InputError
     from calib.imageio import read_gray
-    from stereodic.cli.common import parse_ints
+    from stereodic.cli.common import output_folder, parse_roi
     from stereodic.dic.speckle_quality import plot, speckle_quality
 
     img = read_gray(args.image)
@@ -47,17 +45,8 @@ def run(args) -> int:
         second = read_gray(args.static)
         if second.shape != img.shape:
             raise InputError(args.static, f"image is {second.shape[1]}x{second.shape[0]} but {args.image} is {w}x{h}")
-    roi = None
-    if args.roi:
-        x0, y0, x1, y1 = parse_ints(args.roi, 4, "--roi")
-        if not (0 <= x0 < x1 < w and 0 <= y0 < y1 < h):
-            raise InputError("--roi", f"{args.roi} is not a region inside the {w}x{h} image")
-        roi = (x0, y0, x1, y1)
-    out = Path(args.output)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(out, f"cannot create the output folder ({exc.strerror})") from None
+    roi = parse_roi(args.roi, w, h, "image")
+    out = output_folder(args.output)
     q = speckle_quality(img, subset=args.subset, target_px=args.target, roi=roi, second=second)
     at = int(np.flatnonzero(q.sizes == args.subset)[0]) if args.subset in q.sizes else None
     record = {"image": str(args.image), "noise_grey": q.sigma, "noise_from": q.sigma_source, "mig_grey_per_px": q.mig,

@@ -27,7 +27,6 @@ def register(sub):
 
 def run(args) -> int:
     import json
-    from pathlib import Path
 
     import numpy as np
 
@@ -35,6 +34,7 @@ def run(args) -> int:
     from calib.errors import InputError
     from calib.npz_stream import write_stacked_npz
     from calib.progress import progress
+    from stereodic.cli.common import output_folder
     from stereodic.dic.output import STRAIN_COLUMNS, fmt, save_map
     from stereodic.strain_results import open_result, strains
 
@@ -43,11 +43,7 @@ def run(args) -> int:
     window = args.window or own or 5
     if window < 3 or window % 2 == 0:
         raise InputError("--window", f"must be an odd number >= 3, got {window}")
-    out = Path(args.output)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(out, f"cannot create the output folder ({exc.strerror})") from None
+    out = output_folder(args.output)
     g = result.grid
     act = g.active.ravel()
     X, Y = g.points()
