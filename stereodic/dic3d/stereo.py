@@ -301,10 +301,11 @@ def solve_state(run: StereoRun, k: int, pair: PreparedPair, carry: StereoCarry |
     cand = switch_candidates(ldir, lc, st.switch_zncc, pair.left.shape, s.half)
     if cdir is not None and st.switch_zncc > 0:   # a right subset outside the right image stays outside
         low = ((cdir.status == OK) & ~(cdir.zncc >= st.switch_zncc)) | np.isin(cdir.status, CROSS_DECORRELATED)
-        cand |= low & lc.ok & ~lc.incremental & (carry.cross.status == OK)
+        cand |= low & lc.ok & ~lc.incremental
+    cand &= carry.cross.status == OK              # the stereo match of a switching point starts from it
     prev_ref = run.ref if previous is None else previous.left_ref()
     lsteps, lsn = register_steps(prev_ref, pair.left, pair.left_b, g, lc, ldir, cand, s, seeds=run.seed_idx)
-    stereo, snoise, xs, ys = carry.stereo, None, None, None
+    stereo, snoise = carry.stereo, None
     if lsteps is not None:
         nb = s.nparams // 2
         incr = lc.incremental | cand
