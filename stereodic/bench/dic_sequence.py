@@ -79,8 +79,13 @@ def _repeated_sequence(root: Path, count: int) -> Path:
 
 
 def _dic(argv: list[str]) -> int:
+    """`stereodic dic argv` (its per-state lines dropped); the exit status."""
+    import contextlib
+    import io
+
     from stereodic.cli import main
-    return main(argv)
+    with contextlib.redirect_stdout(io.StringIO()):
+        return main(argv)
 
 
 def _digest(folder: Path) -> dict[str, str]:
