@@ -93,13 +93,6 @@ class Rig:
     model: str = "pinhole"
     world_from_rig: np.ndarray = field(default_factory=lambda: np.eye(4))
 
-    def to_world(self, xyz: np.ndarray, *, vector: bool = False) -> np.ndarray:
-        """(..., 3) rig-frame points (mm) in the world frame (`world_from_rig`); with `vector`, directions
-        or displacements (rotated only)."""
-        m = np.asarray(self.world_from_rig, np.float64)
-        out = np.asarray(xyz, np.float64) @ m[:3, :3].T
-        return out if vector else out + m[:3, 3]
-
     def camera(self, side: str) -> RigCamera:
         if side not in SIDES:
             raise ValueError(f"side must be one of {SIDES}, got {side!r}")
@@ -115,6 +108,16 @@ class Rig:
         """Distance of both optical centres from the common plane (they are equal: the plane is parallel
         to the baseline)."""
         return float((self.sensor.origin - self.left.centre) @ self.sensor.normal)
+
+    def to_world(self, points: np.ndarray, *, vector: bool = False) -> np.ndarray:
+        """(..., 3) rig-frame points (mm) in the reporting frame: world_from_rig applied (its rotation
+        alone with `vector`, for directions and displacements). An identity transform returns the input
+        unchanged."""
+        T = np.asarray(self.world_from_rig, np.float64)
+        if np.array_equal(T, np.eye(4)):
+            return points
+        out = np.asarray(points, np.float64) @ T[:3, :3].T
+        return out if vector else out + T[:3, 3]
 
     def virtual_camera(self, side: str) -> VirtualCamera:
         """The pinhole virtual camera of `side`: the common sensor and that camera's centre."""
@@ -340,13 +343,19 @@ def load_rig(path: str | os.PathLike) -> Rig:
     return Rig(sensor, cams[0], cams[1], meta.get("model", "pinhole"), world_from_rig(meta, path))
 
 
-def world_from_rig(meta: dict, where) -> np.ndarray:
-    """(4, 4) the meta's "world_from_rig" transform (identity when absent); InputError naming `where` if it
-    is not a 4x4 rigid transform."""
+def world_from_rig(meta: dict, path) -> np.ndarray:
+    """The meta's world_from_rig (identity when absent); InputError naming the file unless it is a 4x4
+    rigid transform (rotation with determinant +1, last row 0 0 0 1)."""
     if "world_from_rig" not in meta:
         return np.eye(4)
-    m = np.asarray(meta["world_from_rig"], np.float64)
-    if m.shape != (4, 4) or not np.allclose(m[:3, :3] @ m[:3, :3].T, np.eye(3), atol=1e-9) or \
-            not np.allclose(m[3], [0, 0, 0, 1]) or np.linalg.det(m[:3, :3]) < 0:
-        raise InputError(where, "its world_from_rig is not a 4x4 rigid transform")
-    return m
+    try:
+        T = np.asarray(meta["world_from_rig"], np.float64)
+    except (TypeError, ValueError):
+        T = np.zeros(0)
+    if T.shape != (4, 4) or not np.isfinite(T).all():
+        raise InputError(path, "world_from_rig is not a 4x4 matrix of numbers")
+    R = T[:3, :3]
+    if (np.abs(R.T @ R - np.eye(3)).max() > 1e-9 or np.linalg.det(R) < 0
+            or np.abs(T[3] - (0, 0, 0, 1)).max() > 1e-12):
+        raise InputError(path, "world_from_rig is not a rigid transform (rotation and translation)")
+    return T

@@ -5,6 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 
+# The library's defaults, repeated here so that building the parser imports nothing heavy (`--help`
+# stays instant); tests/stereodic/test_cli.py checks that they equal stereodic.dic.sequence.SWITCH_ZNCC
+# and stereodic.strain_measures.MEASURES.
+SWITCH_ZNCC = 0.9
+STRAIN_MEASURES = ("green-lagrange", "euler-almansi", "log", "engineering")
+
 
 def planned(sub, name: str, help_text: str, issue: int) -> argparse.ArgumentParser:
     """Register a command of DESIGN.md that this version does not have yet: it says so and exits 1."""
@@ -103,6 +109,31 @@ def parse_ints(text: str, n: int, what: str) -> list[int]:
     return vals
 
 
+def parse_roi(text: str | None, width: int, height: int, image: str) -> tuple[int, int, int, int] | None:
+    """The --roi option 'X0,Y0,X1,Y1' (inclusive pixel bounds) checked against a width x height `image`;
+    None without one; InputError naming --roi if it is not a region inside the image."""
+    from calib.errors import InputError
+    if not text:
+        return None
+    x0, y0, x1, y1 = parse_ints(text, 4, "--roi")
+    if not (0 <= x0 < x1 < width and 0 <= y0 < y1 < height):
+        raise InputError("--roi", f"{text} is not a region inside the {width}x{height} {image}")
+    return x0, y0, x1, y1
+
+
+def output_folder(path):
+    """The output folder `path` (a Path), created if needed; InputError naming it if it cannot be."""
+    from pathlib import Path
+
+    from calib.errors import InputError
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(path, f"cannot create the output folder ({exc.strerror})") from None
+    return path
+
+
 def dic_grid(args, width: int, height: int, image: str, source: str):
     """The DIC point grid and seeds from the options --subset, --step, --roi, --mask and --seed, for a
     reference image of width x height pixels (`image` names it in messages, `source` is the file blamed
@@ -115,12 +146,7 @@ def dic_grid(args, width: int, height: int, image: str, source: str):
         raise InputError("--subset", f"must be an odd number >= 5, got {args.subset}")
     if args.step < 1:
         raise InputError("--step", f"must be >= 1, got {args.step}")
-    roi = None
-    if args.roi:
-        x0, y0, x1, y1 = parse_ints(args.roi, 4, "--roi")
-        if not (0 <= x0 < x1 < width and 0 <= y0 < y1 < height):
-            raise InputError("--roi", f"{args.roi} is not a region inside the {width}x{height} {image}")
-        roi = (x0, y0, x1, y1)
+    roi = parse_roi(args.roi, width, height, image)
     mask = None
     if args.mask:
         mask = read_gray(args.mask) > 0
