@@ -14,9 +14,11 @@ import numpy as np
 from calib.errors import InputError
 
 
-def read_npz(path: str | os.PathLike, fmt: str, what: str,
-             advice: dict[str, str] | None = None) -> tuple[dict, dict[str, np.ndarray]]:
-    """(meta, arrays without meta) of the file at `path`, which must be a `fmt` file.
+def read_npz(path: str | os.PathLike, fmt: str | tuple[str, ...], what: str,
+             advice: dict[str, str] | None = None, keys: tuple[str, ...] | None = None
+             ) -> tuple[dict, dict[str, np.ndarray]]:
+    """(meta, arrays without meta) of the file at `path`, which must be a `fmt` file (or of one of the
+    formats, a tuple); `keys`: read only these arrays (default all), e.g. the small ones of a large file.
 
     what: the kind of file in messages ("PRVM", "rig", ...). advice: for formats a user may pass by
     mistake, a hint added to the message (e.g. {"stereodic.prvm/1": "a camera file: build a rig ..."}).
@@ -27,7 +29,7 @@ def read_npz(path: str | os.PathLike, fmt: str, what: str,
         raise InputError(path, f"{what} file is missing")
     try:
         with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
+            arrays = {k: z[k] for k in z.files if keys is None or k in keys or k == "meta"}
     except Exception as exc:  # numpy raises several types for a file that is not an .npz
         raise InputError(path, f"not a readable {what} file ({exc.__class__.__name__})") from None
     if "meta" not in arrays:
@@ -37,7 +39,9 @@ def read_npz(path: str | os.PathLike, fmt: str, what: str,
     except json.JSONDecodeError:
         raise InputError(path, "'meta' is not valid JSON") from None
     found = meta.get("format") if isinstance(meta, dict) else None
-    if found != fmt:
+    formats = (fmt,) if isinstance(fmt, str) else fmt
+    if found not in formats:
         hint = (advice or {}).get(str(found))
-        raise InputError(path, f"format is {found!r}, expected {fmt!r}" + (f" ({hint})" if hint else ""))
+        expected = " or ".join(repr(f) for f in formats)
+        raise InputError(path, f"format is {found!r}, expected {expected}" + (f" ({hint})" if hint else ""))
     return meta, arrays

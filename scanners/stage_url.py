@@ -16,14 +16,18 @@ retries (times a lost reply is retried, 2), move_timeout (seconds a move may tak
 difference between target and reported position, 1). Zaber: device (1), axis (1), microstep_um
 (0.047625, the microstep of most Zaber linear stages: read yours from its data sheet). GRBL: axis
 (X, Y or Z; default X), feed (mm/min, 600). Emulated: speed (mm/s, 50), travel (mm, 300),
-transport (pty or socket) and fault=KIND@N (the emulator's fault KIND strikes move N, 0-based: timeout
-means the stage never answers again; see scanners.stage_emulator). Faults raise `HardwareError`; bad URLs raise `InputError`.
+transport (pty or socket), fault=KIND@N (the emulator's fault KIND strikes move N, 0-based: timeout
+means the stage never answers again; see scanners.stage_emulator) and axis_deg=AX,AY (the simulated
+carriage travels AX degrees off the display's normal towards its +x and AY towards its +y, for the
+simulated camera). Faults raise `HardwareError`; bad URLs raise `InputError`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from urllib.parse import parse_qsl, urlsplit
+
+import numpy as np
 
 from calib.errors import InputError
 from scanners.stage import LinkOptions, ManualStage, SerialLink, Stage
@@ -45,7 +49,8 @@ _COMMON = {"baud", "timeout", "retries", "move_timeout", "home", "tolerance_um"}
 _ALLOWED = {
     "zaber": _COMMON | {"device", "axis", "microstep_um"},
     "grbl": _COMMON | {"axis", "feed"},
-    "emulated": _COMMON | {"device", "axis", "microstep_um", "feed", "speed", "travel", "transport", "fault"},
+    "emulated": _COMMON | {"device", "axis", "microstep_um", "feed", "speed", "travel", "transport", "fault",
+                           "axis_deg"},
     "manual": set(),
 }
 
@@ -114,6 +119,19 @@ def _inject(emulator, fault: str, where: str) -> None:
     emulator.inject(kind, at_move=int(at), count=10**9 if kind == "timeout" else 1)
 
 
+def _travel_axis(emulator, text: str, where: str) -> tuple[float, float, float]:
+    """The unit travel direction of `axis_deg=AX,AY` (degrees off the normal towards +x and +y)."""
+    try:
+        ax, ay = (np.radians(float(v)) for v in text.split(","))
+        if not (abs(ax) < np.pi / 4 and abs(ay) < np.pi / 4):
+            raise ValueError
+    except ValueError:
+        emulator.close()
+        raise InputError("--stage", f"{where}: axis_deg must be AX,AY in degrees, each within +-45") from None
+    a = np.array([np.tan(ax), np.tan(ay), 1.0])
+    return tuple(float(x) for x in a / np.linalg.norm(a))
+
+
 def open_stage(text: str) -> Stage:
     """Connect to the stage a URL names, home it if needed and return it ready to move."""
     url = parse_stage_url(text)
@@ -139,6 +157,8 @@ def open_stage(text: str) -> Stage:
         kind, port = url.port, emulator.port
         if "fault" in o:
             _inject(emulator, o["fault"], text)
+        if "axis_deg" in o:
+            emulator.travel_axis = _travel_axis(emulator, o["axis_deg"], text)
     try:
         if kind == "zaber":
             stage = ZaberStage(SerialLink(port, baud, f"zaber stage {port}"), link,

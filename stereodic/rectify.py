@@ -15,15 +15,18 @@ from stereodic.undistort import undistort_image
 
 
 def rectify_pair(rig: Rig, left: np.ndarray, right: np.ndarray, intensity: bool = True,
-                 fixed_point: bool = False, where: tuple = ("left", "right")) -> tuple[np.ndarray, np.ndarray]:
+                 fixed_point: bool = False, where: tuple = ("left", "right"), exact: bool = False
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """The rectified (virtual) images of a real image pair (8/16-bit, each its camera's size): same dtype,
     (Hv, Wv), blank pixels 0. intensity: apply each camera's intensity matrix if the rig has one;
     fixed_point: OpenCV's 1/32-pixel maps instead of exact float maps; where: the images' names for
-    error messages."""
+    error messages; exact: float32 images, the interpolated grey levels not rounded to the input's integer
+    type (for DIC: the rounding adds noise to every match)."""
     out = []
     for side, image, name in zip(("left", "right"), (left, right), where):
         cam = rig.camera(side)
-        out.append(undistort_image(image, cam.imm, cam.im if intensity else None, fixed_point, where=name))
+        out.append(undistort_image(image, cam.imm, cam.im if intensity else None, fixed_point, where=name,
+                                   exact=exact))
     return out[0], out[1]
 
 

@@ -44,7 +44,8 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
                          stage_tilt_deg: float = 0.0, stage_lateral_um: float = 0.0,
                          stage_axis=(0.0, 0.0, 1.0), exposure_fraction: float = 0.87,
                          display: SimDisplay | None = None, lens_options: dict | None = None,
-                         camera: str = "cam0", sensor_seed: int | None = None) -> Capture:
+                         camera: str = "cam0", sensor_seed: int | None = None,
+                         board_lenses: tuple[Lens, ...] = ()) -> Capture:
     """Write a simulated calibration dataset to `out_dir` and return it (as load_capture reads it).
 
     lens: a family of scanners.sim.lenses (with `lens_options` passed to make_lens) or a Lens;
@@ -57,7 +58,8 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
     tilt about each of the display's x and y axes (about the display's centre), and across the axis
     (`scanners.sim.stage.SimStage`); exposure_fraction: brightest fringe pixel / full scale;
     sensor_seed: seed of the camera's gain map and noise (default `seed`; cameras of one rig share the
-    stage's seed but each has its own sensor).
+    stage's seed but each has its own sensor); board_lenses: further lenses (a stereo rig's other
+    cameras) that must see every chessboard whole too: one display shows one board to all of them.
     Raises InputError naming the argument for bad arguments or a display that does not cover the field.
     """
     periods = _check_list("--periods", periods, positive=True)
@@ -96,7 +98,8 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / MANIFEST).unlink(missing_ok=True)     # an old manifest must not describe half-new images
-    boards = [_chess_placements(cam, display, pose) if chessboard else [] for pose in stage.poses]
+    others = [SimCamera(ln, Sensor(bit_depth=bit_depth), cam.supersample) for ln in board_lenses]
+    boards = [_chess_placements([cam, *others], display, pose) if chessboard else [] for pose in stage.poses]
     frames = _frames(camera, z_nominal, flats, periods, steps, low, high, boards)
     for f in progress(frames, "simulating", total=len(frames)):
         image = screen_image(f.pattern, display.width_px, display.height_px)
@@ -140,24 +143,27 @@ def _frames(camera, z_nominal, flats, periods, steps, low, high, boards) -> list
     return frames
 
 
-def _chess_placements(cam: SimCamera, display: SimDisplay, pose: DisplayPose) -> list[dict]:
-    """Five board placements (centre and four shifted ones) inside the camera's field at the display's
-    true pose: sized from the field's extent (2nd-98th percentile of the display coordinates seen),
-    then shrunk until every corner of every board lies inside the field's outline (an oblique view sees
-    a trapezoid, not the box of its extent) by half a square or more (the light border a detector
-    needs)."""
-    cr = cam.view(display, pose).display_cr
-    lo, hi = np.percentile(cr.reshape(-1, 2), [2, 98], axis=0)
-    outline = np.concatenate([cr[0], cr[1:, -1], cr[-1, -2::-1], cr[-2:0:-1, 0]]).astype(np.float32)
-    field = hi - lo
+def _chess_placements(cams: list[SimCamera], display: SimDisplay, pose: DisplayPose) -> list[dict]:
+    """Five board placements (centre and four shifted ones) inside every camera's field at the display's
+    true pose: sized from the common field's extent (2nd-98th percentile of the display coordinates
+    each camera sees), then shrunk until every corner of every board lies inside each field's outline
+    (an oblique view sees a trapezoid, not the box of its extent) by half a square or more (the light
+    border a detector needs)."""
+    lo, hi, outlines = np.full(2, -np.inf), np.full(2, np.inf), []
+    for cam in cams:
+        cr = cam.view(display, pose).display_cr
+        a, b = np.percentile(cr.reshape(-1, 2), [2, 98], axis=0)
+        lo, hi = np.maximum(lo, a), np.minimum(hi, b)
+        outlines.append(np.concatenate([cr[0], cr[1:, -1], cr[-1, -2::-1], cr[-2:0:-1, 0]]).astype(np.float32))
+    field = np.maximum(hi - lo, 0.0)
     size = int(0.65 * min(field[0] / CHESS_SQUARES[0], field[1] / CHESS_SQUARES[1]))
     while size >= 4:
         boards = _boards(size, lo, hi)
-        if all(_inside(outline, b, size / 2) for b in boards):
+        if all(_inside(outline, b, size / 2) for b in boards for outline in outlines):
             return boards
         size -= 1
-    raise InputError("chessboard", f"the camera sees only {field[0]:.0f}x{field[1]:.0f} display pixels "
-                                   f"at z = {pose.translation[2]:g} mm: too few for a {CHESS_SQUARES[0]}x{CHESS_SQUARES[1]} "
+    raise InputError("chessboard", f"the camera(s) see in common only {field[0]:.0f}x{field[1]:.0f} display "
+                                   f"pixels at z = {pose.translation[2]:g} mm: too few for a {CHESS_SQUARES[0]}x{CHESS_SQUARES[1]} "
                                    f"chessboard")
 
 

@@ -8,11 +8,16 @@ plate's centre along its edges e1 = (cos tilt, 0, sin tilt) and e2 = (0, 1, 0); 
 from the cameras.
 
 A state (`DicState`) maps every material point to the WCS:
-    p(X) = C + t + R A (l1 X1, l2 X2, w(X)),   w(X) = -h (1 - r^2/Rb^2)^2 for r = |X| < Rb, else 0,
+    p(X) = C + t + R A (l1 X'1, l2 X'2, w(X')),   w(X) = -h (1 - r^2/Rb^2)^2 for r = |X| < Rb, else 0,
+    X' = Q(theta(r)) X,   theta(r) = theta0 exp(-r^2 / (2 s^2))   (a twist: Q the 2-D rotation),
 A = [e1 e2 n] (the plate frame), R a rotation about the plate's centre C, t a translation (mm), l1, l2
-in-plane stretches, h the height of a bulge of radius Rb towards the cameras. Its deformation gradient
-(material frame) is F = R A J with J = [[l1, 0], [0, l2], [dw/dX1, dw/dX2]], so the Green-Lagrange
-strain in the plate's frame is E = (J^T J - I) / 2 exactly.
+in-plane stretches, h the height of a bulge of radius Rb towards the cameras, theta0 the angle of a
+twist of radius s about the plate's centre (a rotation that fades with the distance from the centre: a
+deformation no affine subset follows when theta0 is large). Its deformation gradient (material frame)
+is F = R A J T with J = [[l1, 0], [0, l2], [dw/dX'1, dw/dX'2]] (at X') and T = dX'/dX = Q(theta) +
+Q(theta + pi/2) X grad(theta)^T, grad(theta) = -theta X / s^2, so the Green-Lagrange strain in the
+plate's frame is E = (T^T J^T J T - I) / 2 exactly. The twist keeps |X'| = |X|, so a ray meets the
+deformed plate where it would without it, at X' (then X = Q(-theta(|X'|)) X').
 
 Rendering one camera image of one state: each pixel is sampled at S x S points; the TRUE ray of each
 sample (`Lens.rays`) meets the deformed plate where w(X(s)) equals the ray's height above the plate
@@ -82,7 +87,7 @@ class Specimen:
 class DicState:
     """One load state (module docstring): name, in-plane stretches (l1, l2), bulge height h (mm, towards
     the cameras) and radius Rb (mm), rigid rotation (rotation vector, degrees, about the plate's centre)
-    and translation (WCS mm)."""
+    and translation (WCS mm), twist angle theta0 (degrees, about the plate's normal) and radius s (mm)."""
 
     name: str
     stretch: tuple = (1.0, 1.0)
@@ -90,6 +95,17 @@ class DicState:
     bulge_radius_mm: float = 60.0
     rotation_deg: tuple = (0.0, 0.0, 0.0)
     translation_mm: tuple = (0.0, 0.0, 0.0)
+    twist_deg: float = 0.0
+    twist_radius_mm: float = 40.0
+
+    def twist(self, X1, X2, inverse: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(X'1, X'2, theta): material points twisted (X' = Q(theta(|X|)) X; with `inverse`, X from X'),
+        theta (radians) at each."""
+        X1, X2 = np.asarray(X1, np.float64), np.asarray(X2, np.float64)
+        theta = math.radians(self.twist_deg) * np.exp(-(X1 * X1 + X2 * X2) / (2.0 * self.twist_radius_mm ** 2))
+        a = -theta if inverse else theta
+        c, s = np.cos(a), np.sin(a)
+        return c * X1 - s * X2, s * X1 + c * X2, theta
 
     @property
     def rotation(self) -> np.ndarray:
@@ -185,18 +201,35 @@ class DicTruth:
         """(..., 3) WCS mm of material points (X1, X2) (mm) in `state`."""
         C, A, st = self._placed(state)
         X1, X2 = np.broadcast_arrays(np.asarray(X1, np.float64), np.asarray(X2, np.float64))
+        if st.twist_deg:
+            X1, X2, _ = st.twist(X1, X2)
         q = np.stack([st.stretch[0] * X1, st.stretch[1] * X2, bulge(st, X1, X2)[..., 0]], -1)
         return C + q @ A.T
 
     def strain(self, state: int, X1, X2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Green-Lagrange (E11, E22, E12) in the plate's frame (e1, e2) at material points (X1, X2)."""
         st = self.states[state]
-        g = bulge(st, X1, X2)[..., 1:]
+        X1, X2 = np.broadcast_arrays(np.asarray(X1, np.float64), np.asarray(X2, np.float64))
         l1, l2 = st.stretch
-        e11 = 0.5 * (l1 * l1 + g[..., 0] ** 2 - 1.0)
-        e22 = 0.5 * (l2 * l2 + g[..., 1] ** 2 - 1.0)
-        e12 = 0.5 * g[..., 0] * g[..., 1]
-        return e11, e22, e12
+        if not st.twist_deg:
+            g = bulge(st, X1, X2)[..., 1:]
+            e11 = 0.5 * (l1 * l1 + g[..., 0] ** 2 - 1.0)
+            e22 = 0.5 * (l2 * l2 + g[..., 1] ** 2 - 1.0)
+            e12 = 0.5 * g[..., 0] * g[..., 1]
+            return e11, e22, e12
+        Y1, Y2, theta = st.twist(X1, X2)
+        g = bulge(st, Y1, Y2)[..., 1:]
+        J = np.zeros(X1.shape + (3, 2))
+        J[..., 0, 0], J[..., 1, 1], J[..., 2, 0], J[..., 2, 1] = l1, l2, g[..., 0], g[..., 1]
+        c, s = np.cos(theta), np.sin(theta)
+        k = -theta / st.twist_radius_mm ** 2          # grad(theta) = k X
+        qx = np.stack([c * X1 - s * X2, s * X1 + c * X2], -1)   # Q X
+        perp = np.stack([-qx[..., 1], qx[..., 0]], -1)           # Q(theta + pi/2) X
+        T = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+        T = T + perp[..., :, None] * (k[..., None] * np.stack([X1, X2], -1))[..., None, :]
+        F = J @ T
+        Cg = np.swapaxes(F, -1, -2) @ F
+        return 0.5 * (Cg[..., 0, 0] - 1.0), 0.5 * (Cg[..., 1, 1] - 1.0), 0.5 * Cg[..., 0, 1]
 
     def material_at(self, origin: np.ndarray, direction: np.ndarray, state: int = 0) -> np.ndarray:
         """(N, 2) material points (mm) hit by rays (N, 3) in `state`; NaN where missed or off the
@@ -208,6 +241,8 @@ class DicTruth:
         t = np.empty(len(o))
         _trace(o, d, C, np.ascontiguousarray(A), float(st.stretch[0]), float(st.stretch[1]),
                float(st.bulge_mm), float(st.bulge_radius_mm), X, t)
+        if st.twist_deg:
+            X[:, 0], X[:, 1], _ = st.twist(X[:, 0], X[:, 1], inverse=True)
         half = np.asarray(self.specimen.size_mm) / 2
         X[~np.isfinite(t) | np.any(np.abs(X) > half, axis=1)] = np.nan
         return X

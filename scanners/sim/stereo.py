@@ -136,13 +136,14 @@ def simulate_stereo(out_dir: str | os.PathLike, left: str = "brown", right: str 
 
 def _joint(out: Path, lenses: tuple[Lens, Lens], seed: int, calibration: dict, wcs: str) -> None:
     """One dataset of both cameras at the same stage positions: each camera is rendered into its own
-    subfolder (same seed, hence the same true stage positions; each its own sensor gain map and noise),
-    then one manifest lists both."""
+    subfolder (same seed, hence the same true stage positions; each its own sensor gain map and noise;
+    chessboards placed where both cameras see them), then one manifest lists both."""
     (out / MANIFEST).unlink(missing_ok=True)
     frames, cameras, bits, caps = [], {}, {}, []
     for k, (name, lens) in enumerate(zip(CAMERAS, lenses)):
         cap = simulate_calibration(out / name, lens=lens, seed=seed, camera=name,
-                                   sensor_seed=seed + 7919 * (k + 1), **calibration)
+                                   sensor_seed=seed + 7919 * (k + 1),
+                                   board_lenses=tuple(ln for ln in lenses if ln is not lens), **calibration)
         caps.append(cap)
         frames += [dataclasses.replace(f, file=f"{name}/{f.file}") for f in cap.frames]
         cameras[name] = (lens.width, lens.height)

@@ -4,6 +4,9 @@ Stereo: on a simulated experiment (`scanners.sim.dic`, the rig built from the tr
 mean strain error for 1 % uniaxial tension, the out-of-plane displacement error against the field of
 view, and the stereo matching throughput on the rectified pair.
 
+Long sequences (speed at 1920x1200, memory over 2,000 states, resumed-run identity):
+`stereodic.bench.dic_sequence`.
+
 References: OpenCorr (C++, FFT-CC + first-order IC-GN, bicubic B-spline) measured on this machine
 with 2 threads, DICe's committed regression result for sample 5, and OpenCorr's published figure for
 its (unrectified, epipolar-constrained) stereo matching.
@@ -185,4 +188,5 @@ def _stereo(quick: bool) -> list[Figure]:
 
 
 def run(quick: bool = False) -> list[Figure]:
-    return _real_images(quick) + _synthetic_errors(quick) + _speed(quick) + _stereo(quick)
+    from stereodic.bench import dic_sequence
+    return _real_images(quick) + _synthetic_errors(quick) + _speed(quick) + _stereo(quick) + dic_sequence.figures(quick)

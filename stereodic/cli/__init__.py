@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import keyword
 import sys
 import traceback
 
@@ -20,7 +21,7 @@ from calib.errors import InputError
 
 # In the order `stereodic --help` lists them.
 COMMANDS = ["demo", "simulate", "patterns", "calibrate", "undistort", "rig", "rectify", "scan", "dic2d",
-            "dic", "export", "bench", "acquire", "show"]
+            "dic", "strain", "speckle", "import", "export", "bench", "acquire", "align", "show"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -30,7 +31,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"stereodic {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS:
-        importlib.import_module(f"stereodic.cli.{name}").register(sub)
+        module = f"{name}_" if keyword.iskeyword(name) else name   # `import` lives in import_.py
+        importlib.import_module(f"stereodic.cli.{module}").register(sub)
     return parser
 
 

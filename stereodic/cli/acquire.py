@@ -9,7 +9,7 @@ import argparse
 import contextlib
 import time
 
-from stereodic.cli.common import parse_floats
+from stereodic.cli.common import display_pitch, open_devices, parse_floats
 
 DEVICES = """devices:
   --stage    zaber:///dev/ttyUSB0?device=1&axis=1&microstep_um=0.047625   Zaber ASCII
@@ -19,15 +19,17 @@ DEVICES = """devices:
              manual                                                        you move it when asked
              serial options: baud, timeout (s), retries, move_timeout (s), home=auto|yes|no, tolerance_um;
              zaber: device, axis, microstep_um; grbl: axis, feed (mm/min);
-             emulated: speed (mm/s), travel (mm), transport=pty|socket, fault=KIND@MOVE
+             emulated: speed (mm/s), travel (mm), transport=pty|socket, fault=KIND@MOVE,
+             axis_deg=AX,AY (the simulated carriage's travel off the screen normal, degrees)
   --display  screen[:N]          full screen on monitor N (0-based), 1:1 pixels (pygame)
              file:DIR?size=WxH   write the patterns to DIR instead (headless)
              sim                 the simulated display
   --camera   cv:INDEX[?exposure_ms=E&gain=G&size=WxH&discard=N]
                                                         an OpenCV VideoCapture device
              folder:DIR[?size=WxH&timeout=S]            photos taken by hand arriving in DIR
-             sim[:LENS][?size=WxH&seed=N]               the simulated camera (needs --display sim and
-                                                        an emulated stage)
+             sim[:LENS][?size=WxH&seed=N&pixel_um=P&tilt=TX,TY&roll=R]
+                                                        the simulated camera (needs --display sim and
+                                                        an emulated stage); tilt/roll aim it (degrees)
   Cameras are named cam0, cam1, ... in the order given.
 """
 
@@ -131,20 +133,8 @@ def _settings(args):
 
 def _open_devices(args, stack: contextlib.ExitStack, stage_url: str | None):
     """Stage (or None), screen (or None) and cameras, all closed when `stack` closes."""
-    from scanners.camera import open_camera
-    from scanners.display import open_screen
-    from scanners.stage_url import open_stage
-    stage = screen = None
-    if stage_url is not None:
-        stage = stack.enter_context(open_stage(stage_url))
-    if getattr(args, "display", None) is not None:
-        screen = stack.enter_context(open_screen(args.display, args.settle_ms / 1000, args.vsync))
-    true_z = None
-    if stage is not None:
-        true_z = stage.emulator.true_position_mm if stage.emulator is not None else stage.position_mm
-    cameras = [stack.enter_context(open_camera(spec, f"cam{i}", screen, true_z))
-               for i, spec in enumerate(args.camera)]
-    return stage, screen, cameras
+    return open_devices(stack, stage_url, getattr(args, "display", None), args.camera,
+                        getattr(args, "settle_ms", 0.0) / 1000, getattr(args, "vsync", False))
 
 
 def _next_state(args):
@@ -185,10 +175,7 @@ def run_calibration(args) -> int:
         if isinstance(screen, SimScreen):
             display = screen.sim.record()
         else:
-            if not args.pitch_mm or len(args.pitch_mm) > 2 or min(args.pitch_mm) <= 0:
-                raise InputError("--pitch-mm", "give the display's pixel pitch in mm (PX or PX,PY)")
-            pitch = tuple(args.pitch_mm) * (2 // len(args.pitch_mm))
-            display = Display(screen.size[0], screen.size[1], pitch, args.gamma)
+            display = Display(screen.size[0], screen.size[1], display_pitch(screen, args.pitch_mm), args.gamma)
         extra = _provenance(args, args.stage)
         sims = [c for c in cameras if isinstance(c, SimulatedCamera)]
         if sims:

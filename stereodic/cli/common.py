@@ -5,6 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 
+# The library's defaults, repeated here so that building the parser imports nothing heavy (`--help`
+# stays instant); tests/stereodic/test_cli.py checks that they equal stereodic.dic.sequence.SWITCH_ZNCC
+# and stereodic.strain_measures.MEASURES.
+SWITCH_ZNCC = 0.9
+STRAIN_MEASURES = ("green-lagrange", "euler-almansi", "log", "engineering")
+
 
 def planned(sub, name: str, help_text: str, issue: int) -> argparse.ArgumentParser:
     """Register a command of DESIGN.md that this version does not have yet: it says so and exits 1."""
@@ -39,6 +45,38 @@ def add_simulation_options(p: argparse.ArgumentParser, width: int, height: int, 
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
 
 
+def open_devices(stack, stage_url: str | None, display_spec: str | None, camera_specs: list[str],
+                 settle_s: float = 0.15, vsync: bool = False, still_z_mm: float | None = None):
+    """The stage (or None), the screen (or None) and the cameras (named cam0, cam1, ...) from their
+    command-line specs, each closed when `stack` (a contextlib.ExitStack) closes. A simulated camera sees
+    the simulated display at the emulated stage's true position along its true travel direction; without
+    a stage at stage position `still_z_mm` (None: it needs a stage)."""
+    from scanners.camera import open_camera
+    from scanners.display import open_screen
+    from scanners.stage_url import open_stage
+    stage = stack.enter_context(open_stage(stage_url)) if stage_url is not None else None
+    screen = stack.enter_context(open_screen(display_spec, settle_s, vsync)) if display_spec is not None else None
+    true_z, axis = (None if still_z_mm is None else (lambda: still_z_mm)), (0.0, 0.0, 1.0)
+    if stage is not None:
+        true_z = stage.emulator.true_position_mm if stage.emulator is not None else stage.position_mm
+        axis = stage.emulator.travel_axis if stage.emulator is not None else axis
+    cameras = [stack.enter_context(open_camera(spec, f"cam{i}", screen, true_z, axis))
+               for i, spec in enumerate(camera_specs)]
+    return stage, screen, cameras
+
+
+def display_pitch(screen, pitch_mm: list[float] | None) -> tuple[float, float]:
+    """The display's pixel pitch (x, y) in mm: the simulated display's own, else `--pitch-mm` (PX or
+    PX,PY); InputError when a real screen has none."""
+    from calib.errors import InputError
+    from scanners.display import SimScreen
+    if isinstance(screen, SimScreen):
+        return screen.pitch_mm
+    if not pitch_mm or len(pitch_mm) > 2 or min(pitch_mm) <= 0:
+        raise InputError("--pitch-mm", "give the display's pixel pitch in mm (PX or PX,PY)")
+    return tuple(float(p) for p in pitch_mm) * (2 // len(pitch_mm))
+
+
 def parse_size(text: str) -> tuple[int, int]:
     """'1920x1080' -> (1920, 1080); argparse type."""
     try:
@@ -71,6 +109,31 @@ def parse_ints(text: str, n: int, what: str) -> list[int]:
     return vals
 
 
+def parse_roi(text: str | None, width: int, height: int, image: str) -> tuple[int, int, int, int] | None:
+    """The --roi option 'X0,Y0,X1,Y1' (inclusive pixel bounds) checked against a width x height `image`;
+    None without one; InputError naming --roi if it is not a region inside the image."""
+    from calib.errors import InputError
+    if not text:
+        return None
+    x0, y0, x1, y1 = parse_ints(text, 4, "--roi")
+    if not (0 <= x0 < x1 < width and 0 <= y0 < y1 < height):
+        raise InputError("--roi", f"{text} is not a region inside the {width}x{height} {image}")
+    return x0, y0, x1, y1
+
+
+def output_folder(path):
+    """The output folder `path` (a Path), created if needed; InputError naming it if it cannot be."""
+    from pathlib import Path
+
+    from calib.errors import InputError
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(path, f"cannot create the output folder ({exc.strerror})") from None
+    return path
+
+
 def dic_grid(args, width: int, height: int, image: str, source: str):
     """The DIC point grid and seeds from the options --subset, --step, --roi, --mask and --seed, for a
     reference image of width x height pixels (`image` names it in messages, `source` is the file blamed
@@ -83,12 +146,7 @@ def dic_grid(args, width: int, height: int, image: str, source: str):
         raise InputError("--subset", f"must be an odd number >= 5, got {args.subset}")
     if args.step < 1:
         raise InputError("--step", f"must be >= 1, got {args.step}")
-    roi = None
-    if args.roi:
-        x0, y0, x1, y1 = parse_ints(args.roi, 4, "--roi")
-        if not (0 <= x0 < x1 < width and 0 <= y0 < y1 < height):
-            raise InputError("--roi", f"{args.roi} is not a region inside the {width}x{height} {image}")
-        roi = (x0, y0, x1, y1)
+    roi = parse_roi(args.roi, width, height, image)
     mask = None
     if args.mask:
         mask = read_gray(args.mask) > 0
@@ -110,3 +168,20 @@ def dic_grid(args, width: int, height: int, image: str, source: str):
         raise InputError(args.roi and "--roi" or source,
                          f"no point of the grid has its {args.subset}-pixel subset inside the {image}")
     return grid, seeds
+
+
+def check_output(path) -> None:
+    """InputError naming the option's value unless `path` can be written as a file: not an existing folder,
+    and its nearest existing parent a writable folder (checked before any work starts)."""
+    import os
+    from pathlib import Path
+
+    from calib.errors import InputError
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(p, "is a folder; the output is a file")
+    parent = p.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK):
+        raise InputError(p, f"cannot be written ({parent} is not a writable folder)")

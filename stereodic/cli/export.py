@@ -4,7 +4,9 @@ FILE is a virtual camera file (`stereodic undistort ... --save-virtual VCAM.npz`
 camera's PRVM file (its default virtual pinhole camera, as `stereodic undistort` builds it, is
 exported). opencv: FileStorage YAML (camera_matrix, distortion_coefficients all zero, image size,
 rotation_matrix, translation_vector in mm); colmap: cameras.txt (PINHOLE); json: model, sensor plane
-and OpenCV intrinsics/pose. Rig files come with the rectified stereo pair.
+and OpenCV intrinsics/pose; vic3d: VIC-3D project XML; mrcal: a .cameramodel (LENSMODEL_PINHOLE). Rig
+files come with the rectified stereo pair (dice too; mrcal and colmap write a folder). Poses are in the
+world frame of the file (for one made by `stereodic import`: the calibration file's world frame).
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ def register(sub):
     p = sub.add_parser("export", help="a virtual camera's pinhole model for other software",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("file", metavar="FILE", help="virtual camera file (VCAM.npz) or camera PRVM file (CAM.npz)")
-    p.add_argument("--format", required=True, choices=["opencv", "colmap", "dice", "json"])
+    p.add_argument("--format", required=True, choices=["opencv", "colmap", "dice", "json", "vic3d", "mrcal"])
     p.add_argument("--model", choices=["pinhole", "telecentric", "modelless"], default="pinhole",
                    help="model of the default virtual camera of a PRVM file (json export only for the "
                         "non-pinhole ones)")
@@ -31,6 +33,7 @@ def run(args) -> int:
     from calib.errors import InputError
     from calib.prvm_file import load_prvm
     from stereodic.export import export_text
+    from stereodic.rig import world_from_rig
     from stereodic.virtual import VirtualCamera, default_camera
     from stereodic.virtual_prvm import is_virtual
 
@@ -45,7 +48,7 @@ def run(args) -> int:
         default_camera(prvm, args.model)
     name = prvm.meta.get("camera", Path(args.file).stem)
     try:
-        text = export_text({name: camera}, args.format)
+        text = export_text({name: camera}, args.format, world_from_rig(prvm.meta, args.file))
     except InputError as exc:
         raise InputError(args.file, exc.problem) from None
     write_text(args.out, text)

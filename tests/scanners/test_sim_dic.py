@@ -38,6 +38,30 @@ def test_rays_meet_the_deformed_plate_at_the_material_point():
     assert np.allclose(truth.material_at(np.broadcast_to(camera, p.shape), d, 0), X, atol=1e-8)
 
 
+def test_twist_strain_and_rays_are_exact():
+    """A twist (rotation fading with the radius) with stretch, bulge and a rigid motion: the analytic
+    Green-Lagrange strain equals finite differences of the positions, and rays find the material point."""
+    state = DicState("twist", stretch=(1.1, 0.95), bulge_mm=5.0, twist_deg=60.0, twist_radius_mm=30.0,
+                     rotation_deg=(3, -2, 10), translation_mm=(1, 2, 3))
+    truth = DicTruth(Specimen(), [state])
+    X1, X2 = np.meshgrid(np.linspace(-45, 45, 7), np.linspace(-35, 35, 5))
+    h = 1e-5
+    p = lambda a, b: truth.position(0, a, b)  # noqa: E731
+    g1 = (p(X1 + h, X2) - p(X1 - h, X2)) / (2 * h)
+    g2 = (p(X1, X2 + h) - p(X1, X2 - h)) / (2 * h)
+    e11, e22, e12 = truth.strain(0, X1, X2)
+    assert np.abs(e12).max() > 0.1                                 # the twist shears
+    assert np.allclose(0.5 * ((g1 * g1).sum(-1) - 1), e11, atol=1e-8)
+    assert np.allclose(0.5 * ((g2 * g2).sum(-1) - 1), e22, atol=1e-8)
+    assert np.allclose(0.5 * (g1 * g2).sum(-1), e12, atol=1e-8)
+    pts = p(X1.ravel(), X2.ravel())
+    camera = np.array([-80.0, 40.0, -400.0])
+    d = pts - camera
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    X = truth.material_at(np.broadcast_to(camera, pts.shape), d, 0)
+    assert np.allclose(X, np.column_stack([X1.ravel(), X2.ravel()]), atol=1e-8)
+
+
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
     out = tmp_path_factory.mktemp("dic")
