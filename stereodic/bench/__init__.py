@@ -8,8 +8,6 @@ package (like `stereodic.cli`) may import `scanners`.
 from __future__ import annotations
 
 import importlib
-import multiprocessing
-import resource
 import time
 from dataclasses import asdict, dataclass
 from typing import Callable
@@ -57,6 +55,7 @@ def peak_rss_bytes() -> int:
     /proc/self/status on Linux, else getrusage's ru_maxrss. On Linux ru_maxrss also keeps the memory
     of the parent at fork, which a spawned child carries through its exec: a bench process grown to
     2 GiB would lend every child its 2 GiB."""
+    import resource
     try:
         with open("/proc/self/status") as f:
             for line in f:
@@ -81,6 +80,7 @@ def run_isolated(fn: Callable, *args):
     Peak memory is the child's whole-process maximum RSS, interpreter and libraries included.
     `fn` must be a module-level function and its result picklable.
     """
+    import multiprocessing
     ctx = multiprocessing.get_context("spawn")
     parent, child = ctx.Pipe(duplex=False)
     p = ctx.Process(target=_child, args=(fn, args, child))

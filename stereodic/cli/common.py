@@ -26,7 +26,7 @@ def add_simulation_options(p: argparse.ArgumentParser, width: int, height: int, 
     """The options every `simulate` mode shares: --lens (unless `lens` is None: the mode names its lenses
     its own way), --width and --height (defaults in pixels), --seed (of what is `seeded`), --noise,
     --supersample (sub-samples per pixel side) and -o DIR."""
-    from scanners.sim.lenses import LENS_FAMILIES
+    from scanners.sim import LENS_FAMILIES
     if lens is not None:
         p.add_argument("--lens", choices=LENS_FAMILIES, default="brown", help=f"{lens} (default brown)")
     p.add_argument("--width", type=int, default=width, help=f"sensor width in pixels (default {width})")

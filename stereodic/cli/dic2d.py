@@ -64,7 +64,8 @@ def run(args) -> int:
     from stereodic.cli.common import dic_grid
     from stereodic.dic import DicSettings, correlate_sequence
     from stereodic.dic.output import plot_fields, write_csv, write_npz
-    from stereodic.strain import strain_2d
+    if args.strain_window:
+        from stereodic.strain import strain_2d
 
     ref = read_gray(args.ref)
     height, width = ref.shape

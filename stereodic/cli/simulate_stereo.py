@@ -7,7 +7,7 @@ from stereodic.cli.common import add_simulation_options, parse_floats
 
 
 def register(modes) -> None:
-    from scanners.sim.lenses import LENS_FAMILIES
+    from scanners.sim import LENS_FAMILIES
     s = modes.add_parser(
         "stereo", help="stereo calibration dataset: two cameras, one display and stage",
         description="Render a calibration dataset of two cameras in one WCS (same display, same stage "

@@ -12,14 +12,16 @@ import io
 import json
 import os
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from calib.atomic import atomic_output, write_npz as _write_npz, write_text
 from stereodic.dic.correlate import DicField, DicSettings
 from stereodic.dic.icgn import STATUS_NAMES
-from stereodic.strain import Strain
+
+if TYPE_CHECKING:  # strain (and its scipy) is loaded only by the commands that compute strain
+    from stereodic.strain import Strain
 
 
 def write_csv(path: str | os.PathLike, fields: Sequence[DicField], strains: Sequence[Strain | None]) -> None:
