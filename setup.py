@@ -3,10 +3,11 @@ the package is in pyproject.toml. Why compiled: docs/dic.md, "Start-up and the c
 
 from setuptools import Extension, setup
 
-# numba's fast-math set for these kernels was {nsz, arcp, contract, afn, reassoc}: the same here, and
-# like there NaN and infinity checks stay meaningful (no -ffinite-math-only).
-FLAGS = ["-O3", "-fopenmp", "-fno-math-errno", "-funsafe-math-optimizations", "-ffp-contract=fast",
-         "-std=c11"]
+# The fast-math set the kernels had under numba, {nsz, arcp, contract, afn, reassoc}: NaN and infinity
+# checks stay meaningful (no -ffinite-math-only). -march=native: the extension is built where it runs
+# (./run, pip install), and like numba's JIT it uses that CPU's instructions (AVX2/FMA: +15 % points/s).
+FLAGS = ["-O3", "-march=native", "-fopenmp", "-fno-math-errno", "-funsafe-math-optimizations",
+         "-ffp-contract=fast", "-std=c11"]
 
 setup(ext_modules=[Extension(
     "stereodic.dic._kernels",
