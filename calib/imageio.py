@@ -19,26 +19,31 @@ from calib.errors import InputError
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
 
 
+def _check_file(path: Path) -> None:
+    if path.is_dir():
+        raise InputError(path, "is a directory, not an image file")
+    if not path.is_file():
+        raise InputError(path, "image file is missing")
+
+
 def image_size(path: str | os.PathLike) -> tuple[int, int]:
     """(width, height) from the file header alone; InputError if missing or not an image."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "image file is missing")
+    _check_file(path)
     try:
         with Image.open(path) as im:
             return im.size
-    except Exception as exc:  # PIL raises several types for unreadable files
-        raise InputError(path, f"not a readable image ({exc.__class__.__name__})") from None
+    except Exception:  # PIL raises several types for unreadable files
+        raise InputError(path, "not a readable image (8/16-bit PNG or TIFF)") from None
 
 
 def read_gray(path: str | os.PathLike) -> np.ndarray:
     """Read an image as a 2-D uint8 or uint16 array (colour -> luminance, alpha dropped)."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "image file is missing")
+    _check_file(path)
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
-        raise InputError(path, "not a readable image")
+        raise InputError(path, "not a readable image (8/16-bit PNG or TIFF)")
     if img.ndim == 3:
         code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
         img = cv2.cvtColor(img, code)

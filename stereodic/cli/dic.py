@@ -7,24 +7,19 @@ Z, displacements and strains per state).
 
 from __future__ import annotations
 
-from stereodic.cli.common import dic_grid, parse_ints
+from stereodic.cli.common import add_grid_options, add_input, add_output, dic_grid, parse_ints
 
 
 def register(sub):
     p = sub.add_parser("dic", help="stereo 3D digital image correlation",
                        description="Stereo 3D-DIC on the rectified virtual pair: 3D shape, 3D displacement and "
                                    "surface strain of every state of a `kind: dic` dataset.")
-    p.add_argument("rig", metavar="RIG.npz", help="the rectified stereo rig (stereodic rig)")
-    p.add_argument("dataset", metavar="DATASET", help="folder (or capture.json) of a kind 'dic' dataset")
-    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
-    p.add_argument("--subset", type=int, default=21, help="subset side in pixels, odd (default 21)")
-    p.add_argument("--step", type=int, default=5, help="grid step in pixels (default 5)")
+    add_input(p, "rig", what="rig", metavar="RIG.npz", help="the rectified stereo rig (stereodic rig)")
+    add_input(p, "dataset", kind="dataset", metavar="DATASET", help="folder (or capture.json) of a kind 'dic' dataset")
+    add_output(p, kind="dir", metavar="DIR", help="output folder")
+    add_grid_options(p, "left rectified image")
     p.add_argument("--shape", choices=["affine", "quadratic"], default="affine",
                    help="subset shape function (default affine)")
-    p.add_argument("--roi", metavar="X0,Y0,X1,Y1", help="region of interest in the left rectified image")
-    p.add_argument("--mask", metavar="PNG", help="image of the rectified size: points where it is non-zero")
-    p.add_argument("--seed", action="append", default=[], metavar="X,Y",
-                   help="start point in the left rectified image (repeatable; default automatic)")
     p.add_argument("--disparity", metavar="DMIN,DMAX",
                    help="row search range of the seeds, x_right - x_left in pixels (default +-half the width)")
     p.add_argument("--search", type=int, default=40, metavar="PIXELS",
@@ -62,7 +57,9 @@ def run(args) -> int:
 
     import numpy as np
 
+    from calib.numbers import fixed
     from calib.progress import progress
+    from stereodic.cli.common import wrote
     from stereodic.dic3d.dataset import load_states
     from stereodic.dic3d.output import plot_states, write_csv, write_npz
     from stereodic.dic3d.stereo import StereoDic
@@ -83,14 +80,17 @@ def run(args) -> int:
         states.append(st)
         c = st.converged & grid.active
         mean = st.displacement[c].mean(0) if c.any() else np.full(3, np.nan)
-        print(f"state {st.state}: {int(c.sum())}/{n} points converged, mean dX {mean[0]:.4f} dY {mean[1]:.4f} "
-              f"dZ {mean[2]:.4f} mm" + (f", mean exx {np.nanmean(st.strain.exx) * 1e6:.0f} eyy "
+        print(f"state {st.state}: {int(c.sum())}/{n} points converged, mean dX {fixed(mean[0], 4)} dY "
+              f"{fixed(mean[1], 4)} dZ {fixed(mean[2], 4)} mm" + (f", mean exx {np.nanmean(st.strain.exx) * 1e6:.0f} eyy "
                                          f"{np.nanmean(st.strain.eyy) * 1e6:.0f} microstrain"
                                          if st.strain is not None and st.strain.valid.any() else ""))
     write_csv(out / "dic.csv", grid, states)
+    wrote(out / "dic.csv", f"one row per point and state ({n} points x {len(states)} states)")
     write_npz(out / "dic.npz", grid, states, settings, {"rig": str(args.rig), "dataset": str(args.dataset)})
+    wrote(out / "dic.npz", "the same as arrays")
     if not args.no_vtk:
-        write_states(out / "vtk", states)
+        wrote(write_states(out / "vtk", states), f"ParaView collection of {len(states)} states (state*.vtp)")
     if not args.no_plot:
         plot_states(out / "maps", grid, states)
+        wrote(out / "maps", "PNG maps of Z, displacements and strains per state")
     return 0

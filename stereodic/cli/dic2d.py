@@ -9,16 +9,17 @@ where converged is 0; strains are NaN exactly where strain_valid is 0.
 
 from __future__ import annotations
 
+from stereodic.cli.common import add_grid_options, add_input, add_output
+
 
 def register(sub):
     p = sub.add_parser("dic2d", help="2D subset digital image correlation",
                        description="2D subset DIC: displacements (and strains) of deformed images against a "
                                    "reference, on a grid of points.")
-    p.add_argument("ref", metavar="REF_IMG", help="reference image (8/16-bit PNG or TIFF)")
-    p.add_argument("defs", metavar="DEF_IMG", nargs="+", help="deformed images, in order")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.csv", help="CSV of the results")
-    p.add_argument("--subset", type=int, default=21, help="subset side in pixels, odd (default 21)")
-    p.add_argument("--step", type=int, default=5, help="grid step in pixels (default 5)")
+    add_input(p, "ref", what="image", metavar="REF_IMG", help="reference image (8/16-bit PNG or TIFF)")
+    add_input(p, "defs", what="image", metavar="DEF_IMG", nargs="+", help="deformed images, in order")
+    add_output(p, metavar="OUT.csv", help="CSV of the results")
+    add_grid_options(p, "reference image")
     p.add_argument("--shape", choices=["affine", "quadratic"], default="affine",
                    help="subset shape function (default affine)")
     p.add_argument("--interp", choices=["cubic", "quintic"], default="cubic",
@@ -26,10 +27,6 @@ def register(sub):
     p.add_argument("--prefilter", type=float, default=0.7, metavar="SIGMA",
                    help="Gaussian low-pass of both images before interpolation, pixels (default 0.7, 0 = "
                         "none); lowers the interpolation bias")
-    p.add_argument("--roi", metavar="X0,Y0,X1,Y1", help="region of interest (inclusive pixel bounds)")
-    p.add_argument("--mask", metavar="PNG", help="image of the reference's size: points where it is non-zero")
-    p.add_argument("--seed", action="append", default=[], metavar="X,Y",
-                   help="start point of the propagation (repeatable; default: automatic)")
     p.add_argument("--search", type=int, default=40, metavar="PIXELS",
                    help="search range of the seeds' integer displacement (default 40)")
     p.add_argument("--min-zncc", type=float, default=0.8, help="points below are flagged (default 0.8)")
@@ -37,8 +34,8 @@ def register(sub):
                    help="register each image against the previous one and add up (large deformations)")
     p.add_argument("--strain-window", type=int, metavar="N",
                    help="add Green-Lagrange strains fitted over N x N grid points (odd)")
-    p.add_argument("--npz", metavar="OUT.npz", help="also write the fields as arrays (n_images, ny, nx)")
-    p.add_argument("--plot", metavar="DIR", help="write PNG maps of u, v, zncc (and strains) per image")
+    add_output(p, "--npz", metavar="OUT.npz", help="also write the fields as arrays (n_images, ny, nx)")
+    add_output(p, "--plot", kind="dir", metavar="DIR", help="write PNG maps of u, v, zncc (and strains) per image")
     p.set_defaults(func=run)
 
 
@@ -60,8 +57,9 @@ def run(args) -> int:
 
     from calib.errors import InputError
     from calib.imageio import image_size, read_gray
+    from calib.numbers import fixed
     from calib.progress import progress
-    from stereodic.cli.common import dic_grid
+    from stereodic.cli.common import dic_grid, wrote
     from stereodic.dic import DicSettings, correlate_sequence
     from stereodic.dic.output import plot_fields, write_csv, write_npz
     if args.strain_window:
@@ -94,11 +92,15 @@ def run(args) -> int:
                        if args.strain_window else None)
         n_ok = int(f.ok.sum())
         print(f"image {k} ({args.defs[k]}): {n_ok}/{int(grid.active.sum())} points converged, "
-              f"mean u {np.nanmean(f.u) if n_ok else float('nan'):.4f} px, "
-              f"mean v {np.nanmean(f.v) if n_ok else float('nan'):.4f} px")
+              f"mean u {fixed(np.nanmean(f.u) if n_ok else np.nan, 4)} px, "
+              f"mean v {fixed(np.nanmean(f.v) if n_ok else np.nan, 4)} px")
+    n_points = int(grid.active.sum())
     write_csv(args.output, fields, strains)
+    wrote(args.output, f"{n_points * len(fields)} rows ({n_points} points x {len(fields)} deformed images)")
     if args.npz:
         write_npz(args.npz, fields, strains, settings, args.defs)
+        wrote(args.npz, "the fields as arrays (n_images, ny, nx)")
     if args.plot:
-        plot_fields(args.plot, fields, strains)
+        paths = plot_fields(args.plot, fields, strains)
+        wrote(args.plot, f"{len(paths)} maps ({', '.join(p.name for p in paths[:3])}, ...)")
     return 0

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from stereodic.cli.common import add_simulation_options, parse_floats
+from stereodic.cli.common import add_simulation_options, parse_floats, wrote
 
 
 def register(modes) -> None:
@@ -45,5 +45,5 @@ def run(args) -> int:
                           z_positions=args.positions, noise=args.noise, supersample=supersample)
     what = "left/, right/ (own WCS each), register/ and registration_truth.json" if args.separate else \
         "capture.json (cam0, cam1), truth_cam0.npz, truth_cam1.npz"
-    print(f"wrote {out}: {what}")
+    wrote(out, what)
     return 0

@@ -86,12 +86,16 @@ def save_map(path: str | os.PathLike, arr: np.ndarray, grid, title: str, label: 
     plt.close(fig)
 
 
-def plot_fields(folder: str | os.PathLike, fields: Sequence[DicField], strains: Sequence[Strain | None]) -> None:
-    """PNG maps per deformed image k: image{k}_u.png, _v, _zncc [, _exx, _eyy, _exy]."""
+def plot_fields(folder: str | os.PathLike, fields: Sequence[DicField], strains: Sequence[Strain | None]
+                ) -> list[Path]:
+    """PNG maps per deformed image k: image{k}_u.png, _v, _zncc [, _exx, _eyy, _exy]; returns their paths."""
     folder = Path(folder)
+    paths = []
     for k, (f, s) in enumerate(zip(fields, strains)):
         maps = {"u": (f.u, "px"), "v": (f.v, "px"), "zncc": (np.where(f.ok, f.zncc, np.nan), "")}
         if s is not None:
             maps.update(exx=(s.exx, ""), eyy=(s.eyy, ""), exy=(s.exy, ""))
         for name, (arr, unit) in maps.items():
-            save_map(folder / f"image{k}_{name}.png", arr, f.grid, f"image {k}: {name}", f"{name} {unit}".strip())
+            paths.append(folder / f"image{k}_{name}.png")
+            save_map(paths[-1], arr, f.grid, f"image {k}: {name}", f"{name} {unit}".strip())
+    return paths
