@@ -55,7 +55,7 @@ def virtual_camera(out: Path) -> None:
 
 
 def stereo(out: Path) -> None:
-    """Calibrate a stereo pair, build its rectified virtual rig, rectify an image pair, export the rig.
+    """Calibrate a stereo pair, build its rectified virtual rig and export the rig for OpenCV.
 
     The pair: Brown-Conrady lens left, free-form right."""
     data = out / "stereo"
@@ -64,9 +64,6 @@ def stereo(out: Path) -> None:
     for cam in ("cam0", "cam1"):
         _run("calibrate", str(data), "--camera", cam, "-o", str(out / f"stereo_{cam}.npz"))
     _run("rig", str(out / "stereo_cam0.npz"), str(out / "stereo_cam1.npz"), "-o", str(out / "rig.npz"))
-    z = sorted({p.parent.name for p in (data / "cam0").glob("z*/cam0_x_P60_s0.png")})[0]
-    _run("rectify", str(out / "rig.npz"), str(data / "cam0" / z / "cam0_x_P60_s0.png"),
-         str(data / "cam1" / z / "cam1_x_P60_s0.png"), "-o", str(out / "rectified"))
     _run("export", str(out / "rig.npz"), "--format", "opencv", "-o", str(out / "rig_opencv.yaml"))
 
 
@@ -113,14 +110,16 @@ def dic2d(out: Path) -> None:
 
 
 def dic3d(out: Path) -> None:
-    """Measure a speckled plate's shape, 3D displacement and strain with stereo DIC.
+    """Rectify a speckled plate's image pair, then measure its shape, 3D displacement and strain with stereo DIC.
 
-    States: translation, rotation, 1 % tension, bulge; the tension state's strain is held against the
-    truth."""
+    The rectified pair's overlay shows the row alignment (speckle has the texture it needs). States:
+    translation, rotation, 1 % tension, bulge; the tension state's strain is held against the truth."""
     from scanners.sim.dic import load_dic_truth, truth_at_virtual
     from stereodic.rig import load_rig
     data = out / "dic3d"
     _run("simulate", "dic", "-o", str(data))
+    _run("rectify", str(data / "rig.npz"), str(data / "s000" / "cam0.png"), str(data / "s000" / "cam1.png"), "-o",
+         str(out / "rectified"))
     _run("dic", str(data / "rig.npz"), str(data), "-o", str(out / "dic3d_result"))
     truth = load_dic_truth(data)
     tension = next(k for k, st in enumerate(truth.states) if st.name == "tension")

@@ -14,11 +14,13 @@ simulator's truth where there is one.
      rays, draw the ray error against the truth (calibration/, cam0.npz, report/)
   2. virtual camera: undistort a frame, export the virtual pinhole model for OpenCV (undistorted/,
      cam0_pinhole.yaml)
-  3. stereo: calibrate a stereo pair, build the rectified virtual rig, rectify an image pair, export the
-     rig for OpenCV (stereo/, stereo_cam0.npz, stereo_cam1.npz, rig.npz, rectified/, rig_opencv.yaml)
+  3. stereo: calibrate a stereo pair, build the rectified virtual rig, export it for OpenCV (stereo/,
+     stereo_cam0.npz, stereo_cam1.npz, rig.npz, rig_opencv.yaml)
   4. scanner: fringe-projection scan of a sphere to a point cloud, its fitted diameter (scan/, sphere.ply)
   5. 2D DIC: a speckle image moved by a known sub-pixel shift (dic/)
-  6. stereo 3D-DIC: a plate in translation, rotation, 1 % tension and bulge (dic3d/, dic3d_result/)
+  6. stereo 3D-DIC: rectify a speckled plate's image pair (the row alignment in rectified/overlay.png),
+     then its shape, displacement and strain in translation, rotation, 1 % tension and bulge (dic3d/,
+     rectified/, dic3d_result/)
 About 2-3 minutes on two cores; the first run after an install also compiles the numba kernels."""
 
 
