@@ -4,7 +4,8 @@ numba compiles a kernel on its first call and caches the machine code beside the
 so only the first run after an install (or after a kernel's source changed) pays for it. numba calls
 `init` on its first use in a process (the `numba_extensions` entry point in pyproject.toml); `init`
 listens to numba's compile events, which fire on cache misses only, and writes one line to stderr for
-the first kernel of each module it compiles and, when the process ends, the total time spent.
+the first kernel of each module it compiles (kernels called from a kernel, and numba's own overloads,
+compile inside their caller and are not counted) and, when the process ends, the total time spent.
 """
 
 from __future__ import annotations
@@ -29,11 +30,12 @@ def init() -> None:
         def on_start(self, ev):
             global _depth, _started
             with _lock:
-                if _depth == 0:
-                    _started = time.perf_counter()
+                outermost = _depth == 0
                 _depth += 1
-                dispatcher = ev.data["dispatcher"]
-                module = getattr(dispatcher.py_func, "__module__", "?")
+                if not outermost:   # numba's own overloads, compiled inside the kernel that uses them
+                    return
+                _started = time.perf_counter()
+                module = getattr(ev.data["dispatcher"].py_func, "__module__", "?")
                 _total["kernels"] += 1
                 first = module not in _modules
                 _modules.add(module)
@@ -54,5 +56,6 @@ def init() -> None:
 
 
 def _summary() -> None:
-    print(f"stereodic: compiled {_total['kernels']} numba kernels of {len(_modules)} modules in "
+    k, m = _total["kernels"], len(_modules)
+    print(f"stereodic: compiled {k} numba kernel{'s' * (k != 1)} of {m} module{'s' * (m != 1)} in "
           f"{_total['seconds']:.0f} s; they are cached now", file=sys.stderr, flush=True)
