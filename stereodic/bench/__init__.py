@@ -8,6 +8,9 @@ package (like `stereodic.cli`) may import `scanners`.
 from __future__ import annotations
 
 import importlib
+import os
+import subprocess
+import sys
 import time
 from dataclasses import asdict, dataclass
 from typing import Callable
@@ -48,6 +51,23 @@ def best_time(fn: Callable[[], object], repeat: int = 3, warmup: int = 1) -> flo
         fn()
         best = min(best, time.perf_counter() - t0)
     return best
+
+
+def time_command(argv: list[str], repeat: int) -> tuple[float, float]:
+    """(best wall seconds, best user + system CPU seconds) of `python -m stereodic ARGV` in fresh
+    processes, over `repeat` runs; RuntimeError if it fails."""
+    wall = cpu = float("inf")
+    for _ in range(repeat):
+        before = os.times()
+        t0 = time.perf_counter()
+        done = subprocess.run([sys.executable, "-m", "stereodic", *argv], capture_output=True, text=True)
+        dt = time.perf_counter() - t0
+        after = os.times()
+        if done.returncode != 0:
+            raise RuntimeError(f"stereodic {' '.join(argv)} failed: {done.stderr.strip()}")
+        wall = min(wall, dt)
+        cpu = min(cpu, (after.children_user - before.children_user) + (after.children_system - before.children_system))
+    return wall, cpu
 
 
 def peak_rss_bytes() -> int:

@@ -13,36 +13,15 @@ which depends less on other load).
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 import tempfile
-import time
 from pathlib import Path
 
-from stereodic.bench import Figure
+from stereodic.bench import Figure, time_command
 from stereodic.bench.dic import SAMPLE5
 
 GOAL_HELP_S = 0.2
 GOAL_DIC2D_STARTUP_S = 0.7
 OPENCORR_SAMPLE5_S = 0.97   # issue 18's side-by-side measurement on this machine (docs/dic.md)
-
-
-def time_command(argv: list[str], repeat: int) -> tuple[float, float]:
-    """(best wall seconds, best user + system CPU seconds) of `python -m stereodic ARGV` in fresh
-    processes, over `repeat` runs; RuntimeError if it fails."""
-    wall = cpu = float("inf")
-    for _ in range(repeat):
-        before = os.times()
-        t0 = time.perf_counter()
-        done = subprocess.run([sys.executable, "-m", "stereodic", *argv], capture_output=True, text=True)
-        dt = time.perf_counter() - t0
-        after = os.times()
-        if done.returncode != 0:
-            raise RuntimeError(f"stereodic {' '.join(argv)} failed: {done.stderr.strip()}")
-        wall = min(wall, dt)
-        cpu = min(cpu, (after.children_user - before.children_user) + (after.children_system - before.children_system))
-    return wall, cpu
 
 
 def run(quick: bool = False) -> list[Figure]:

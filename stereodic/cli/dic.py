@@ -81,8 +81,8 @@ def run(args) -> int:
         c = st.converged & grid.active
         mean = st.displacement[c].mean(0) if c.any() else np.full(3, np.nan)
         print(f"state {st.state}: {int(c.sum())}/{n} points converged, mean dX {fixed(mean[0], 4)} dY "
-              f"{fixed(mean[1], 4)} dZ {fixed(mean[2], 4)} mm" + (f", mean exx {np.nanmean(st.strain.exx) * 1e6:.0f} eyy "
-                                         f"{np.nanmean(st.strain.eyy) * 1e6:.0f} microstrain"
+              f"{fixed(mean[1], 4)} dZ {fixed(mean[2], 4)} mm" + (f", mean exx {fixed(np.nanmean(st.strain.exx) * 1e6, 0)} eyy "
+                                         f"{fixed(np.nanmean(st.strain.eyy) * 1e6, 0)} microstrain"
                                          if st.strain is not None and st.strain.valid.any() else ""))
     write_csv(out / "dic.csv", grid, states)
     wrote(out / "dic.csv", f"one row per point and state ({n} points x {len(states)} states)")
