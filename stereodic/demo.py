@@ -19,6 +19,7 @@ from stereodic.cli.common import wrote
 
 DEMO_LENS = "freeform"            # the lens OpenCV's models cannot follow
 DEMO_SIZE = ("640", "512")
+STEREO_SIZE = ("480", "384")     # two cameras to render and calibrate: smaller, to keep the demo short
 
 
 def _run(*argv: str) -> None:
@@ -59,8 +60,8 @@ def stereo(out: Path) -> None:
 
     The pair: Brown-Conrady lens left, free-form right."""
     data = out / "stereo"
-    _run("simulate", "stereo", "--left", "brown", "--right", DEMO_LENS, "--width", DEMO_SIZE[0],
-         "--height", DEMO_SIZE[1], "-o", str(data))
+    _run("simulate", "stereo", "--left", "brown", "--right", DEMO_LENS, "--width", STEREO_SIZE[0],
+         "--height", STEREO_SIZE[1], "-o", str(data))
     for cam in ("cam0", "cam1"):
         _run("calibrate", str(data), "--camera", cam, "-o", str(out / f"stereo_{cam}.npz"))
     _run("rig", str(out / "stereo_cam0.npz"), str(out / "stereo_cam1.npz"), "-o", str(out / "rig.npz"))
