@@ -14,8 +14,8 @@ simulator's truth where there is one.
      rays, draw the ray error against the truth (calibration/, cam0.npz, report/)
   2. virtual camera: undistort a frame, export the virtual pinhole model for OpenCV (undistorted/,
      cam0_pinhole.yaml)
-  3. stereo: calibrate a stereo pair (480x384), build the rectified virtual rig, export it for OpenCV (stereo/,
-     stereo_cam0.npz, stereo_cam1.npz, rig.npz, rig_opencv.yaml)
+  3. stereo: calibrate a stereo pair (480x384), build the rectified virtual rig, export it for OpenCV
+     (stereo/, stereo_cam0.npz, stereo_cam1.npz, rig.npz, rig_opencv.yaml)
   4. scanner: fringe-projection scan of a sphere to a point cloud, its fitted diameter (scan/, sphere.ply)
   5. 2D DIC: a speckle image moved by a known sub-pixel shift (dic/)
   6. stereo 3D-DIC: rectify a speckled plate's image pair (the row alignment in rectified/overlay.png),
