@@ -138,7 +138,7 @@ def plot_row_alignment(left: np.ndarray, right: np.ndarray, match: RowAlignment,
         fig.axes[-1].set_axis_off()
         return fig
     half = 20
-    for slot, (k, label) in enumerate(zip(picks, ("A, smallest |dy|", "B, median |dy|", "C, largest |dy|"))):
+    for slot, (k, label) in enumerate(zip(picks, ("A: smallest |dy|", "B: median |dy|", "C: largest |dy|"))):
         cx, cy, cr = int(match.x[k]), int(match.y[k]), int(match.x_right[k])
         y0, y1 = max(cy - half, 0), min(cy + half + 1, h)
         crop_l = to8(left)[y0:y1, max(cx - half, 0):cx + half + 1]
@@ -153,7 +153,7 @@ def plot_row_alignment(left: np.ndarray, right: np.ndarray, match: RowAlignment,
         sub.axhline(gap + cy - y0 + match.dy[k], color="#ef476f", lw=1.2, ls="--")
         sub.set_xticks([])
         sub.set_yticks([(y1 - y0) / 2, gap + (y1 - y0) / 2], ["left", "right"])
-        sub.set_title(f"{label}: row {cy}, dy {fixed(match.dy[k], 3)} px", fontsize=9)
+        sub.set_title(f"{label}\nrow {cy}, dy {fixed(match.dy[k], 3)} px", fontsize=9)
         if slot == 0:
             sub.set_xlabel("green: the feature's row in the left image\nred dashes: where the right image has it",
                            fontsize=8)
@@ -161,8 +161,8 @@ def plot_row_alignment(left: np.ndarray, right: np.ndarray, match: RowAlignment,
     res.axhline(0, color="black", lw=0.8)
     res.scatter(match.x, match.dy, s=8, c=match.dy, cmap=cmap, vmin=-lim, vmax=lim)
     res.set_xlabel("left column (px)")
-    res.set_ylabel("y_right - y_left (px)")
+    res.set_ylabel("y_right - y_left (px; 0: rows aligned)")
     res.set_ylim(-1.2 * lim, 1.2 * lim)
-    res.set_title(f"vertical disparity of {n} features\nRMS {fixed(match.rms, 3)} px, max |dy| "
-                  f"{fixed(np.abs(match.dy).max(), 3)} px (0: perfect)", fontsize=9)
+    res.set_title(f"vertical disparity, {n} features\nRMS {fixed(match.rms, 3)} px, max "
+                  f"{fixed(np.abs(match.dy).max(), 3)} px", fontsize=9)
     return fig

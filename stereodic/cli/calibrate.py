@@ -20,8 +20,9 @@ def register(sub):
                    help="one fixed regularisation window (odd, camera pixels; default: a window chosen per "
                         "pixel, from 26 display pixels (at least 41) up to 8x that): larger lowers noise, "
                         "smaller follows finer distortion")
-    add_output(p, "--report", kind="dir", metavar="DIR", help="also write PNG pictures (distortion, residual, uncertainty, "
-                                                   "mask) and the measured display response there")
+    add_output(p, "--report", kind="dir", metavar="DIR", help="also write PNG pictures (distortion, uncertainty, mask; "
+                                                   "residual with 3+ stage positions) and the measured display "
+                                                   "response there")
     p.add_argument("--reduced", action="store_true",
                    help="reduced-dimensional PRVM: from one stage position, write the undistortion map "
                         "(stereodic.undistort/1) instead of rays")

@@ -53,7 +53,7 @@ def run(args) -> int:
     match = row_alignment(left, right)
     fig = plot_row_alignment(left, right, match, max(args.every, 2))
     with atomic_output(out / "overlay.png") as tmp:
-        fig.savefig(tmp, dpi=100)
+        fig.savefig(tmp, dpi=100, bbox_inches="tight")
     plt.close(fig)
     wrote(out / "overlay.png", f"row alignment: vertical disparity RMS {fixed(match.rms, 3)} px over "
                                f"{match.dy.size} matched features" if match.dy.size else

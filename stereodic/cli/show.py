@@ -10,8 +10,11 @@ from stereodic.cli.common import add_input, add_output, wrote
 
 def register(sub):
     p = sub.add_parser("show", help="pictures of a result (distortion, residuals, uncertainty, error)",
-                       description="Write PNG pictures of a PRVM file: distortion.png, residual.png, "
-                                   "uncertainty.png, mask.png and, with --truth, error.png.")
+                       description="Write PNG pictures of a PRVM file: distortion.png (each pixel's departure "
+                                   "from the best pinhole view, arrows with their scale), uncertainty.png, mask.png, "
+                                   "residual.png (with three or more stage positions: two give no line-fit "
+                                   "residual) and, with --truth, error.png (the ray error) and error_xy.png (its x "
+                                   "and y components, one panel each).")
     add_input(p, "prvm", what="PRVM", metavar="CAM.npz", help="a camera's PRVM file (stereodic calibrate)")
     add_input(p, "--truth", what="truth", metavar="TRUTH.npz",
               help="the same camera's truth from a simulated dataset (truth.npz): also draw the ray error")

@@ -26,7 +26,7 @@ def _photo(rig, lens):
     return np.rint(_texture(rig, o + t[..., None] * d)).astype(np.uint16)
 
 
-def test_rig_and_rectify_commands(tmp_path):
+def test_rig_and_rectify_commands(tmp_path, capsys):
     ll, lr, pl, pr, rig = pair("brown", "freeform")
     pl.save(tmp_path / "L.npz")
     pr.save(tmp_path / "R.npz")
@@ -36,6 +36,9 @@ def test_rig_and_rectify_commands(tmp_path):
     out = tmp_path / "rect"
     assert main(["rectify", str(tmp_path / "rig.npz"), str(tmp_path / "l_000.png"), str(tmp_path / "r_000.png"),
                  "-o", str(out)]) == 0
+    written = [line.split(":")[0] for line in capsys.readouterr().out.splitlines() if line.startswith("wrote")]
+    assert written[-3:] == [f"wrote {out / 'left' / 'l_000.png'}", f"wrote {out / 'right' / 'r_000.png'}",
+                            f"wrote {out / 'overlay.png'}"]
     left, right = read_gray(out / "left" / "l_000.png"), read_gray(out / "right" / "r_000.png")
     assert left.shape == right.shape == (rig.sensor.height, rig.sensor.width) and left.dtype == np.uint16
     truth = _texture(rig, rig.sensor.grid())
