@@ -133,6 +133,19 @@ static int points(Buffers *bs, Points *pts, PyObject *xs, PyObject *ys, PyObject
     return 0;
 }
 
+/* Release the buffers and return None, or NULL where rc < 0: the exception already set, else (a kernel
+ * that ran out of memory) MemoryError. */
+static PyObject *finish(Buffers *bs, int rc)
+{
+    release(bs);
+    if (rc < 0) {
+        if (!PyErr_Occurred())
+            PyErr_NoMemory();
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
 static PyObject *py_spline_coefficients(PyObject *self, PyObject *args)
 {
     PyObject *img, *out;
@@ -157,10 +170,7 @@ static PyObject *py_spline_coefficients(PyObject *self, PyObject *args)
     Py_BEGIN_ALLOW_THREADS
     rc = spline_coefficients(data, (int)hw[0], (int)hw[1], order, coef);
     Py_END_ALLOW_THREADS
-    release(&bs);
-    if (rc < 0)
-        return PyErr_NoMemory();
-    Py_RETURN_NONE;
+    return finish(&bs, rc);
 }
 
 static PyObject *py_pixel_gradients(PyObject *self, PyObject *args)
@@ -280,13 +290,8 @@ static PyObject *py_solve_points(PyObject *self, PyObject *args)
         Py_BEGIN_ALLOW_THREADS
         rc = solve_many(&pb, &pts, NULL, count);
         Py_END_ALLOW_THREADS
-        if (rc < 0)
-            PyErr_NoMemory();
     }
-    release(&bs);
-    if (rc < 0)
-        return NULL;
-    Py_RETURN_NONE;
+    return finish(&bs, rc);
 }
 
 static PyObject *py_reference_status(PyObject *self, PyObject *args)
@@ -312,13 +317,8 @@ static PyObject *py_reference_status(PyObject *self, PyObject *args)
         Py_BEGIN_ALLOW_THREADS
         rc = status_many(&pb, x, y, n[0], st);
         Py_END_ALLOW_THREADS
-        if (rc < 0)
-            PyErr_NoMemory();
     }
-    release(&bs);
-    if (rc < 0)
-        return NULL;
-    Py_RETURN_NONE;
+    return finish(&bs, rc);
 }
 
 static PyObject *py_propagate(PyObject *self, PyObject *args)
