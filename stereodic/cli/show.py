@@ -44,13 +44,6 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
-def _nice(x: float) -> float:
-    """The largest of 1, 2, 5 x 10^k not above x (x > 0): a round number for scales."""
-    import math
-    k = math.floor(math.log10(x))
-    return max(m * 10.0 ** k for m in (1, 2, 5) if m * 10.0 ** k <= x * (1 + 1e-9))
-
-
 def _panel(fig, ax, data, title: str, label: str, cmap="viridis", vmin=None, vmax=None):
     """One map with its own axes (camera pixels) and colour bar."""
     im = ax.imshow(data, cmap=cmap, vmin=vmin, vmax=vmax, interpolation="nearest")
@@ -74,18 +67,9 @@ def _image(data, title: str, label: str, path: Path, cmap="viridis", vmax=None, 
         vmax = float(np.percentile(finite, 99.5))
     _panel(fig, ax, data, "" if quiver is not None else title, label, cmap, 0, vmax)
     if quiver is not None:
-        u, v, du, dv = quiver
-        length = np.hypot(du, dv)
-        top = float(np.nanpercentile(length, 99)) if np.isfinite(length).any() else 0.0
-        if top > 0:
-            step = float(u[0, 1] - u[0, 0]) if u.shape[1] > 1 else 1.0
-            magnify = _nice(1.5 * step / top)
-            key = _nice(top)
-            q = ax.quiver(u, v, du, dv, color="white", angles="xy", scale_units="xy", scale=1 / magnify,
-                          width=0.003)
-            ax.quiverkey(q, 0.97, 1.035, key, f"arrow scale: {key:g} px\n(drawn {magnify:g}x)", labelpos="W",
-                         coordinates="axes", color="black", fontproperties={"size": 8})
-            ax.set_title(title, fontsize=10, loc="left")
+        from stereodic.virtual_plots import arrows
+        arrows(ax, *quiver, "px")
+        ax.set_title(title, fontsize=10, loc="left")
     return _save(fig, path)
 
 
