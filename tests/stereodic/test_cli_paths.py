@@ -120,3 +120,25 @@ def test_an_npz_that_is_not_one_says_so_in_words(tmp_path, capsys):
                         ("broken.npz", "damaged")):
         err = _refused(["show", tmp_path / name, "-o", tmp_path / "pics"], capsys, name, words)
         assert "Error" not in err and "(" + "BadZipFile" not in err
+
+
+def test_the_mechanism_for_folders_and_either(tmp_path):
+    """add_input(kind='dir') and add_output(kind='any'), which the next commands use (an image folder,
+    an export that is a file or a folder by format)."""
+    import argparse
+
+    from calib.errors import InputError
+    from stereodic.cli.common import add_input, add_output, check_paths
+    p = argparse.ArgumentParser()
+    add_input(p, "--images", kind="dir", what="image")
+    add_output(p, kind="any")
+    (tmp_path / "f.txt").write_text("x")
+    (tmp_path / "d").mkdir()
+    check_paths(p.parse_args(["--images", str(tmp_path / "d"), "-o", str(tmp_path / "d")]))   # both fine
+    check_paths(p.parse_args(["--images", str(tmp_path / "d"), "-o", str(tmp_path / "f.txt")]))
+    with pytest.raises(InputError, match="f.txt: is a file; --images expects a folder"):
+        check_paths(p.parse_args(["--images", str(tmp_path / "f.txt"), "-o", str(tmp_path / "o")]))
+    with pytest.raises(InputError, match="none: image folder is missing"):
+        check_paths(p.parse_args(["--images", str(tmp_path / "none"), "-o", str(tmp_path / "o")]))
+    with pytest.raises(InputError, match="f.txt is a file, not a folder"):
+        check_paths(p.parse_args(["--images", str(tmp_path / "d"), "-o", str(tmp_path / "f.txt" / "o")]))
