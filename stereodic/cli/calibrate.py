@@ -12,7 +12,8 @@ def register(sub):
     p = sub.add_parser("calibrate", help="calibrate one camera's per-pixel rays (PRVM)",
                        description="Decode the fringe images of one camera at 2 or more stage positions into "
                                    "its Pixel Ray Vector Matrix (.npz, stereodic.prvm/1).")
-    add_input(p, "dataset", kind="dataset", metavar="DATASET", help="folder holding capture.json (or the manifest itself)")
+    add_input(p, "dataset", kind="dataset", metavar="DATASET",
+              help="folder holding capture.json (or the manifest itself)")
     p.add_argument("--camera", help="camera to calibrate (default: the dataset's only camera)")
     p.add_argument("--no-regularise", action="store_true",
                    help="keep each pixel's own ray (no spatial regularisation)")

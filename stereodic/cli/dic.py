@@ -80,10 +80,11 @@ def run(args) -> int:
         states.append(st)
         c = st.converged & grid.active
         mean = st.displacement[c].mean(0) if c.any() else np.full(3, np.nan)
+        strain = (f", mean exx {fixed(np.nanmean(st.strain.exx) * 1e6, 0)} eyy "
+                  f"{fixed(np.nanmean(st.strain.eyy) * 1e6, 0)} microstrain"
+                  if st.strain is not None and st.strain.valid.any() else "")
         print(f"state {st.state}: {int(c.sum())}/{n} points converged, mean dX {fixed(mean[0], 4)} dY "
-              f"{fixed(mean[1], 4)} dZ {fixed(mean[2], 4)} mm" + (f", mean exx {fixed(np.nanmean(st.strain.exx) * 1e6, 0)} eyy "
-                                         f"{fixed(np.nanmean(st.strain.eyy) * 1e6, 0)} microstrain"
-                                         if st.strain is not None and st.strain.valid.any() else ""))
+              f"{fixed(mean[1], 4)} dZ {fixed(mean[2], 4)} mm{strain}")
     write_csv(out / "dic.csv", grid, states)
     wrote(out / "dic.csv", f"one row per point and state ({n} points x {len(states)} states)")
     write_npz(out / "dic.npz", grid, states, settings, {"rig": str(args.rig), "dataset": str(args.dataset)})

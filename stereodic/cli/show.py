@@ -144,8 +144,9 @@ def write_report(prvm, out_dir, truth=None) -> list[Path]:
         err = ray_error_px(prvm, truth)
         s = ErrorStats.of(err)
         z = working_plane(truth)
-        paths.append(_image(err, f"ray error against the truth on the plane z = {fixed(z, 3)} mm\nRMS {fixed(s.rms, 4)} px, "
-                                 f"p99 {fixed(s.p99, 4)} px", "camera pixels", out / "error.png", cmap="magma"))
+        paths.append(_image(err, f"ray error against the truth on the plane z = {fixed(z, 3)} mm\n"
+                                 f"RMS {fixed(s.rms, 4)} px, p99 {fixed(s.p99, 4)} px", "camera pixels",
+                            out / "error.png", cmap="magma"))
         pts = prvm.at_z(z) - truth.at_z(z)
         fp = footprint_mm(truth, z)
         paths.append(_signed_pair(np.where(valid, pts[..., 0] / fp, np.nan), np.where(valid, pts[..., 1] / fp, np.nan),
