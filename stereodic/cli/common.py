@@ -60,7 +60,7 @@ SYNONYMS = {  # second spellings of those meanings, refused by the test
     "--resolution": "size", "--image-size": "size", "--reference-z": "plane_z",
 }
 
-INPUT_KINDS = ("file", "dir", "dataset")
+INPUT_KINDS = ("file", "dir", "dataset", "pattern")
 OUTPUT_KINDS = ("file", "dir", "any")
 
 
@@ -86,8 +86,9 @@ def _declare(p: argparse.ArgumentParser, option: PathOption) -> None:
 
 def add_input(p: argparse.ArgumentParser, *flags: str, kind: str = "file", what: str = "", **kwargs):
     """Add a path argument (positional: one name; option: its flags) that the command reads; kind is
-    'file', 'dir' or 'dataset'; `what` names its content in messages ("image", "PRVM", "rig").
-    Returns the argparse action."""
+    'file', 'dir', 'dataset' or 'pattern' (files, each named or given as a shell-style pattern that the
+    program expands: `calib.image_files.expand`); `what` names its content in messages ("image", "PRVM",
+    "rig"). Returns the argparse action."""
     assert kind in INPUT_KINDS, kind
     action = p.add_argument(*flags, **kwargs)
     name = "/".join(action.option_strings) if action.option_strings else (action.metavar or action.dest)
@@ -167,9 +168,14 @@ def check_paths(args: argparse.Namespace) -> None:
     inputs = set()
     for option in declared:
         if not option.output:
-            for value in _values(args, option):
-                _check_input(Path(value), option)
-                inputs.add(Path(value).resolve())
+            values = [Path(v) for v in _values(args, option)]
+            if option.kind == "pattern":
+                from calib.image_files import expand
+                values = [p for v in values for p in expand(v)]
+                option = PathOption(option.dest, option.name, False, "file", option.what)
+            for value in values:
+                _check_input(value, option)
+                inputs.add(value.resolve())
     for option in declared:
         if option.output:
             for value in _values(args, option):

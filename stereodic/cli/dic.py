@@ -23,9 +23,9 @@ def register(sub):
     add_input(p, "rig", what="rig", metavar="RIG.npz", help="the rectified stereo rig (stereodic rig, stereodic import)")
     add_input(p, "dataset", kind="dataset", metavar="DATASET", nargs="?",
               help="folder (or capture.json) of a kind 'dic' dataset")
-    p.add_argument("--left", metavar="PATTERN", help="the left camera's images: a shell-style pattern (quote it), "
-                                                     "natural order")
-    p.add_argument("--right", metavar="PATTERN", help="the right camera's images, likewise")
+    add_input(p, "--left", kind="pattern", what="image", metavar="PATTERN",
+              help="the left camera's images: a shell-style pattern (quote it), natural order")
+    add_input(p, "--right", kind="pattern", what="image", metavar="PATTERN", help="the right camera's images, likewise")
     add_input(p, "--images", kind="dir", what="image", metavar="DIR",
               help="a folder of image pairs NAME<left suffix>.tif / NAME<right suffix>.tif (DICe's and VIC-3D's "
                    "naming)")
