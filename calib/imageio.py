@@ -21,14 +21,20 @@ SUPPORTED_MODES = ("1", "L", "LA", "P", "RGB", "RGBA", "I;16", "I;16B", "I;16L",
 _TIFF_DATA = ((273, 279), (324, 325))  # TIFF tags (offsets, byte counts) of strips and of tiles
 
 
+def _check_file(path: Path) -> None:
+    if path.is_dir():
+        raise InputError(path, "is a directory, not an image file")
+    if not path.is_file():
+        raise InputError(path, "image file is missing")
+
+
 def image_size(path: str | os.PathLike) -> tuple[int, int]:
     """(width, height) from the file header alone; InputError naming the file if it is missing, not a
     readable image, of an unsupported pixel type, or shorter than its header says (a PNG's chunk
     checksums are verified, a TIFF's strips or tiles must lie inside the file), so that thousands of
     images are checked in seconds before any work."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "image file is missing")
+    _check_file(path)
     try:
         with Image.open(path) as im:
             size, mode, fmt = im.size, im.mode, im.format
@@ -36,8 +42,8 @@ def image_size(path: str | os.PathLike) -> tuple[int, int]:
         if fmt == "PNG":
             with Image.open(path) as im:
                 im.verify()
-    except Exception as exc:  # PIL raises several types for unreadable files
-        raise InputError(path, f"not a readable image ({exc.__class__.__name__})") from None
+    except Exception:  # PIL raises several types for unreadable files
+        raise InputError(path, "not a readable image (8/16-bit PNG or TIFF)") from None
     if mode not in SUPPORTED_MODES:
         raise InputError(path, f"pixel type {mode!r} is not supported (8- or 16-bit grey or colour)")
     for offsets, counts in _TIFF_DATA:
@@ -53,11 +59,10 @@ def image_size(path: str | os.PathLike) -> tuple[int, int]:
 def read_gray(path: str | os.PathLike) -> np.ndarray:
     """Read an image as a 2-D uint8 or uint16 array (colour -> luminance, alpha dropped)."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "image file is missing")
+    _check_file(path)
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
-        raise InputError(path, "not a readable image")
+        raise InputError(path, "not a readable image (8/16-bit PNG or TIFF)")
     if img.ndim == 3:
         code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
         img = cv2.cvtColor(img, code)

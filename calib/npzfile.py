@@ -25,13 +25,25 @@ def read_npz(path: str | os.PathLike, fmt: str | tuple[str, ...], what: str,
     Raises InputError naming the file: missing, not a readable .npz, no JSON meta, another format.
     """
     path = Path(path)
+    if path.is_dir():
+        raise InputError(path, f"is a directory, not a {what} file")
     if not path.is_file():
         raise InputError(path, f"{what} file is missing")
     try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except OSError as exc:
+        raise InputError(path, f"cannot be read ({exc.strerror})") from None
+    if not head:
+        raise InputError(path, f"is empty, not a {what} file")
+    if head != b"PK\x03\x04":
+        raise InputError(path, f"not a readable {what} file: not an .npz (zip) archive")
+    try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files if keys is None or k in keys or k == "meta"}
-    except Exception as exc:  # numpy raises several types for a file that is not an .npz
-        raise InputError(path, f"not a readable {what} file ({exc.__class__.__name__})") from None
+    except Exception:  # zipfile and numpy raise several types for a damaged archive
+        raise InputError(path, f"not a readable {what} file: the .npz archive is damaged or holds other "
+                               "than numpy arrays") from None
     if "meta" not in arrays:
         raise InputError(path, f"not a {what} file: lacks 'meta'")
     try:

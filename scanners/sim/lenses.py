@@ -27,10 +27,9 @@ import numpy as np
 
 from calib.errors import InputError
 from calib.prvm_file import PRVM
+from scanners.sim import LENS_FAMILIES
 from scanners.sim.distortion import Distortion
 from scanners.sim.optics import rotation, through_slab
-
-LENS_FAMILIES = ("brown", "freeform", "noncentral", "telecentric", "scheimpflug")
 
 PIXEL_MM = 0.0053                                  # 1.3 MP machine-vision sensor, 5.3 um pixels
 DEFAULT_TARGET_MM = (959.5 * 0.2745, 539.5 * 0.2745, 0.0)   # centre of the default 24" 1080p display

@@ -1,8 +1,10 @@
 """The `stereodic` command: one sub-command per module of this package.
 
 Each sub-command module defines `register(subparsers)`, which adds its parser and sets `func` to the
-function that runs it; the function returns an exit status (or None for 0). Heavy imports happen inside
-those functions so that `stereodic --help` stays fast.
+function that runs it; the function returns an exit status (or None for 0). Path options are declared
+with `stereodic.cli.common.add_input`/`add_output` and checked before the command runs. Heavy imports
+happen inside the run functions, and only those the command uses, so that `stereodic --help` and a
+command's own start-up stay fast (tests/stereodic/test_startup.py lists what may be imported).
 
 Exit status: 0 success; 2 bad usage or bad input (one line naming the file and the problem); 1 an
 internal error (with its traceback) or a hardware fault.
@@ -40,6 +42,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        from stereodic.cli.common import check_paths
+        check_paths(args)  # every path the command declared, before any work
         status = args.func(args)
     except InputError as exc:
         print(f"stereodic: {exc}", file=sys.stderr)

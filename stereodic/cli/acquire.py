@@ -9,7 +9,7 @@ import argparse
 import contextlib
 import time
 
-from stereodic.cli.common import display_pitch, open_devices, parse_floats
+from stereodic.cli.common import add_output, display_pitch, open_devices, parse_floats, wrote
 
 DEVICES = """devices:
   --stage    zaber:///dev/ttyUSB0?device=1&axis=1&microstep_um=0.047625   Zaber ASCII
@@ -80,7 +80,7 @@ def _pattern_options(p, flats: str):
                    help="fringe periods in display pixels; the longest should span the screen (default "
                         "60,360,1920)")
     p.add_argument("--steps", type=int, default=3, help="phase steps per period, >= 3 (default 3)")
-    p.add_argument("--flats", type=parse_floats, default=parse_floats(flats),
+    p.add_argument("--flat-levels", type=parse_floats, default=parse_floats(flats),
                    help=f"grey levels of the flat frames (default {flats or 'none'}; '' for none)")
     p.add_argument("--low", type=int, default=20, help="fringe minimum level (default 20, tip 1.7)")
     p.add_argument("--high", type=int, default=240, help="fringe maximum level (default 240)")
@@ -104,7 +104,7 @@ def _common_options(p, with_display: bool):
     p.add_argument("--average", type=int, default=1, metavar="K", help="frames averaged per image (default 1)")
     p.add_argument("--max-saturated", type=float, default=1e-4, metavar="FRACTION",
                    help="refuse a fringe frame with more saturated pixels than this (default 1e-4)")
-    p.add_argument("-o", "--output", required=True, metavar="DIR", help="dataset folder (resumed if it exists)")
+    add_output(p, kind="dir", metavar="DIR", help="dataset folder (resumed if it exists)")
 
 
 def _check(args):
@@ -120,8 +120,8 @@ def _check(args):
             raise InputError("--periods", f"expected positive periods, got {args.periods}")
         if args.steps < 3:
             raise InputError("--steps", f"need >= 3 phase steps, got {args.steps}")
-        if not 0 <= args.low < args.high <= 255 or any(not 0 <= v <= 255 for v in args.flats):
-            raise InputError("--low/--high/--flats", "levels must be 0..255 with low < high")
+        if not 0 <= args.low < args.high <= 255 or any(not 0 <= v <= 255 for v in args.flat_levels):
+            raise InputError("--low/--high/--flat-levels", "levels must be 0..255 with low < high")
     if hasattr(args, "states") and args.states < 1:
         raise InputError("--states", f"must be >= 1, got {args.states}")
 
@@ -189,7 +189,7 @@ def run_calibration(args) -> int:
             truth.extra = {"stage_true_z_mm": np.array(args.positions, float)}
             truth.save(writer.capture.root / _truth_file(cam, len(sims)))
         shots = calibration_plan(screen.size, args.positions, args.periods, args.steps,
-                                 [int(v) for v in args.flats], args.low, args.high)
+                                 [int(v) for v in args.flat_levels], args.low, args.high)
         n = run(writer, shots, cameras, stage, screen, _settings(args))
     _report(writer, n)
     return 0
@@ -212,7 +212,7 @@ def run_scan(args) -> int:
         extra["projector"] = {"width_px": screen.size[0], "height_px": screen.size[1]}
         writer = open_writer(args.output, "scan", cameras, extra=extra)
         states = range(args.first_state, args.first_state + args.states)
-        shots = scan_plan(screen.size, states, args.periods, args.steps, [int(v) for v in args.flats], axes,
+        shots = scan_plan(screen.size, states, args.periods, args.steps, [int(v) for v in args.flat_levels], axes,
                           args.low, args.high)
         n = run(writer, shots, cameras, None, screen, _settings(args), _next_state(args))
     _report(writer, n)
@@ -233,5 +233,5 @@ def run_dic(args) -> int:
 
 def _report(writer, taken: int) -> None:
     cap = writer.capture
-    print(f"{cap.manifest_path}: {len(cap.frames)} frames ({taken} taken now, "
-          f"{len(cap.frames) - taken} already there)")
+    wrote(cap.manifest_path, f"{len(cap.frames)} frames in {cap.root} ({taken} taken now, "
+                             f"{len(cap.frames) - taken} already there)")

@@ -5,12 +5,15 @@ from __future__ import annotations
 
 import sys
 
+from stereodic.cli.common import add_input, add_output, wrote
+
 
 def register(sub):
     p = sub.add_parser("calibrate", help="calibrate one camera's per-pixel rays (PRVM)",
                        description="Decode the fringe images of one camera at 2 or more stage positions into "
                                    "its Pixel Ray Vector Matrix (.npz, stereodic.prvm/1).")
-    p.add_argument("dataset", metavar="DATASET", help="folder holding capture.json (or the manifest itself)")
+    add_input(p, "dataset", kind="dataset", metavar="DATASET",
+              help="folder holding capture.json (or the manifest itself)")
     p.add_argument("--camera", help="camera to calibrate (default: the dataset's only camera)")
     p.add_argument("--no-regularise", action="store_true",
                    help="keep each pixel's own ray (no spatial regularisation)")
@@ -18,14 +21,15 @@ def register(sub):
                    help="one fixed regularisation window (odd, camera pixels; default: a window chosen per "
                         "pixel, from 26 display pixels (at least 41) up to 8x that): larger lowers noise, "
                         "smaller follows finer distortion")
-    p.add_argument("--report", metavar="DIR", help="also write PNG pictures (distortion, residual, uncertainty, "
-                                                   "mask) and the measured display response there")
+    add_output(p, "--report", kind="dir", metavar="DIR", help="also write PNG pictures (distortion, uncertainty, mask; "
+                                                   "residual with 3+ stage positions) and the measured display "
+                                                   "response there")
     p.add_argument("--reduced", action="store_true",
                    help="reduced-dimensional PRVM: from one stage position, write the undistortion map "
                         "(stereodic.undistort/1) instead of rays")
     p.add_argument("--position", type=float, default=None, metavar="Z_MM",
                    help="with --reduced: the stage position to use (default the first)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.npz")
+    add_output(p, metavar="OUT.npz", help="the PRVM file (stereodic.prvm/1), or with --reduced the undistortion map")
     p.set_defaults(func=run)
 
 
@@ -57,9 +61,9 @@ def run(args) -> int:
     cal.prvm.save(args.output)
     v = cal.prvm.valid
     unc = cal.prvm.extra["uncertainty_mm"][..., 0][v]
-    print(f"{args.output}: {cal.prvm.meta['camera']}, {v.shape[1]}x{v.shape[0]}, {v.mean():.1%} of pixels "
-          f"calibrated from {len(cal.positions)} stage positions; median 1-sigma ray uncertainty "
-          f"{1000 * float(np.median(unc)):.2f} um")
+    wrote(args.output, f"{cal.prvm.meta['camera']}, {v.shape[1]}x{v.shape[0]}, {v.mean():.1%} of pixels "
+                       f"calibrated from {len(cal.positions)} stage positions; median 1-sigma ray uncertainty "
+                       f"{1000 * float(np.median(unc)):.2f} um")
     if args.report:
         _report(args.report, cal)
     return 0
@@ -76,7 +80,7 @@ def _report(out_dir, cal) -> None:
         write_json(path, cal.intensity.response.to_json())
         paths.append(path)
     for p in paths:
-        print(p)
+        wrote(p)
 
 
 def _reduced(args, capture, smoother) -> int:
@@ -94,7 +98,7 @@ def _reduced(args, capture, smoother) -> int:
     umap = undistort_map(decoded.coord, decoded.valid, auto_smoother(decoded) if smoother is AUTO else smoother)
     umap.meta.update({"camera": camera, "dataset": str(capture.root), "z_mm": z})
     umap.save(args.output)
-    print(f"{args.output}: undistortion map of {camera} at z={z} mm, {umap.valid.mean():.1%} of the output "
-          "image covered")
+    wrote(args.output, f"undistortion map of {camera} at z = {z:g} mm, {umap.valid.mean():.1%} of the output "
+                       "image covered")
     return 0
 

@@ -1,9 +1,190 @@
-"""Small helpers shared by the sub-command modules."""
+"""What the sub-command modules share: one spelling per option, paths checked before any work, one line
+per output written, and small argument parsers.
+
+Options: `SPELLINGS` is the one spelling of each option that more than one command has (the test
+tests/stereodic/test_cli_options.py walks every sub-parser and fails on a second spelling of one meaning;
+`SYNONYMS` are the spellings it refuses). Paths: a command declares each path option with `add_input` or
+`add_output` (what it is: an image, a PRVM file, a folder, ...); `check_paths`, called by
+`stereodic.cli.main` before the command runs, stops with one line (exit status 2) on a path that cannot
+work - a missing input, a directory where a file is expected or the reverse, a parent that is a file, a
+folder without write permission, an output that would overwrite an input - so that no command fails
+after its work, or half-way. Outputs: `wrote(path, summary)` prints the one line per file written.
+"""
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+SPELLINGS = {  # argparse dest -> its option strings, wherever a command has it
+    "output": ("-o", "--output"),
+    "camera": ("--camera",),
+    "subset": ("--subset",),
+    "step": ("--step",),
+    "roi": ("--roi",),
+    "mask": ("--mask",),
+    "shape": ("--shape",),
+    "min_zncc": ("--min-zncc",),
+    "search": ("--search",),
+    "strain_window": ("--strain-window",),
+    "incremental": ("--incremental",),
+    "model": ("--model",),
+    "size": ("--size",),
+    "pitch": ("--pitch",),
+    "plane_z": ("--plane-z",),
+    "format": ("--format",),
+    "no_intensity": ("--no-intensity",),
+    "report": ("--report",),
+    "state": ("--state",),
+    "periods": ("--periods",),
+    "steps": ("--steps",),
+    "positions": ("--positions",),
+    "flat_levels": ("--flat-levels",),
+    "low": ("--low",),
+    "high": ("--high",),
+    "lens": ("--lens",),
+    "width": ("--width",),
+    "height": ("--height",),
+    "noise": ("--noise", "--no-noise"),
+    "supersample": ("--supersample",),
+}
+SYNONYMS = {  # second spellings of those meanings, refused by the test
+    "--out": "output", "--outdir": "output", "--output-dir": "output", "--out-dir": "output", "-O": "output",
+    "--cam": "camera", "--subset-size": "subset", "--window-size": "subset", "--grid-step": "step",
+    "--spacing": "step", "--region": "roi", "--zncc": "min_zncc", "--min-cc": "min_zncc",
+    "--flats": "flat_levels", "--levels": "flat_levels", "--period": "periods", "--phase-steps": "steps",
+    "--nsteps": "steps", "--stage-positions": "positions", "--z": "positions", "--lens-family": "lens",
+    "--resolution": "size", "--image-size": "size", "--reference-z": "plane_z",
+}
+
+INPUT_KINDS = ("file", "dir", "dataset", "pattern")
+OUTPUT_KINDS = ("file", "dir", "any")
+
+
+@dataclass(frozen=True)
+class PathOption:
+    """A declared path option: argparse dest, its name in messages, input or output, kind (file, dir,
+    dataset = a folder holding capture.json or the manifest itself) and what it holds ("image", "PRVM")."""
+
+    dest: str
+    name: str  # the option (-o/--output) or the positional's metavar (REF_IMG)
+    output: bool
+    kind: str
+    what: str
+
+
+def _declare(p: argparse.ArgumentParser, option: PathOption) -> None:
+    declared = p.get_default("_paths")
+    if declared is None:
+        declared = []
+        p.set_defaults(_paths=declared)
+    declared.append(option)
+
+
+def add_input(p: argparse.ArgumentParser, *flags: str, kind: str = "file", what: str = "", **kwargs):
+    """Add a path argument (positional: one name; option: its flags) that the command reads; kind is
+    'file', 'dir', 'dataset' or 'pattern' (files, each named or given as a shell-style pattern that the
+    program expands: `calib.image_files.expand`); `what` names its content in messages ("image", "PRVM",
+    "rig"). Returns the argparse action."""
+    assert kind in INPUT_KINDS, kind
+    action = p.add_argument(*flags, **kwargs)
+    name = "/".join(action.option_strings) if action.option_strings else (action.metavar or action.dest)
+    _declare(p, PathOption(action.dest, name, False, kind, what))
+    return action
+
+
+def add_output(p: argparse.ArgumentParser, *flags: str, kind: str = "file", what: str = "", **kwargs):
+    """Add a path option that the command writes (default flags -o/--output, required); kind is 'file',
+    'dir' (a folder the command fills; it may exist) or 'any' (either, by another option: the command
+    checks which). Returns the argparse action."""
+    assert kind in OUTPUT_KINDS, kind
+    flags = flags or SPELLINGS["output"]
+    if flags == SPELLINGS["output"]:
+        kwargs.setdefault("required", "default" not in kwargs)
+    action = p.add_argument(*flags, **kwargs)
+    _declare(p, PathOption(action.dest, "/".join(action.option_strings), True, kind, what))
+    return action
+
+
+def _values(args, option: PathOption) -> list[str]:
+    value = getattr(args, option.dest, None)
+    if value is None:
+        return []
+    return [os.fspath(v) for v in value] if isinstance(value, (list, tuple)) else [os.fspath(value)]
+
+
+def _a(noun: str) -> str:
+    return ("an " if noun[:1].lower() in "aeiou" else "a ") + noun
+
+
+def _check_input(path: Path, option: PathOption) -> None:
+    from calib.errors import InputError
+    what = f"{option.what} " if option.what else ""
+    if option.kind == "dataset":
+        if not path.exists():
+            raise InputError(path, "dataset is missing (a folder holding capture.json, or the manifest itself)")
+    elif option.kind == "dir":
+        if path.is_file():
+            raise InputError(path, f"is a file; {option.name} expects a folder")
+        if not path.is_dir():
+            raise InputError(path, f"{what}folder is missing")
+    else:
+        if path.is_dir():
+            raise InputError(path, f"is a directory; {option.name} expects {_a(what + 'file')}")
+        if not path.exists():
+            raise InputError(path, f"{what}file is missing")
+    if not os.access(path, os.R_OK):
+        raise InputError(path, "cannot be read (no permission)")
+
+
+def _check_output(path: Path, option: PathOption, inputs: set[Path]) -> None:
+    from calib.errors import InputError
+    if option.kind == "file":
+        if path.is_dir():
+            raise InputError(path, f"is a directory; {option.name} expects a file name")
+        if path.resolve() in inputs:
+            raise InputError(path, f"is also an input; {option.name} would overwrite it")
+    elif option.kind == "dir" and path.exists() and not path.is_dir():
+        raise InputError(path, f"is a file; {option.name} expects a folder")
+    ancestor = path if option.kind == "dir" and path.is_dir() else path.parent
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise InputError(path, f"cannot be written: {ancestor} is a file, not a folder")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise InputError(path, f"cannot be written: no permission to write in {ancestor}")
+    if option.kind == "file" and path.exists() and not os.access(path, os.W_OK):
+        raise InputError(path, "exists and cannot be overwritten (no permission)")
+
+
+def check_paths(args: argparse.Namespace) -> None:
+    """InputError (one line, exit status 2) for the first declared path of `args` that cannot work:
+    inputs first (they must exist, as the kind declared), then outputs (their folder must be one and
+    writable; a file output must not be a directory, nor one of the inputs)."""
+    declared = getattr(args, "_paths", None) or []
+    inputs = set()
+    for option in declared:
+        if not option.output:
+            values = [Path(v) for v in _values(args, option)]
+            if option.kind == "pattern":
+                from calib.image_files import expand
+                values = [p for v in values for p in expand(v)]
+                option = PathOption(option.dest, option.name, False, "file", option.what)
+            for value in values:
+                _check_input(value, option)
+                inputs.add(value.resolve())
+    for option in declared:
+        if option.output:
+            for value in _values(args, option):
+                _check_output(Path(value), option, inputs)
+
+
+def wrote(path: str | os.PathLike, summary: str = "") -> None:
+    """Print the one line that reports an output: `wrote PATH` or `wrote PATH: summary`."""
+    print(f"wrote {os.fspath(path)}" + (f": {summary}" if summary else ""), flush=True)
 
 # The library's defaults, repeated here so that building the parser imports nothing heavy (`--help`
 # stays instant); tests/stereodic/test_cli.py checks that they equal stereodic.dic.sequence.SWITCH_ZNCC
@@ -32,7 +213,7 @@ def add_simulation_options(p: argparse.ArgumentParser, width: int, height: int, 
     """The options every `simulate` mode shares: --lens (unless `lens` is None: the mode names its lenses
     its own way), --width and --height (defaults in pixels), --seed (of what is `seeded`), --noise,
     --supersample (sub-samples per pixel side) and -o DIR."""
-    from scanners.sim.lenses import LENS_FAMILIES
+    from scanners.sim import LENS_FAMILIES
     if lens is not None:
         p.add_argument("--lens", choices=LENS_FAMILIES, default="brown", help=f"{lens} (default brown)")
     p.add_argument("--width", type=int, default=width, help=f"sensor width in pixels (default {width})")
@@ -42,7 +223,20 @@ def add_simulation_options(p: argparse.ArgumentParser, width: int, height: int, 
                    help="sensor noise (default on); --no-noise renders the expected images")
     p.add_argument("--supersample", type=int, default=supersample,
                    help=supersample_help or f"sub-samples per pixel side (default {supersample})")
-    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
+    add_output(p, kind="dir", metavar="DIR", help="output folder")
+
+
+def add_grid_options(p: argparse.ArgumentParser, image: str) -> None:
+    """The DIC grid's options (checked by `dic_grid`): --subset, --step, --roi, --mask, --seed; `image`
+    names the image whose pixels they refer to ("reference image", "left rectified image")."""
+    p.add_argument("--subset", type=int, default=21, help="subset side in pixels, odd (default 21)")
+    p.add_argument("--step", type=int, default=5, help="grid step in pixels (default 5)")
+    p.add_argument("--roi", metavar="X0,Y0,X1,Y1", help=f"region of interest in the {image} (inclusive pixel "
+                                                      "bounds)")
+    add_input(p, "--mask", what="mask image", metavar="PNG",
+              help=f"image of the {image}'s size: points where it is non-zero")
+    p.add_argument("--seed", action="append", default=[], metavar="X,Y",
+                   help=f"start point of the propagation in the {image} (repeatable; default: automatic)")
 
 
 def open_devices(stack, stage_url: str | None, display_spec: str | None, camera_specs: list[str],

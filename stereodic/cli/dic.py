@@ -10,7 +10,7 @@ Z, displacements and strains per state).
 
 from __future__ import annotations
 
-from stereodic.cli.common import dic_grid, parse_ints
+from stereodic.cli.common import add_grid_options, add_input, add_output, dic_grid, parse_ints
 
 
 def register(sub):
@@ -20,25 +20,21 @@ def register(sub):
                                    "surface strain of every state of an experiment: a `kind: dic` dataset, two "
                                    "patterns (one per camera) or a folder of image pairs. State 0 is the "
                                    "reference.")
-    p.add_argument("rig", metavar="RIG.npz", help="the rectified stereo rig (stereodic rig, stereodic import)")
-    p.add_argument("dataset", metavar="DATASET", nargs="?",
-                   help="folder (or capture.json) of a kind 'dic' dataset")
-    p.add_argument("--left", metavar="PATTERN", help="the left camera's images: a shell-style pattern (quote it), "
-                                                     "natural order")
-    p.add_argument("--right", metavar="PATTERN", help="the right camera's images, likewise")
-    p.add_argument("--images", metavar="DIR", help="a folder of image pairs NAME<left suffix>.tif / "
-                                                   "NAME<right suffix>.tif (DICe's and VIC-3D's naming)")
+    add_input(p, "rig", what="rig", metavar="RIG.npz", help="the rectified stereo rig (stereodic rig, stereodic import)")
+    add_input(p, "dataset", kind="dataset", metavar="DATASET", nargs="?",
+              help="folder (or capture.json) of a kind 'dic' dataset")
+    add_input(p, "--left", kind="pattern", what="image", metavar="PATTERN",
+              help="the left camera's images: a shell-style pattern (quote it), natural order")
+    add_input(p, "--right", kind="pattern", what="image", metavar="PATTERN", help="the right camera's images, likewise")
+    add_input(p, "--images", kind="dir", what="image", metavar="DIR",
+              help="a folder of image pairs NAME<left suffix>.tif / NAME<right suffix>.tif (DICe's and VIC-3D's "
+                   "naming)")
     p.add_argument("--left-suffix", default="_0", help="with --images: the left images' suffix (default _0)")
     p.add_argument("--right-suffix", default="_1", help="with --images: the right images' suffix (default _1)")
-    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder (also the run folder)")
-    p.add_argument("--subset", type=int, default=21, help="subset side in pixels, odd (default 21)")
-    p.add_argument("--step", type=int, default=5, help="grid step in pixels (default 5)")
+    add_output(p, kind="dir", metavar="DIR", help="output folder (also the run folder)")
+    add_grid_options(p, "left rectified image")
     p.add_argument("--shape", choices=["affine", "quadratic"], default="affine",
                    help="subset shape function (default affine)")
-    p.add_argument("--roi", metavar="X0,Y0,X1,Y1", help="region of interest in the left rectified image")
-    p.add_argument("--mask", metavar="PNG", help="image of the rectified size: points where it is non-zero")
-    p.add_argument("--seed", action="append", default=[], metavar="X,Y",
-                   help="start point in the left rectified image (repeatable; default automatic)")
     p.add_argument("--disparity", metavar="DMIN,DMAX",
                    help="row search range of the seeds, x_right - x_left in pixels (default +-half the width)")
     p.add_argument("--search", type=int, default=40, metavar="PIXELS",
@@ -127,13 +123,15 @@ def _run_record(args, rig_path, data, settings):
 
 def _summary(st, n) -> str:
     import numpy as np
+
+    from calib.numbers import fixed
     c = st.converged
     mean = st.displacement[c].mean(0) if c.any() else np.full(3, np.nan)
-    text = (f"state {st.state}: {int(c.sum())}/{n} points converged, mean dX {mean[0]:.4f} dY {mean[1]:.4f} "
-            f"dZ {mean[2]:.4f} mm")
+    text = (f"state {st.state}: {int(c.sum())}/{n} points converged, mean dX {fixed(mean[0], 4)} dY "
+            f"{fixed(mean[1], 4)} dZ {fixed(mean[2], 4)} mm")
     if st.measure is not None and st.measure.valid.any():
-        text += (f", mean exx {np.nanmean(st.measure.exx) * 1e6:.0f} eyy {np.nanmean(st.measure.eyy) * 1e6:.0f} "
-                 f"microstrain")
+        text += (f", mean exx {fixed(np.nanmean(st.measure.exx) * 1e6, 0)} eyy "
+                 f"{fixed(np.nanmean(st.measure.eyy) * 1e6, 0)} microstrain")
     if st.incremental.any():
         text += f", {int((st.incremental & c).sum())} incremental"
     return text
@@ -144,6 +142,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from calib.progress import note
+    from stereodic.cli.common import wrote
     from stereodic.dic3d import epipolar
     from stereodic.dic3d.run import run_states, write_outputs
     from stereodic.dic3d.store import RunStore
@@ -185,5 +184,15 @@ def run(args) -> int:
     write_outputs(store, grid, out, settings, info, vtk=not args.no_vtk, plot_every=outputs["plot_every"],
                   dice=dice, csv=args.columns != "dice")
     store.record_outputs(outputs)
+    states = f"{active} points x {n} states"
+    if args.columns == "dice":
+        wrote(out, f"DICe's solution files DICe_solution_<k>.txt and DICe_solution_stereo_<k>.txt ({states})")
+    else:
+        wrote(out / "dic.csv", f"one row per point and state ({states})")
+    wrote(out / "dic.npz", "the same as arrays")
+    if not args.no_vtk:
+        wrote(out / "vtk" / "states.pvd", f"ParaView collection of {n} states (state*.vtp)")
+    if not args.no_plot:
+        wrote(out / "maps", "PNG maps of Z, displacements and strains per state")
     return 0
 

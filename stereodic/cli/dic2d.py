@@ -12,18 +12,19 @@ strain_valid is 0. Results are written image by image: memory holds one image's 
 
 from __future__ import annotations
 
+from stereodic.cli.common import add_grid_options, add_input, add_output
+
 
 def register(sub):
     from stereodic.cli.common import STRAIN_MEASURES as MEASURES, SWITCH_ZNCC
     p = sub.add_parser("dic2d", help="2D subset digital image correlation",
                        description="2D subset DIC: displacements (and strains) of deformed images against a "
                                    "reference, on a grid of points.")
-    p.add_argument("ref", metavar="REF_IMG", help="reference image (8/16-bit PNG or TIFF)")
-    p.add_argument("defs", metavar="DEF_IMG_OR_PATTERN", nargs="+",
-                   help="deformed images in order, or shell-style patterns (quote them; natural order)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.csv", help="CSV of the results")
-    p.add_argument("--subset", type=int, default=21, help="subset side in pixels, odd (default 21)")
-    p.add_argument("--step", type=int, default=5, help="grid step in pixels (default 5)")
+    add_input(p, "ref", what="image", metavar="REF_IMG", help="reference image (8/16-bit PNG or TIFF)")
+    add_input(p, "defs", kind="pattern", what="image", metavar="DEF_IMG_OR_PATTERN", nargs="+",
+              help="deformed images in order, or shell-style patterns (quote them; natural order)")
+    add_output(p, metavar="OUT.csv", help="CSV of the results")
+    add_grid_options(p, "reference image")
     p.add_argument("--shape", choices=["affine", "quadratic"], default="affine",
                    help="subset shape function (default affine)")
     p.add_argument("--interp", choices=["cubic", "quintic"], default="cubic",
@@ -31,10 +32,6 @@ def register(sub):
     p.add_argument("--prefilter", type=float, default=0.7, metavar="SIGMA",
                    help="Gaussian low-pass of both images before interpolation, pixels (default 0.7, 0 = "
                         "none); lowers the interpolation bias")
-    p.add_argument("--roi", metavar="X0,Y0,X1,Y1", help="region of interest (inclusive pixel bounds)")
-    p.add_argument("--mask", metavar="PNG", help="image of the reference's size: points where it is non-zero")
-    p.add_argument("--seed", action="append", default=[], metavar="X,Y",
-                   help="start point of the propagation (repeatable; default: automatic)")
     p.add_argument("--search", type=int, default=40, metavar="PIXELS",
                    help="search range of the seeds' integer displacement (default 40)")
     p.add_argument("--min-zncc", type=float, default=0.8, help="points below are flagged (default 0.8)")
@@ -49,8 +46,8 @@ def register(sub):
                    help="strain measure (default green-lagrange)")
     p.add_argument("--columns", choices=["stereodic", "dice"], default="stereodic",
                    help="dice: DICe's solution files OUT_<k>.csv (its column names and layout) instead of OUT.csv")
-    p.add_argument("--npz", metavar="OUT.npz", help="also write the fields as arrays (n_images, ny, nx)")
-    p.add_argument("--plot", metavar="DIR", help="write PNG maps of u, v, zncc (and strains) per image")
+    add_output(p, "--npz", metavar="OUT.npz", help="also write the fields as arrays (n_images, ny, nx)")
+    add_output(p, "--plot", kind="dir", metavar="DIR", help="write PNG maps of u, v, zncc (and strains) per image")
     p.set_defaults(func=run)
 
 
@@ -79,13 +76,16 @@ def run(args) -> int:
     from calib.errors import InputError
     from calib.image_files import expand
     from calib.imageio import image_size, read_gray
+    from calib.numbers import fixed
     from calib.progress import note, progress
-    from stereodic.cli.common import dic_grid
+    from stereodic.cli.common import dic_grid, wrote
     from stereodic.dic import DicSettings, correlate_sequence
     from stereodic.dic.output import CsvWriter, image_arrays, plot_field, write_npz
-    from stereodic.dice_columns import gauge_px, header, numbered, sigma_gamma, strain_columns, write_solution
-    from stereodic.strain import strain_2d
-    from stereodic.strain_measures import measure_strain
+    if args.strain_window:  # strain (and its scipy) only when asked for
+        from stereodic.strain import strain_2d
+        from stereodic.strain_measures import measure_strain
+    if args.columns == "dice":
+        from stereodic.dice_columns import gauge_px, header, numbered, sigma_gamma, strain_columns, write_solution
 
     ref = read_gray(args.ref)
     height, width = ref.shape
@@ -99,9 +99,6 @@ def run(args) -> int:
     settings = DicSettings(subset=args.subset, shape=args.shape, order=3 if args.interp == "cubic" else 5,
                            prefilter_sigma=args.prefilter, min_zncc=args.min_zncc, search_radius=args.search)
     out = Path(args.output)
-    for path in [out] + ([Path(args.npz)] if args.npz else []):
-        if not path.parent.is_dir():
-            raise InputError(path, "its folder does not exist")
 
     def images():
         for path in defs:
@@ -138,8 +135,8 @@ def run(args) -> int:
                 plot_field(args.plot, k, f, m)
             n_ok = int(f.ok.sum())
             note(f"image {k} ({defs[k]}): {n_ok}/{int(grid.active.sum())} points converged, "
-                 f"mean u {np.nanmean(f.u) if n_ok else float('nan'):.4f} px, "
-                 f"mean v {np.nanmean(f.v) if n_ok else float('nan'):.4f} px")
+                 f"mean u {fixed(np.nanmean(f.u) if n_ok else np.nan, 4)} px, "
+                 f"mean v {fixed(np.nanmean(f.v) if n_ok else np.nan, 4)} px")
         if args.npz:
             def values(key):
                 for k in range(len(defs)):
@@ -148,4 +145,14 @@ def run(args) -> int:
 
             write_npz(args.npz, grid, values, len(defs), has_strain, settings, [str(p) for p in defs],
                       args.measure if has_strain else None)
+    n_points = int(act.sum())
+    if args.columns == "dice":
+        wrote(out.parent, f"DICe's solution files {out.stem}_<k>{out.suffix or '.txt'} ({n_points} points x "
+                          f"{len(defs)} deformed images)")
+    else:
+        wrote(out, f"{n_points * len(defs)} rows ({n_points} points x {len(defs)} deformed images)")
+    if args.npz:
+        wrote(args.npz, "the fields as arrays (n_images, ny, nx)")
+    if args.plot:
+        wrote(args.plot, f"PNG maps of u, v, zncc{' and strains' if has_strain else ''} per deformed image")
     return 0

@@ -10,7 +10,7 @@ from __future__ import annotations
 from stereodic.cli import simulate_dic as dic_mode
 from stereodic.cli import simulate_scan as scan_mode
 from stereodic.cli import simulate_stereo as stereo_mode
-from stereodic.cli.common import add_simulation_options, parse_floats
+from stereodic.cli.common import add_simulation_options, parse_floats, wrote
 
 
 def register(sub):
@@ -53,5 +53,5 @@ def run_calibration(args) -> int:
         flat_levels=DEFAULT_FLATS if args.flat_levels is None else args.flat_levels, noise=args.noise,
         bit_depth=args.bit_depth, supersample=args.supersample, cover_glass=args.cover_glass,
         low=args.low, high=args.high, chessboard=args.chessboard, stage_error_um=args.stage_error_um)
-    print(f"wrote {len(cap.frames)} frames, {cap.manifest_path} and {cap.root / 'truth.npz'}")
+    wrote(cap.manifest_path, f"{len(cap.frames)} frames in {cap.root}, truth in {cap.root / 'truth.npz'}")
     return 0

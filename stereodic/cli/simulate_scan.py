@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from stereodic.cli.common import add_simulation_options, parse_floats
+from stereodic.cli.common import add_simulation_options, parse_floats, wrote
 
 OBJECTS = ("sphere", "ballbar", "plane", "freeform")
 
@@ -43,6 +43,6 @@ def run(args) -> int:
                         args.steps[0] if args.steps and len(args.steps) == 1 else args.steps,
                         args.seed, args.noise)
     save_rig(cap.root / "rig.npz", rig_from_files(cap.root / "truth_cam0.npz", cap.root / "truth_cam1.npz"))
-    print(f"wrote {len(cap.frames)} frames of {len(cap.states('cam0'))} scan states, {cap.manifest_path}, "
-          f"{cap.root / 'truth.npz'} and {cap.root / 'rig.npz'}")
+    wrote(cap.manifest_path, f"{len(cap.frames)} frames of {len(cap.states('cam0'))} scan states in {cap.root}, "
+                             f"with truth.npz and rig.npz")
     return 0

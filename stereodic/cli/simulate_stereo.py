@@ -3,11 +3,11 @@
 
 from __future__ import annotations
 
-from stereodic.cli.common import add_simulation_options, parse_floats
+from stereodic.cli.common import add_simulation_options, parse_floats, wrote
 
 
 def register(modes) -> None:
-    from scanners.sim.lenses import LENS_FAMILIES
+    from scanners.sim import LENS_FAMILIES
     s = modes.add_parser(
         "stereo", help="stereo calibration dataset: two cameras, one display and stage",
         description="Render a calibration dataset of two cameras in one WCS (same display, same stage "
@@ -45,5 +45,5 @@ def run(args) -> int:
                           z_positions=args.positions, noise=args.noise, supersample=supersample)
     what = "left/, right/ (own WCS each), register/ and registration_truth.json" if args.separate else \
         "capture.json (cam0, cam1), truth_cam0.npz, truth_cam1.npz"
-    print(f"wrote {out}: {what}")
+    wrote(out, what)
     return 0

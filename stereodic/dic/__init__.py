@@ -15,6 +15,11 @@ Public API (pixels; x = column, y = row; u along x):
 - `make_grid`, `correlate_pair`, `correlate_sequence`: full-field DIC.
 """
 
+try:
+    from stereodic.dic import _kernels  # noqa: F401 - compiled at install (setup.py, stereodic/dic/src)
+except ImportError as exc:
+    raise ImportError("stereodic's compiled DIC kernels are not built: install the package with ./run "
+                      "(or pip install -e .)") from exc
 from stereodic.dic.correlate import DicField, DicSettings, ImageRef, PointResult, correlate_pair, correlate_points
 from stereodic.dic.grid import Grid, make_grid
 from stereodic.dic.icgn import STATUS_NAMES

@@ -24,8 +24,8 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Callable, Iterable, Iterator, Sequence
 
+import cv2
 import numpy as np
-from scipy import ndimage
 
 from stereodic.dic.correlate import DicField, DicSettings, ImageRef, PointResult, register_image, seed_indices
 from stereodic.dic.grid import Grid
@@ -146,7 +146,8 @@ def register_steps(previous: ImageRef, img: np.ndarray, img_b: BSplineImage, gri
                             np.full(n, UNREACHED, np.int8))
     if candidates.any():
         X, Y = grid.points()
-        near = ndimage.binary_dilation(candidates.reshape(grid.shape), np.ones((2 * ANCHOR + 1,) * 2, bool)).ravel()
+        near = cv2.dilate(candidates.reshape(grid.shape).astype(np.uint8), np.ones((2 * ANCHOR + 1,) * 2, np.uint8),
+                          borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool).ravel()
         anchors = near & ~carry.incremental & carry.ok & (direct.status == OK) & ~candidates
         track |= anchors
         fresh = candidates | anchors

@@ -21,7 +21,7 @@ FLATS = (0, 128, 240)
 PER_POSITION = len(FLATS) + 2 * len(PERIODS) * 3
 STAGE = "emulated:zaber?speed=5000&timeout=0.5"
 CLI = ["--display", "sim", "--camera", "sim:brown?size=96x80", "--positions", "0,50", "--periods", "120,1920",
-       "--flats", "0,128,240", "--settle-ms", "0"]
+       "--flat-levels", "0,128,240", "--settle-ms", "0"]
 
 
 def test_calibration_plan_order():

@@ -131,10 +131,11 @@ def test_cli_writes_float32_ply_with_normals_and_quality(dataset, tmp_path):
     assert np.median(n @ plane.normal) > 0.99 or np.median(n @ plane.normal) < -0.99
 
 
-def test_object_outside_the_common_field_is_a_clear_error(dataset, capsys):
-    assert main(["scan", str(dataset / "rig.npz"), str(dataset), "--state", "2", "-o", "/dev/null/x.ply"]) == 2
+def test_object_outside_the_common_field_is_a_clear_error(dataset, capsys, tmp_path):
+    assert main(["scan", str(dataset / "rig.npz"), str(dataset), "--state", "2", "-o", str(tmp_path / "x.ply")]) == 2
     err = capsys.readouterr().err
     assert str(dataset) in err and "common field of view" in err and err.count("\n") == 1
+    assert not (tmp_path / "x.ply").exists()
 
 
 def _edited(dataset, tmp_path, edit):
