@@ -269,8 +269,8 @@ class AlignSession:
             return f"rays: pattern alone, focal length {i.focal_px:.0f} px from the stage travel"
         if i.focal_measured:
             return f"rays: pattern alone, focal length {i.focal_px:.0f} px from a {i.obliquity_deg:.1f} deg view"
-        return (f"rays: pattern alone, focal length not measured yet (tilt the camera 3+ deg once, or give "
-                f"--focal-px): tilts are rough")
+        return ("rays: pattern alone, focal length not measured yet (tilt the camera 3+ deg once, or give "
+                "--focal-px): tilts are rough")
 
 
 def readout(m: Measurement, settings: AlignSettings, stage: StageAxis | None, display_mm, notes: list[str]

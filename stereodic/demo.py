@@ -115,7 +115,7 @@ def dic3d(out: Path) -> None:
 
     The rectified pair's overlay shows the row alignment (speckle has the texture it needs). States:
     translation, rotation, 1 % tension, bulge; the tension state's strain is held against the truth."""
-    from scanners.sim.dic import load_dic_truth, truth_at_virtual
+    from scanners.sim.dic import load_dic_truth, truth_at_pixels
     from stereodic.rig import load_rig
     data = out / "dic3d"
     _run("simulate", "dic", "-o", str(data))
@@ -127,7 +127,9 @@ def dic3d(out: Path) -> None:
     rows = np.genfromtxt(out / "dic3d_result" / "dic.csv", delimiter=",", names=True, dtype=None,
                          encoding="utf-8")
     rows = rows[(rows["state"] == tension) & (rows["strain_valid"] == 1)]
-    true = truth_at_virtual(truth, load_rig(data / "rig.npz"), rows["x"], rows["y"])
+    # the material point of each row: the one the left camera sees where the rig's IMM puts the row's grid
+    # point in the original image; its truth from the simulator's own lens and plate
+    true = truth_at_pixels(truth, load_rig(data / "rig.npz").left.imm.real_position(rows["x"], rows["y"]))
     for c in ("exx", "eyy"):
         print(f"  tension, {c}: measured mean {rows[c].mean() * 1e6:.0f}, true {true[c][tension].mean() * 1e6:.0f} "
               f"microstrain, mean error {(rows[c] - true[c][tension]).mean() * 1e6:+.1f} microstrain "

@@ -49,7 +49,7 @@ from calib.errors import InputError
 from calib.intensity import IntensityMatrix
 from calib.npzfile import read_npz
 from calib.prvm_file import FORMAT as PRVM_FORMAT
-from calib.prvm_file import PRVM
+from calib.prvm_file import PRVM, load_prvm
 from stereodic.imm import IMM, build_imm
 from stereodic.undistort import intensity_matrix
 from stereodic.virtual import VirtualCamera, VirtualSensor, fit_optical_centre, project_to_plane
@@ -303,6 +303,15 @@ def build_rig(left: PRVM, right: PRVM, model: str = "pinhole", width: int | None
         cams.append(RigCamera(prvm.meta.get("camera", Path(os.fspath(name)).stem), centre, setup.imm, direction,
                               intensity_matrix(prvm), info))
     return Rig(sensor, cams[0], cams[1], model, frames[0])
+
+
+def rig_from_files(left: str | os.PathLike, right: str | os.PathLike, *, model: str = "pinhole",
+                   width: int | None = None, height: int | None = None, pitch_mm=None,
+                   plane_z_mm: float | None = None) -> Rig:
+    """`build_rig` of the two PRVM files `left` and `right` (paths; the files name the cameras in
+    messages and in the rig's `info`); the options as in `build_rig`."""
+    return build_rig(load_prvm(left), load_prvm(right), model, width, height, pitch_mm, plane_z_mm,
+                     (os.fspath(left), os.fspath(right)))
 
 
 # ------------------------------------------------------------------------------------------- file

@@ -27,8 +27,10 @@ diffraction blur, pixel integration, vignetting, PRNU, shot and read noise and 8
 (`SimCamera`'s pieces). Outside the plate a dark untextured background.
 
 `simulate_dic` writes a `stereodic.capture/1` dataset of kind "dic" (cameras cam0 = left, cam1 = right,
-one image per camera and state: s{state:03d}/cam{k}.png), rig.npz (the rectified pair of the TRUE camera
-models) and truth.npz (`DicTruth`).
+one image per camera and state: s{state:03d}/cam{k}.png), the TRUE camera models as PRVMs
+(truth_cam0.npz, truth_cam1.npz; the `simulate dic` command adds rig.npz, their rectified pair built by
+`stereodic.rig`) and truth.npz (`DicTruth`). `truth_at_pixels` gives the truth at the points the left
+camera sees at given real pixels, through the simulator's own lens rays and the plate's geometry.
 """
 
 from __future__ import annotations
@@ -247,6 +249,12 @@ class DicTruth:
         X[~np.isfinite(t) | np.any(np.abs(X) > half, axis=1)] = np.nan
         return X
 
+    def lenses(self) -> tuple[Lens, Lens]:
+        """The true (left, right) lenses of the dataset (`dic_lenses` of the family, size and seed it was
+        simulated with)."""
+        ln = self.meta["lenses"]
+        return dic_lenses(ln["width"], ln["height"], ln["seed"], ln["family"])
+
     def to_json(self) -> dict:
         return {"format": "stereodic.dic-truth/1", "units": "WCS mm; strains Green-Lagrange in the plate "
                 "frame e1 = (cos tilt, 0, sin tilt), e2 = (0, 1, 0)", "specimen": asdict(self.specimen),
@@ -337,11 +345,9 @@ def dic_lenses(width: int = 640, height: int = 512, seed: int = 0, lens: str = "
 
 def simulate_dic(out_dir: str | os.PathLike, states: list[DicState] | None = None, width: int = 640,
                  height: int = 512, seed: int = 0, lens: str = "brown", supersample: int = 2, noise: bool = True,
-                 tilt_deg: float = 10.0, dot_px: float = 1.3, bit_depth: int = 8, build_rig: bool = True
-                 ) -> Capture:
+                 tilt_deg: float = 10.0, dot_px: float = 1.3, bit_depth: int = 8) -> Capture:
     """Render a DIC dataset (module docstring) to `out_dir` and return it loaded. states: default
     `standard_states()`; dot_px: the speckle dots' Gaussian radius in pixels (a dot looks ~4x as wide)."""
-    from stereodic.rig import build_rig as make_rig, save_rig
     states = standard_states() if states is None else states
     if not states:
         raise InputError("states", "need at least one state")
@@ -352,7 +358,8 @@ def simulate_dic(out_dir: str | os.PathLike, states: list[DicState] | None = Non
     fov = unit * width
     specimen = Specimen(tilt_deg=tilt_deg, size_mm=(1.45 * fov, 1.45 * fov * height / width), unit_mm=unit,
                         dot_radius=dot_px, seed=seed)
-    truth = DicTruth(specimen, states, {"field_of_view_mm": fov, "cameras": list(CAMERAS)})
+    truth = DicTruth(specimen, states, {"field_of_view_mm": fov, "cameras": list(CAMERAS),
+                                        "lenses": {"family": lens, "width": width, "height": height, "seed": seed}})
     sampler = SpeckleSampler(specimen.speckle())
     sensor = Sensor(bit_depth=bit_depth)
     cams = []
@@ -370,13 +377,12 @@ def simulate_dic(out_dir: str | os.PathLike, states: list[DicState] | None = Non
             write_gray(out / f.file, img)
             frames.append(f)
     frames.sort(key=lambda f: (f.state, f.camera))
-    if build_rig:
-        truths = [ln.true_prvm(camera=n, dataset=f"simulated dic rig, seed {seed}",
-                               wcs=f"simulated dic rig, seed {seed}") for n, ln in zip(CAMERAS, (left, right))]
-        save_rig(out / "rig.npz", make_rig(*truths, width=width, height=height, where=tuple(CAMERAS)))
+    for name, ln in zip(CAMERAS, (left, right)):
+        ln.true_prvm(camera=name, dataset=f"simulated dic rig, seed {seed}",
+                     wcs=f"simulated dic rig, seed {seed}").save(out / f"truth_{name}.npz")
     write_npz(out / "truth.npz", meta=np.array(json.dumps(truth.to_json())), **truth_arrays(truth))
     extra = {"simulated": {"lens": lens, "seed": seed, "noise": noise, "supersample": supersample,
-                           "truth": "truth.npz", "rig": "rig.npz" if build_rig else None,
+                           "truth": "truth.npz", "true_prvms": [f"truth_{n}.npz" for n in CAMERAS],
                            "states": [s.name for s in states]}}
     cap = Capture(out, "dic", {n: (ln.width, ln.height) for n, ln in zip(CAMERAS, (left, right))}, frames,
                   None, (0.0, 0.0, 1.0), extra, {n: bit_depth for n in CAMERAS})
@@ -384,12 +390,14 @@ def simulate_dic(out_dir: str | os.PathLike, states: list[DicState] | None = Non
     return load_capture(out)
 
 
-def truth_at_virtual(truth: DicTruth, rig, x: np.ndarray, y: np.ndarray) -> dict:
-    """The truth at points (x, y) of the rig's LEFT rectified reference image (a DIC grid): the material
-    point its true ray meets in state 0 (the rig built from the true camera models gives the true ray);
-    returns material (N, 2) mm, position and displacement (S, N, 3) WCS mm, exx, eyy, exy (S, N)."""
-    from stereodic.triangulate import rays_at
-    o, d = rays_at(rig, "left", np.ravel(x).astype(np.float64), np.ravel(y).astype(np.float64))
+def truth_at_pixels(truth: DicTruth, uv: np.ndarray) -> dict:
+    """The truth at the material points the LEFT camera sees at its real image positions uv (..., 2)
+    (column, row pixels) in the reference state 0: each position's true ray (the simulator's own
+    `Lens.rays` of `DicTruth.lenses`) meets the plate there. Returns material (N, 2) mm, position and
+    displacement (S, N, 3) WCS mm, exx, eyy, exy (S, N) Green-Lagrange in the plate frame, N the number of
+    positions; NaN where the ray misses the plate."""
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    o, d = truth.lenses()[0].rays(uv[:, 0], uv[:, 1])
     X = truth.material_at(o, d, 0)
     pos = np.stack([truth.position(k, X[:, 0], X[:, 1]) for k in range(len(truth.states))])
     strains = [truth.strain(k, X[:, 0], X[:, 1]) for k in range(len(truth.states))]

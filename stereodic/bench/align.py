@@ -83,7 +83,7 @@ def _accuracy(family: str, size, tilts) -> list[Figure]:
 
 
 def _stage(family: str, size) -> list[Figure]:
-    from scanners.stage import open_stage
+    from scanners.stage_url import open_stage
     url = f"emulated:zaber?speed=5000&axis_deg={STAGE_DEG[0]},{STAGE_DEG[1]}"
     out = []
     for label, model in (("PRVM rays", _prvm_rays(family, size)), ("pattern alone", None)):

@@ -162,16 +162,17 @@ def _whole_command(ref: np.ndarray, dfm: np.ndarray, points: int, kernel_rate: f
 def _stereo(quick: bool) -> list[Figure]:
     import tempfile
 
-    from scanners.sim.dic import load_dic_truth, simulate_dic, standard_states, truth_at_virtual
+    from scanners.sim.dic import load_dic_truth, simulate_dic, standard_states, truth_at_pixels
     from stereodic.dic import DicSettings, make_grid
     from stereodic.dic3d.dataset import load_states
     from stereodic.dic3d.stereo import StereoDic, StereoSettings
-    from stereodic.rig import load_rig
+    from stereodic.rig import load_rig, rig_from_files, save_rig
 
     width, height = (640, 512) if quick else (1280, 1024)
     figures = []
     with tempfile.TemporaryDirectory() as tmp:
         simulate_dic(tmp, standard_states(), width=width, height=height, supersample=2)
+        save_rig(f"{tmp}/rig.npz", rig_from_files(f"{tmp}/truth_cam0.npz", f"{tmp}/truth_cam1.npz"))
         rig = load_rig(f"{tmp}/rig.npz")
         pairs = list(load_states(tmp, rig).rectified(rig))
         truth = load_dic_truth(tmp)
@@ -179,7 +180,7 @@ def _stereo(quick: bool) -> list[Figure]:
     fov = W * rig.sensor.pitch_mm[0]
     grid = make_grid(W, H, 21, 5, roi=(20, 20, W - 21, H - 21))
     X, Y = grid.points()
-    true = truth_at_virtual(truth, rig, X, Y)
+    true = truth_at_pixels(truth, rig.left.imm.real_position(X, Y))
     dic = StereoDic(rig, grid, StereoSettings(DicSettings(subset=21), strain_window=9))
     label = f"stereo {width}x{height}, 21x21, step 5"
     worst_z = 0.0

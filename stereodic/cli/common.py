@@ -247,7 +247,7 @@ def open_devices(stack, stage_url: str | None, display_spec: str | None, camera_
     a stage at stage position `still_z_mm` (None: it needs a stage)."""
     from scanners.camera import open_camera
     from scanners.display import open_screen
-    from scanners.stage import open_stage
+    from scanners.stage_url import open_stage
     stage = stack.enter_context(open_stage(stage_url)) if stage_url is not None else None
     screen = stack.enter_context(open_screen(display_spec, settle_s, vsync)) if display_spec is not None else None
     true_z, axis = (None if still_z_mm is None else (lambda: still_z_mm)), (0.0, 0.0, 1.0)

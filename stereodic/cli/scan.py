@@ -1,4 +1,4 @@
-"""`stereodic scan RIG.npz DATASET -o CLOUD.ply`: structured-light scan to a point cloud (scanners.scan).
+"""`stereodic scan RIG.npz DATASET -o CLOUD.ply`: structured-light scan to a point cloud (stereodic.scan).
 
 DATASET is a capture of kind "scan" (fringes projected along the projector's columns, several periods
 and steps, a top-level `projector` block with the panel's width_px); RIG.npz is the rectified pair of
@@ -46,7 +46,7 @@ def register(sub):
 
 
 def run(args) -> int:
-    from scanners.scan import SMOOTH_PX, scan_to_files
+    from stereodic.scan import SMOOTH_PX, scan_to_files
     from stereodic.rig import load_rig
     rig = load_rig(args.rig)
     written = scan_to_files(rig, args.dataset, args.output, args.state, args.cameras, args.mesh,

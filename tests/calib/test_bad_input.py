@@ -4,7 +4,6 @@ import json
 
 import numpy as np
 
-from calib.imageio import read_gray, write_gray
 from calib.prvm_file import load_prvm
 from stereodic.cli import main
 from synth_capture import make_capture

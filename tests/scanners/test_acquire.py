@@ -12,7 +12,7 @@ from scanners.acquire import Settings, calibration_plan, dic_plan, open_writer, 
 from scanners.camera import SaturatedError, SimulatedCamera
 from scanners.display import SimScreen
 from scanners.errors import HardwareError
-from scanners.stage import open_stage
+from scanners.stage_url import open_stage
 from stereodic.cli import main
 
 POSITIONS = (0.0, 50.0)

@@ -31,7 +31,7 @@ from scanners.sim.lenses import make_lens
 from scanners.sim.optics import rotation
 from scanners.sim.pose import DisplayPose
 from scanners.sim.sensor import Sensor
-from scanners.stage import open_stage
+from scanners.stage_url import open_stage
 from stereodic.cli import main
 from stereodic.virtual import fit_optical_centre
 from tests.scanners.xvfb import read_back, virtual_screen

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from calib.capture import load_capture
+from calib.prvm_file import load_prvm
 from scanners.sim.dic import (DicState, DicTruth, Specimen, dic_lenses, load_dic_truth, simulate_dic,
                               standard_states)
-from stereodic.rig import load_rig
 
 
 def test_truth_strains_are_green_lagrange_of_the_map():
@@ -69,7 +69,7 @@ def dataset(tmp_path_factory):
     return simulate_dic(out, states, width=96, height=80, supersample=2)
 
 
-def test_dataset_has_states_rig_and_truth(dataset):
+def test_dataset_has_states_true_cameras_and_truth(dataset):
     cap = load_capture(dataset.root)
     assert cap.kind == "dic" and sorted(cap.cameras) == ["cam0", "cam1"]
     assert cap.states("cam0") == cap.states("cam1") == [0, 1]
@@ -77,9 +77,14 @@ def test_dataset_has_states_rig_and_truth(dataset):
     assert all(i.shape == (80, 96) and i.dtype == np.uint8 for i in imgs)
     assert all(i.std() > 10 for i in imgs)                          # speckled
     assert not np.array_equal(imgs[0], imgs[2])                     # cam0 state 0 vs state 1
-    rig = load_rig(dataset.root / "rig.npz")
-    assert (rig.sensor.width, rig.sensor.height) == (96, 80)
+    lenses = dic_lenses(96, 80)
+    for name, lens in zip(("cam0", "cam1"), lenses):              # the true rays, for `stereodic rig`
+        prvm = load_prvm(dataset.root / f"truth_{name}.npz")
+        o, d = lens.rays(*lens.pixel_grid())
+        assert prvm.meta["camera"] == name and np.array_equal(prvm.direction, d)
+    assert not (dataset.root / "rig.npz").exists()
     truth = load_dic_truth(dataset.root)
+    assert [ln.family for ln in truth.lenses()] == [ln.family for ln in lenses]
     assert truth.states[1].stretch == (1.02, 0.994)
     with np.load(dataset.root / "truth.npz") as z:
         assert z["displacement"].shape[0] == 2 and np.allclose(z["exx"][1], 0.5 * (1.02 ** 2 - 1))

@@ -7,7 +7,8 @@ import pytest
 
 from calib.errors import InputError
 from scanners.errors import HardwareError
-from scanners.stage import ManualStage, StageUrl, open_stage, parse_stage_url
+from scanners.stage import ManualStage
+from scanners.stage_url import StageUrl, open_stage, parse_stage_url
 
 
 @pytest.mark.parametrize("text, want", [

@@ -7,7 +7,7 @@ from dataclasses import replace
 import pytest
 
 from scanners.errors import HardwareError
-from scanners.stage import open_stage
+from scanners.stage_url import open_stage
 from scanners.stage_zaber import ZaberReply, parse_reply
 
 FAST = "speed=5000&retries=2"

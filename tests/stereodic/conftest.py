@@ -2,7 +2,8 @@
 
 import pytest
 
-from scanners.sim.dic import DicState, simulate_dic
+from scanners.sim.dic import DicState
+from tests.stereodic.dic_cases import simulate_dic_with_rig
 
 
 @pytest.fixture(scope="session")
@@ -12,5 +13,5 @@ def dic_sim(tmp_path_factory):
     root = tmp_path_factory.mktemp("dic_sim")
     states = [DicState("reference"), DicState("translation", translation_mm=(0.6, -0.4, 1.2)),
               DicState("tension", stretch=(1.01, 0.997))]
-    simulate_dic(root, states, width=240, height=192, supersample=2)
+    simulate_dic_with_rig(root, states, width=240, height=192, supersample=2)
     return root

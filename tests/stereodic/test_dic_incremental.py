@@ -6,12 +6,13 @@ simulators' truth (`scanners.sim.speckle` in 2-D, `scanners.sim.dic` in stereo).
 import numpy as np
 import pytest
 
-from scanners.sim.dic import DicState, load_dic_truth, simulate_dic, truth_at_virtual
+from scanners.sim.dic import DicState, load_dic_truth, truth_at_pixels
 from scanners.sim.speckle import make_speckle, render
 from stereodic.dic import DicSettings, correlate_sequence, make_grid
 from stereodic.dic3d.dataset import load_states
 from stereodic.dic3d.stereo import StereoDic, StereoSettings
 from stereodic.rig import load_rig
+from tests.stereodic.dic_cases import simulate_dic_with_rig
 
 N, RADIUS = 256, 40.0
 
@@ -70,13 +71,13 @@ def test_stereo_points_switch_on_a_growing_twist(tmp_path):
     larger than incremental DIC's, and relative to the reference."""
     states = [DicState("reference")] + [DicState(f"twist {10 * k}", twist_deg=10.0 * k, twist_radius_mm=40.0)
                                         for k in range(1, 10)]
-    simulate_dic(tmp_path, states, width=320, height=256, supersample=2)
+    simulate_dic_with_rig(tmp_path, states, width=320, height=256, supersample=2)
     rig = load_rig(tmp_path / "rig.npz")
     data = load_states(tmp_path, rig)
     W, H = rig.sensor.width, rig.sensor.height
     grid = make_grid(W, H, 21, 6, roi=(30, 30, W - 31, H - 31))
     X, Y = grid.points()
-    truth = truth_at_virtual(load_dic_truth(tmp_path), rig, X, Y)
+    truth = truth_at_pixels(load_dic_truth(tmp_path), rig.left.imm.real_position(X, Y))
     act = grid.active.ravel()
 
     def run(**kw):

@@ -70,7 +70,7 @@ def test_tension_with_an_imported_opencv_calibration(tmp_path):
 
     strain = 0.01
     states = [DicState("reference"), DicState("tension", stretch=(1.0 + strain, 1.0 - 0.3 * strain))]
-    simulate_dic(tmp_path / "dic", states, width=W, height=H, seed=SEED, supersample=2, build_rig=False)
+    simulate_dic(tmp_path / "dic", states, width=W, height=H, seed=SEED, supersample=2)
     rig = load_rig(tmp_path / "rig.npz")
     data = load_states(tmp_path / "dic", rig)
     grid = make_grid(rig.sensor.width, rig.sensor.height, 21, 5, roi=(15, 15, rig.sensor.width - 16,

@@ -6,7 +6,6 @@ nor scipy (its kernels are compiled ahead of time: stereodic/dic/src), nor matpl
 import json
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
