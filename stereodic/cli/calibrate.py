@@ -8,8 +8,10 @@ import sys
 
 def register(sub):
     p = sub.add_parser("calibrate", help="calibrate one camera's per-pixel rays (PRVM)",
-                       description="Decode the fringe images of one camera at 2 or more stage positions into "
-                                   "its Pixel Ray Vector Matrix (.npz, stereodic.prvm/1).")
+                       description="Decode the fringe images of one camera at 2 or more stage positions (or "
+                                   "3 or more poses of a hand-held display) into its Pixel Ray Vector Matrix "
+                                   "(.npz, stereodic.prvm/1). With a hand-held display the poses are estimated "
+                                   "together with the rays and the WCS is the display's frame at pose 0.")
     p.add_argument("dataset", metavar="DATASET", help="folder holding capture.json (or the manifest itself)")
     p.add_argument("--camera", help="camera to calibrate (default: the dataset's only camera)")
     p.add_argument("--no-regularise", action="store_true",
@@ -18,6 +20,10 @@ def register(sub):
                    help="one fixed regularisation window (odd, camera pixels; default: a window chosen per "
                         "pixel, from 26 display pixels (at least 41) up to 8x that): larger lowers noise, "
                         "smaller follows finer distortion")
+    p.add_argument("--no-refine-poses", action="store_true",
+                   help="with 3 or more stage positions: use the nominal positions as they are (default: "
+                        "estimate the display's tilt and z and lateral errors at each position from the data and "
+                        "use them where they lower the residual significantly)")
     p.add_argument("--report", metavar="DIR", help="also write PNG pictures (distortion, residual, uncertainty, "
                                                    "mask) and the measured display response there")
     p.add_argument("--reduced", action="store_true",
@@ -50,19 +56,52 @@ def run(args) -> int:
     if args.reduced:
         return _reduced(args, load_capture(args.dataset, min_positions=1), smoother)
     from calib.calibration import calibrate_camera
+    from calib.errors import InputError
     capture = load_capture(args.dataset)
-    cal = calibrate_camera(capture, args.camera, smoother)
+    if args.no_refine_poses and capture.posed:
+        raise InputError("--no-refine-poses", "a hand-held (stage-free) capture has no nominal poses to keep: "
+                                              "its poses are always estimated")
+    cal = calibrate_camera(capture, args.camera, smoother, refine=not args.no_refine_poses)
     for note in cal.notes:
         print(f"stereodic calibrate: warning: {note}", file=sys.stderr)
     cal.prvm.save(args.output)
     v = cal.prvm.valid
     unc = cal.prvm.extra["uncertainty_mm"][..., 0][v]
+    where = f"{len(cal.positions)} display poses" if capture.posed else f"{len(cal.positions)} stage positions"
     print(f"{args.output}: {cal.prvm.meta['camera']}, {v.shape[1]}x{v.shape[0]}, {v.mean():.1%} of pixels "
-          f"calibrated from {len(cal.positions)} stage positions; median 1-sigma ray uncertainty "
-          f"{1000 * float(np.median(unc)):.2f} um")
+          f"calibrated from {where}; median 1-sigma ray uncertainty {1000 * float(np.median(unc)):.2f} um")
+    for line in pose_lines(cal.prvm.meta):
+        print(line)
     if args.report:
         _report(args.report, cal)
     return 0
+
+
+def pose_lines(meta: dict) -> list[str]:
+    """The estimated display poses (a hand-held capture) or stage errors (a staged one with 3 or more
+    positions) of a PRVM's meta, one line each."""
+    out = []
+    for p in meta.get("poses", []):
+        if not p["used"]:
+            out.append(f"  pose {p['pose']}: left out, its residual is {p['chi']:.1f}x the median pose's "
+                       "(did the display move during its fringes?)")
+            continue
+        r, t = p["rotation_deg"], p["translation_mm"]
+        out.append(f"  pose {p['pose']}: rotation ({r[0]:+.4f}, {r[1]:+.4f}, {r[2]:+.4f}) deg "
+                   f"+- {max(p['sd_rotation_deg']):.5f}, translation ({t[0]:+.4f}, {t[1]:+.4f}, {t[2]:+.4f}) mm "
+                   f"+- {max(p['sd_translation_um']):.2f} um, RMS residual {p['rms_um']:.1f} um, "
+                   f"normalised residual {p['chi']:.2f}")
+    stage = meta.get("stage_poses")
+    if stage:
+        state = ("refined poses used" if stage["used"] else
+                 "refinement not significant: nominal positions used")
+        out.append(f"  stage poses: {state} (residual {stage['cost_nominal']:.4g} -> {stage['cost_refined']:.4g}, "
+                   f"{stage['free_parameters']} parameters)")
+        for e in stage["positions"][1:]:
+            out.append(f"  z = {e['z_mm']:g} mm: z error {e['z_error_um']:+.2f} +- {e['sd_z_um']:.2f} um, lateral "
+                       f"({e['lateral_um'][0]:+.2f}, {e['lateral_um'][1]:+.2f}) um, tilt ({e['tilt_deg'][0]:+.5f}, "
+                       f"{e['tilt_deg'][1]:+.5f}, {e['tilt_deg'][2]:+.5f}) deg +- {max(e['sd_tilt_deg']):.5f}")
+    return out
 
 
 def _report(out_dir, cal) -> None:
@@ -71,6 +110,11 @@ def _report(out_dir, cal) -> None:
     from calib.atomic import write_json
     from stereodic.cli.show import write_report
     paths = write_report(cal.prvm, out_dir)
+    poses = {k: cal.prvm.meta[k] for k in ("poses", "stage_poses") if k in cal.prvm.meta}
+    if poses:
+        path = Path(out_dir) / "poses.json"
+        write_json(path, poses)
+        paths.append(path)
     if cal.intensity is not None:
         path = Path(out_dir) / "display_response.json"
         write_json(path, cal.intensity.response.to_json())

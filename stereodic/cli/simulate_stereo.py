@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from stereodic.cli.common import add_simulation_options, parse_floats
+from stereodic.cli.common import add_handheld_options, add_simulation_options, handheld_from, parse_floats
 
 
 def register(modes) -> None:
@@ -28,6 +28,7 @@ def register(modes) -> None:
                    help="fringe periods in display pixels (default 60,360,1920)")
     s.add_argument("--positions", type=parse_floats, default=[0.0, 50.0],
                    help="nominal stage positions in mm (default 0,50)")
+    add_handheld_options(s)
     add_simulation_options(s, 1280, 1024, None, "lenses, poses, stage and noise", lens=None,
                            supersample_help="sub-samples per pixel side (default max(3, 1280 / width): a "
                                             "sub-sample below a display pixel)")
@@ -42,7 +43,8 @@ def run(args) -> int:
     pixel_mm = args.pixel_mm if args.pixel_mm else 0.0053 * 1280 / args.width
     out = simulate_stereo(args.output, left, right, args.width, args.height, args.seed, args.separate,
                           args.baseline, args.distance, {"pixel_mm": pixel_mm}, periods=args.periods,
-                          z_positions=args.positions, noise=args.noise, supersample=supersample)
+                          z_positions=args.positions, noise=args.noise, supersample=supersample,
+                          handheld=handheld_from(args))
     what = "left/, right/ (own WCS each), register/ and registration_truth.json" if args.separate else \
         "capture.json (cam0, cam1), truth_cam0.npz, truth_cam1.npz"
     print(f"wrote {out}: {what}")
