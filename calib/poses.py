@@ -15,10 +15,12 @@ projection is the identity less a rank-2 term per pixel), so the Jacobian of 2M 
 never formed. Then every pixel's ray is fitted once (`calib.prvm.fit_lines`).
 
 The subsample (`pose_sample`) uses every pixel: the image is cut into square blocks (a few thousand),
-and each block's points at a pose are averaged with equal weights, which puts them on the ray of the
-block's centre (to second order in the block size: the curvature of a tilted plane's image, ~1 um for
-blocks of ~1/80 of the image width) with the noise of one point divided by the block's width. (Weighting
-by each pixel's modulation would move the mean off the centre by a different amount at each pose.)
+and each block's points at a pose are averaged with equal weights: that mean lies on the ray of the
+block's centre but for a second-order term (the curvature of the image of a tilted plane: ~1 um for
+blocks of ~1/80 of the image width, a different amount at each pose), which is taken from a smooth fit
+of the means and removed (`_centre_blocks`); the noise is that of one point divided by the block's
+width. (Weighting by each pixel's modulation would move the mean off the centre by a different amount
+at each pose.)
 Blocks with a pixel that did not see a pose, or that lies within `EDGE_MARGIN_PX` of one, are left out
 at that pose.
 
@@ -53,6 +55,8 @@ MIN_BLOCK = 4
 # pixels this close to one that did not see the display are left out of the subsample (the defocus
 # blur mixes the display's edge into their fringes)
 EDGE_MARGIN_PX = 4
+# the degree of the global polynomial whose curvature moves the block means to the blocks' centres
+CENTRE_DEGREE = 4
 
 
 @dataclass
@@ -102,7 +106,35 @@ def pose_sample(coords: list[np.ndarray], weights: list[np.ndarray], pitch_mm, *
         out_w[k] = np.where(full, block ** 4 / np.maximum(inv, 1e-300), 0.0) / float(np.prod(pitch))
     vb, ub = np.mgrid[0:hb, 0:wb]
     pixels = np.column_stack([ub.ravel() * block + (block - 1) / 2, vb.ravel() * block + (block - 1) / 2])
+    _centre_blocks(points, out_w, pixels, (w, h), block)
     return PoseSample(points, out_w, pixels.astype(float), block)
+
+
+def _centre_blocks(points: np.ndarray, weights: np.ndarray, pixels: np.ndarray, size: tuple[int, int],
+                   block: int) -> None:
+    """Move each block mean (in place) to its centre pixel's point: the mean of a smooth field over a
+    block of b x b pixels exceeds its centre value by (b^2 - 1) / 24 times the field's Laplacian (in
+    pixels^-2), taken here from a global polynomial of degree `CENTRE_DEGREE` fitted to the block means
+    of each pose and coordinate."""
+    scale = np.array([2.0 / size[0], 2.0 / size[1]])
+    uv = pixels * scale - 1
+    deg = CENTRE_DEGREE
+    design = np.polynomial.legendre.legvander2d(uv[:, 0], uv[:, 1], [deg, deg])
+    total = np.add.outer(np.arange(deg + 1), np.arange(deg + 1)).ravel() <= deg
+    design = design[:, total]
+    for k in range(len(points)):
+        ok = weights[k] > 0
+        if ok.sum() < 4 * total.sum():
+            continue
+        coef = np.zeros((deg + 1) * (deg + 1))
+        for i in range(2):
+            coef[total] = np.linalg.lstsq(design[ok], points[k, ok, i], rcond=None)[0]
+            c = coef.reshape(deg + 1, deg + 1)
+            lap = (np.polynomial.legendre.legval2d(uv[:, 0], uv[:, 1], np.polynomial.legendre.legder(c, 2, axis=0))
+                   * scale[0] ** 2 +
+                   np.polynomial.legendre.legval2d(uv[:, 0], uv[:, 1], np.polynomial.legendre.legder(c, 2, axis=1))
+                   * scale[1] ** 2)
+            points[k, ok, i] -= (block ** 2 - 1) / 24 * lap[ok]
 
 
 @dataclass

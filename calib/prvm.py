@@ -61,72 +61,24 @@ class Lines:
 def fit_lines(z_mm: np.ndarray, points: np.ndarray, weights: np.ndarray, z_ref: float = 0.0) -> Lines:
     """Weighted least-squares line through each pixel's points.
 
-    z_mm: (M,) plane of each stage position, or (M, H, W) each point's own z (display planes in general
-    poses); points: (M, H, W, 2) x, y (mm) on those planes; weights: (M, H, W) >= 0 (0 leaves a point
-    out, as does a non-finite point; e.g. inverse variances). A pixel is valid when it has points at
-    two or more distinct z.
+    z_mm: (M,) plane of each stage position; points: (M, H, W, 2) x, y (mm) on those planes;
+    weights: (M, H, W) >= 0 (0 leaves a point out, as does a non-finite point; e.g. inverse variances).
+    A pixel is valid when it has points on at least two distinct planes.
     """
     m, h, w = np.shape(weights)
-    z = np.asarray(z_mm, np.float64) - z_ref
-    z = np.broadcast_to(z.reshape(m, 1) if z.ndim == 1 else z.reshape(m, h * w), (m, h * w))
     pts = np.ascontiguousarray(points, np.float64).reshape(m, h * w, 2)
     wts = np.ascontiguousarray(weights).reshape(m, h * w)
     start, slope = np.empty((h, w, 2)), np.empty((h, w, 2))
     valid = np.empty((h, w), bool)
     used = np.empty((h, w), np.int16)
     residual = np.empty((h, w), np.float32)
-    _fit_lines(z, pts, wts, start.reshape(-1, 2), slope.reshape(-1, 2), valid.reshape(-1), used.reshape(-1),
-               residual.reshape(-1))
+    # the planes as displays in poses X = I (x, y, 0) + (0, 0, z)
+    rotation = np.broadcast_to(np.eye(3), (m, 3, 3)).copy()
+    translation = np.zeros((m, 3))
+    translation[:, 2] = np.asarray(z_mm, np.float64) - z_ref
+    _fit_posed(pts, wts, rotation, translation, start.reshape(-1, 2), slope.reshape(-1, 2), valid.reshape(-1),
+               used.reshape(-1), residual.reshape(-1), np.empty((0, m)))
     return Lines(start, slope, valid, residual, used, z_ref)
-
-
-@numba.njit(cache=True, parallel=True)
-def _fit_lines(z, points, weights, start, slope, valid, used, residual):  # pragma: no cover - compiled
-    """Per pixel i: the weighted line x = start + slope * z through points[:, i] at z[:, i] (float64);
-    residual = RMS distance of the used points from the line (NaN unless 3 or more were used)."""
-    m = z.shape[0]
-    for i in numba.prange(weights.shape[1]):
-        s = sz = szz = sx0 = sx1 = szx0 = szx1 = 0.0
-        n = 0
-        for k in range(m):
-            wk = np.float64(weights[k, i])
-            x0, x1 = points[k, i, 0], points[k, i, 1]
-            if not (wk > 0) or not (np.isfinite(x0) and np.isfinite(x1)):
-                continue
-            n += 1
-            s += wk
-            sz += wk * z[k, i]
-            szz += wk * z[k, i] * z[k, i]
-            sx0 += wk * x0
-            sx1 += wk * x1
-            szx0 += wk * z[k, i] * x0
-            szx1 += wk * z[k, i] * x1
-        det = s * szz - sz * sz
-        ok = n >= 2 and det > 1e-12 * max(s * szz, 1e-300)
-        used[i] = n
-        valid[i] = ok
-        residual[i] = np.nan
-        if not ok:
-            start[i, 0] = start[i, 1] = slope[i, 0] = slope[i, 1] = np.nan
-            continue
-        a0 = (s * szx0 - sz * sx0) / det
-        a1 = (s * szx1 - sz * sx1) / det
-        b0 = (sx0 - a0 * sz) / s
-        b1 = (sx1 - a1 * sz) / s
-        slope[i, 0], slope[i, 1], start[i, 0], start[i, 1] = a0, a1, b0, b1
-        if n > 2:
-            norm2 = 1.0 + a0 * a0 + a1 * a1
-            ss = 0.0
-            for k in range(m):
-                wk = np.float64(weights[k, i])
-                x0, x1 = points[k, i, 0], points[k, i, 1]
-                if not (wk > 0) or not (np.isfinite(x0) and np.isfinite(x1)):
-                    continue
-                e0 = x0 - (b0 + a0 * z[k, i])
-                e1 = x1 - (b1 + a1 * z[k, i])
-                along = (e0 * a0 + e1 * a1)
-                ss += e0 * e0 + e1 * e1 - along * along / norm2
-            residual[i] = np.sqrt(max(ss, 0.0) / n)
 
 
 def glass_offset(slope: np.ndarray, glass: CoverGlass) -> np.ndarray:
@@ -177,23 +129,28 @@ def fit_posed_lines(coords: list[np.ndarray], weights: list[np.ndarray], rotatio
     out = Lines(np.empty((h, w, 2)), np.empty((h, w, 2)), np.empty((h, w), bool), np.empty((h, w), np.float32),
                 np.empty((h, w), np.int16), z_ref)
     ss, count = np.zeros(m), np.zeros(m)
+    glassy = glass is not None and glass.thickness_mm > 0
     for r0 in range(0, h, rows):
         sl = slice(r0, min(h, r0 + rows))
         q = np.stack([np.stack([c[0, sl] * pitch[0], c[1, sl] * pitch[1]], axis=-1) for c in coords])
-        wt = np.stack([wk[sl] for wk in weights])
+        wt = np.ascontiguousarray(np.stack([wk[sl] for wk in weights]), np.float32)
+        n = q.shape[1] * w
         shift = np.zeros_like(q)
-        for it in range(1 + (GLASS_ITERATIONS if glass is not None and glass.thickness_mm > 0 else 0)):
-            x = np.einsum("kij,kabj->kabi", rotation[:, :, :2], q + shift) + translation[:, None, None, :]
-            part = fit_lines(x[..., 2], x[..., :2], wt, 0.0)
-            if it < GLASS_ITERATIONS and glass is not None and glass.thickness_mm > 0:
-                d = np.concatenate([np.nan_to_num(part.slope), np.ones(part.slope.shape[:2] + (1,))], axis=-1)
+        part = Lines(np.empty((n, 2)), np.empty((n, 2)), np.empty(n, bool), np.empty(n, np.float32),
+                     np.empty(n, np.int16))
+        sq = np.empty((n, m))
+        for it in range(1 + (GLASS_ITERATIONS if glassy else 0)):
+            _fit_posed(np.ascontiguousarray((q + shift).reshape(m, n, 2)), wt.reshape(m, n), rotation, translation,
+                       part.start, part.slope, part.valid, part.used, part.residual_mm, sq)
+            if it < GLASS_ITERATIONS and glassy:
+                d = np.concatenate([np.nan_to_num(part.slope), np.ones((n, 1))], axis=-1)
                 for k in range(m):
                     dk = d @ rotation[k]                     # the direction in display k's frame
-                    shift[k] = glass_offset(dk[..., :2] / dk[..., 2:], glass)
-        e = x[..., :2] - part.start[None] - x[..., 2:] * part.slope[None]
-        used = (wt > 0) & part.valid[None] & np.isfinite(e).all(axis=-1)
-        ss += np.where(used, (e * e).sum(axis=-1), 0.0).sum(axis=(1, 2))
-        count += used.sum(axis=(1, 2))
+                    shift[k] = glass_offset(dk[..., :2] / dk[..., 2:], glass).reshape(shift.shape[1:])
+        ss += np.nansum(sq, axis=0)
+        count += (np.isfinite(sq) & (wt.reshape(m, n).T > 0)).sum(axis=0)
+        part = Lines(*(a_.reshape(q.shape[1], w, *a_.shape[1:]) for a_ in
+                       (part.start, part.slope, part.valid, part.residual_mm, part.used)))
         # the lines in the output frame, starting on its plane z = z_ref
         p = np.concatenate([part.start, np.zeros(part.start.shape[:2] + (1,))], axis=-1) @ a.T + b
         d = np.concatenate([part.slope, np.ones(part.slope.shape[:2] + (1,))], axis=-1) @ a.T
@@ -207,3 +164,65 @@ def fit_posed_lines(coords: list[np.ndarray], weights: list[np.ndarray], rotatio
     out.start[~out.valid] = np.nan
     out.slope[~out.valid] = np.nan
     return PosedLines(out, np.sqrt(ss / np.maximum(count, 1)), count)
+
+
+@numba.njit(cache=True, parallel=True)
+def _fit_posed(q, weights, rotation, translation, start, slope, valid, used, residual, sq):  # pragma: no cover
+    """Per pixel i: its points X_k = R_k (q[k, i], 0) + t_k (float64) and the weighted line
+    x, y = start + slope * z through them; residual = RMS distance of the used points from the line
+    (NaN unless 3 or more were used); sq[i, k] (if sq has rows): the squared distance of point k from
+    the line (NaN where the point is not used or the line not valid)."""
+    m = q.shape[0]
+    keep = sq.shape[0] > 0
+    for i in numba.prange(q.shape[1]):
+        s = sz = szz = sx0 = sx1 = szx0 = szx1 = 0.0
+        n = 0
+        for k in range(m):
+            wk = np.float64(weights[k, i])
+            if not (wk > 0) or not (np.isfinite(q[k, i, 0]) and np.isfinite(q[k, i, 1])):
+                continue
+            x0 = rotation[k, 0, 0] * q[k, i, 0] + rotation[k, 0, 1] * q[k, i, 1] + translation[k, 0]
+            x1 = rotation[k, 1, 0] * q[k, i, 0] + rotation[k, 1, 1] * q[k, i, 1] + translation[k, 1]
+            zk = rotation[k, 2, 0] * q[k, i, 0] + rotation[k, 2, 1] * q[k, i, 1] + translation[k, 2]
+            n += 1
+            s += wk
+            sz += wk * zk
+            szz += wk * zk * zk
+            sx0 += wk * x0
+            sx1 += wk * x1
+            szx0 += wk * zk * x0
+            szx1 += wk * zk * x1
+        det = s * szz - sz * sz
+        ok = n >= 2 and det > 1e-12 * max(s * szz, 1e-300)
+        used[i] = n
+        valid[i] = ok
+        residual[i] = np.nan
+        if keep:
+            for k in range(m):
+                sq[i, k] = np.nan
+        if not ok:
+            start[i, 0] = start[i, 1] = slope[i, 0] = slope[i, 1] = np.nan
+            continue
+        a0 = (s * szx0 - sz * sx0) / det
+        a1 = (s * szx1 - sz * sx1) / det
+        b0 = (sx0 - a0 * sz) / s
+        b1 = (sx1 - a1 * sz) / s
+        slope[i, 0], slope[i, 1], start[i, 0], start[i, 1] = a0, a1, b0, b1
+        norm2 = 1.0 + a0 * a0 + a1 * a1
+        ss = 0.0
+        for k in range(m):
+            wk = np.float64(weights[k, i])
+            if not (wk > 0) or not (np.isfinite(q[k, i, 0]) and np.isfinite(q[k, i, 1])):
+                continue
+            x0 = rotation[k, 0, 0] * q[k, i, 0] + rotation[k, 0, 1] * q[k, i, 1] + translation[k, 0]
+            x1 = rotation[k, 1, 0] * q[k, i, 0] + rotation[k, 1, 1] * q[k, i, 1] + translation[k, 1]
+            zk = rotation[k, 2, 0] * q[k, i, 0] + rotation[k, 2, 1] * q[k, i, 1] + translation[k, 2]
+            e0 = x0 - (b0 + a0 * zk)
+            e1 = x1 - (b1 + a1 * zk)
+            along = e0 * a0 + e1 * a1
+            d2 = max(e0 * e0 + e1 * e1 - along * along / norm2, 0.0)
+            if keep:
+                sq[i, k] = d2
+            ss += d2
+        if n > 2:
+            residual[i] = np.sqrt(ss / n)
