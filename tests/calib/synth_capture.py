@@ -57,25 +57,34 @@ def _hit_pose(origin, direction, rotation, translation, display):
 
 def make_capture(root: Path, w=96, h=72, zs=(0.0, 40.0), periods=(480, 60, 12), steps=3, gamma=1.0,
                  noise=0.0, flat_levels=(), glass: CoverGlass | None = None, seed=0, low=20, high=240,
-                 bit_depth=8, gain=1.0, axes=("x", "y"), display=DISPLAY, cover=None, poses=None):
+                 bit_depth=8, gain=1.0, axes=("x", "y"), display=DISPLAY, cover=None, poses=None, bayer=None):
     """Write a dataset under `root`; returns (capture manifest path, true PRVM).
 
     cover: optional (c0, c1, r0, r1) display pixel window that shows the pattern (default the whole
     display); outside it the camera sees black. poses: instead of stage positions, display poses
     [(R, t), ...] in the cameras' frame (X = R q + t), frames with `pose`, flats at pose 0 only; the
-    truth is then in the display's frame at pose 0.
+    truth is then in the display's frame at pose 0. bayer: (pattern, {colour: (gain, gamma)}), a raw
+    Bayer camera whose colours see the display with their own gain and gamma (instead of `gamma`).
     """
     if cover is None:
         cover = (-0.5, display.width_px - 0.5, -0.5, display.height_px - 0.5)
     rng = np.random.default_rng(seed)
     origin, direction = true_rays(w, h)
     disp = Display(display.width_px, display.height_px, display.pitch_mm, None, glass)
-    writer = CaptureWriter(root, "calibration", {"cam0": (w, h)}, disp, bit_depth={"cam0": bit_depth})
+    writer = CaptureWriter(root, "calibration", {"cam0": (w, h)}, disp, bit_depth={"cam0": bit_depth},
+                           bayer={"cam0": bayer[0]} if bayer else None)
     full = 2 ** bit_depth - 1
-    scale = full / 255 * gain
+    scale = np.full((h, w), full / 255 * gain)
+    power = np.full((h, w), float(gamma))
+    if bayer:
+        for dy in (0, 1):
+            for dx in (0, 1):
+                g, gam = bayer[1][bayer[0][2 * dy + dx]]
+                scale[dy::2, dx::2] *= g
+                power[dy::2, dx::2] = gam
 
     def shoot(code, c, r):
-        lum = 255 * (np.clip(code, 0, 255) / 255) ** gamma         # a continuous (interpolated) display
+        lum = 255 * (np.clip(code, 0, 255) / 255) ** power         # a continuous (interpolated) display
         inside = (c >= cover[0]) & (c <= cover[1]) & (r >= cover[2]) & (r <= cover[3])
         lum = np.where(inside, lum, 0)
         img = lum * scale + rng.normal(0, noise, lum.shape)
