@@ -166,6 +166,17 @@ def fit_posed_lines(coords: list[np.ndarray], weights: list[np.ndarray], rotatio
     return PosedLines(out, np.sqrt(ss / np.maximum(count, 1)), count)
 
 
+@numba.njit(cache=True, inline="always")
+def _point(q, weights, rotation, translation, k, i):  # pragma: no cover - compiled
+    """(weight, x, y, z) of point k of pixel i: R_k (q[k, i], 0) + t_k; weight 0 where left out."""
+    wk = np.float64(weights[k, i])
+    if not (wk > 0) or not (np.isfinite(q[k, i, 0]) and np.isfinite(q[k, i, 1])):
+        return 0.0, 0.0, 0.0, 0.0
+    x0 = rotation[k, 0, 0] * q[k, i, 0] + rotation[k, 0, 1] * q[k, i, 1] + translation[k, 0]
+    x1 = rotation[k, 1, 0] * q[k, i, 0] + rotation[k, 1, 1] * q[k, i, 1] + translation[k, 1]
+    return wk, x0, x1, rotation[k, 2, 0] * q[k, i, 0] + rotation[k, 2, 1] * q[k, i, 1] + translation[k, 2]
+
+
 @numba.njit(cache=True, parallel=True)
 def _fit_posed(q, weights, rotation, translation, start, slope, valid, used, residual, sq):  # pragma: no cover
     """Per pixel i: its points X_k = R_k (q[k, i], 0) + t_k (float64) and the weighted line
@@ -178,12 +189,9 @@ def _fit_posed(q, weights, rotation, translation, start, slope, valid, used, res
         s = sz = szz = sx0 = sx1 = szx0 = szx1 = 0.0
         n = 0
         for k in range(m):
-            wk = np.float64(weights[k, i])
-            if not (wk > 0) or not (np.isfinite(q[k, i, 0]) and np.isfinite(q[k, i, 1])):
+            wk, x0, x1, zk = _point(q, weights, rotation, translation, k, i)
+            if not wk > 0:
                 continue
-            x0 = rotation[k, 0, 0] * q[k, i, 0] + rotation[k, 0, 1] * q[k, i, 1] + translation[k, 0]
-            x1 = rotation[k, 1, 0] * q[k, i, 0] + rotation[k, 1, 1] * q[k, i, 1] + translation[k, 1]
-            zk = rotation[k, 2, 0] * q[k, i, 0] + rotation[k, 2, 1] * q[k, i, 1] + translation[k, 2]
             n += 1
             s += wk
             sz += wk * zk
@@ -211,12 +219,9 @@ def _fit_posed(q, weights, rotation, translation, start, slope, valid, used, res
         norm2 = 1.0 + a0 * a0 + a1 * a1
         ss = 0.0
         for k in range(m):
-            wk = np.float64(weights[k, i])
-            if not (wk > 0) or not (np.isfinite(q[k, i, 0]) and np.isfinite(q[k, i, 1])):
+            wk, x0, x1, zk = _point(q, weights, rotation, translation, k, i)
+            if not wk > 0:
                 continue
-            x0 = rotation[k, 0, 0] * q[k, i, 0] + rotation[k, 0, 1] * q[k, i, 1] + translation[k, 0]
-            x1 = rotation[k, 1, 0] * q[k, i, 0] + rotation[k, 1, 1] * q[k, i, 1] + translation[k, 1]
-            zk = rotation[k, 2, 0] * q[k, i, 0] + rotation[k, 2, 1] * q[k, i, 1] + translation[k, 2]
             e0 = x0 - (b0 + a0 * zk)
             e1 = x1 - (b1 + a1 * zk)
             along = e0 * a0 + e1 * a1

@@ -30,21 +30,27 @@ def register(modes) -> None:
                    help="nominal stage positions in mm (default 0,50)")
     add_handheld_options(s)
     add_simulation_options(s, 1280, 1024, None, "lenses, poses, stage and noise", lens=None,
-                           supersample_help="sub-samples per pixel side (default max(3, 1280 / width): a "
-                                            "sub-sample below a display pixel)")
+                           supersample_help="sub-samples per pixel side (default max(3, 1280 / width, times "
+                                            "the farthest hand-held distance / 400 mm): a sub-sample below a "
+                                            "display pixel)")
     s.set_defaults(func=run)
 
 
 def run(args) -> int:
+    import numpy as np
+
     from scanners.sim.stereo import simulate_stereo
     left = args.lens or args.left
     right = args.lens or args.right
-    supersample = args.supersample or max(3, -(-1280 // args.width))
+    held = handheld_from(args)
+    # a sub-sample below a display pixel at the farthest display (the default rig's 400 mm, or a hand's)
+    reach = 1.0 if held is None else max(held.distance_mm) / 400.0
+    supersample = args.supersample or max(3, int(np.ceil(1280 / args.width * reach)))
     pixel_mm = args.pixel_mm if args.pixel_mm else 0.0053 * 1280 / args.width
     out = simulate_stereo(args.output, left, right, args.width, args.height, args.seed, args.separate,
                           args.baseline, args.distance, {"pixel_mm": pixel_mm}, periods=args.periods,
                           z_positions=args.positions, noise=args.noise, supersample=supersample,
-                          handheld=handheld_from(args))
+                          handheld=held)
     what = "left/, right/ (own WCS each), register/ and registration_truth.json" if args.separate else \
         "capture.json (cam0, cam1), truth_cam0.npz, truth_cam1.npz"
     print(f"wrote {out}: {what}")

@@ -17,7 +17,7 @@ from stereodic.rig import build_rig
 @pytest.mark.slow
 def test_two_cameras_of_one_hand_held_capture_share_the_wcs(tmp_path):
     out = simulate_stereo(tmp_path / "stereo", "brown", "noncentral", 320, 256, lens_options={"pixel_mm": 0.0212},
-                          handheld=HandHeld(poses=6), supersample=4, flat_levels=(0, 64, 128, 192, 255))
+                          handheld=HandHeld(poses=6), supersample=6, flat_levels=(0, 64, 128, 192, 255))
     capture = load_capture(out)
     assert capture.posed and set(capture.cameras) == {"cam0", "cam1"}
     prvms = []
