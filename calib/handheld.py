@@ -16,7 +16,7 @@ DESIGN.md's stage-free captures, frames with `pose`).
 
 The per-pose report (`PoseReport`, the PRVM's `meta.poses`): each pose in the WCS, its 1-sigma
 uncertainty (from the Jacobian and the residual), the RMS distance of its points from the rays, its
-normalised residual, and whether it was out of family.
+out-of-family statistic, and whether it was out of family (and left out).
 """
 
 from __future__ import annotations
@@ -42,9 +42,10 @@ class PoseReport:
     poses: the pose numbers; rotation (M, 3, 3), translation (M, 3): X_wcs = R q + t for display-frame
     points q; sd_rotation_deg, sd_translation_um (M, 3): 1-sigma of the rotation vector and of the
     translation of `centre_mm` (M, 3), the centroid of the display area the camera saw; rms_um (M,): RMS
-    distance of the pose's points from the rays; chi (M,): normalised residual (`calib.poses`);
-    out_of_family (M,) bool; used (M,) bool: its points went into the rays; start_rms_px: the central
-    starting model's reprojection error.
+    distance of the pose's points from the rays; chi (M,): how far its points are from one rigid display
+    (`calib.poses.PoseFit.chi`); out_of_family (M,) bool: chi above `calib.poses.OUT_OF_FAMILY`; used
+    (M,) bool: its points went into the rays (an out-of-family pose is left out, but for pose 0, the
+    WCS); start_rms_px: the central starting model's reprojection error.
     """
 
     poses: list[int]
@@ -77,7 +78,7 @@ def _refine(sample, start, active: np.ndarray) -> PoseFit:
 def estimate_poses(capture: Capture, camera: str, coords: list[np.ndarray],
                    weights: list[np.ndarray]) -> tuple[PoseFit, np.ndarray, np.ndarray, object]:
     """The refined poses (working frame) of the poses kept, which poses those are ((M,) bool), the
-    normalised residual of every pose when it was last refined ((M,)), and the central start.
+    out-of-family statistic of every pose when it was last refined ((M,)), and the central start.
     InputError naming the manifest when the central model cannot be fitted."""
     w, h = capture.cameras[camera]
     sample = pose_sample(coords, weights, capture.display.pitch_mm)
@@ -92,7 +93,7 @@ def estimate_poses(capture: Capture, camera: str, coords: list[np.ndarray],
         fit = _refine(sample, start, active)
         idx = np.flatnonzero(active)
         chi[idx] = fit.chi
-        bad = [k for k, c in zip(idx, fit.chi) if k != 0 and fit.out_of_family[list(idx).index(k)]]
+        bad = [k for j, k in enumerate(idx) if k != 0 and fit.out_of_family[j]]
         if not bad or active.sum() - 1 < MIN_POSES:
             return fit, active, chi, start
         active[max(bad, key=lambda k: chi[k])] = False
@@ -119,7 +120,8 @@ def _report(poses: list[int], fit: PoseFit, active: np.ndarray, chi: np.ndarray,
         sd = np.sqrt(np.maximum(np.diag(turn @ fit.covariance[j] @ turn.T), 0))
         sd_rot[k], sd_t[k] = np.degrees(sd[:3]), 1000 * sd[3:]
         rms[k] = 1000 * rms_mm[j]
-    return PoseReport(poses, rot, trans, centre, sd_rot, sd_t, rms, chi, ~active, active.copy(), start_rms_px)
+    return PoseReport(poses, rot, trans, centre, sd_rot, sd_t, rms, chi, chi > OUT_OF_FAMILY, active.copy(),
+                      start_rms_px)
 
 
 def calibrate_handheld(capture: Capture, camera: str, smoother, z_ref: float = 0.0):

@@ -83,14 +83,14 @@ def pose_lines(meta: dict) -> list[str]:
     out = []
     for p in meta.get("poses", []):
         if not p["used"]:
-            out.append(f"  pose {p['pose']}: left out, its residual is {p['chi']:.1f}x the median pose's "
-                       "(did the display move during its fringes?)")
+            out.append(f"  pose {p['pose']}: left out, out of family: its points do not lie on one rigid display "
+                       f"(statistic {p['chi']:.1f}; did the display move during its fringes?)")
             continue
         r, t = p["rotation_deg"], p["translation_mm"]
         out.append(f"  pose {p['pose']}: rotation ({r[0]:+.4f}, {r[1]:+.4f}, {r[2]:+.4f}) deg "
                    f"+- {max(p['sd_rotation_deg']):.5f}, translation ({t[0]:+.4f}, {t[1]:+.4f}, {t[2]:+.4f}) mm "
                    f"+- {max(p['sd_translation_um']):.2f} um, RMS residual {p['rms_um']:.1f} um, "
-                   f"normalised residual {p['chi']:.2f}")
+                   f"out-of-family statistic {p['chi']:.2f}" + (" OUT OF FAMILY" if p["out_of_family"] else ""))
     stage = meta.get("stage_poses")
     if stage:
         state = ("refined poses used" if stage["used"] else

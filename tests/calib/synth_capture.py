@@ -57,13 +57,15 @@ def _hit_pose(origin, direction, rotation, translation, display):
 
 def make_capture(root: Path, w=96, h=72, zs=(0.0, 40.0), periods=(480, 60, 12), steps=3, gamma=1.0,
                  noise=0.0, flat_levels=(), glass: CoverGlass | None = None, seed=0, low=20, high=240,
-                 bit_depth=8, gain=1.0, axes=("x", "y"), display=DISPLAY, cover=None, poses=None, bayer=None):
+                 bit_depth=8, gain=1.0, axes=("x", "y"), display=DISPLAY, cover=None, poses=None, bayer=None,
+                 stage_poses=None):
     """Write a dataset under `root`; returns (capture manifest path, true PRVM).
 
     cover: optional (c0, c1, r0, r1) display pixel window that shows the pattern (default the whole
     display); outside it the camera sees black. poses: instead of stage positions, display poses
     [(R, t), ...] in the cameras' frame (X = R q + t), frames with `pose`, flats at pose 0 only; the
-    truth is then in the display's frame at pose 0. bayer: (pattern, {colour: (gain, gamma)}), a raw
+    truth is then in the display's frame at pose 0. stage_poses: with `zs`, the display's true pose
+    [(R, t), ...] at each stage position (a stage with errors; the manifest keeps the nominal z). bayer: (pattern, {colour: (gain, gamma)}), a raw
     Bayer camera whose colours see the display with their own gain and gamma (instead of `gamma`).
     """
     if cover is None:
@@ -92,7 +94,9 @@ def make_capture(root: Path, w=96, h=72, zs=(0.0, 40.0), periods=(480, 60, 12), 
 
     places = [{"z_mm": z} for z in zs] if poses is None else [{"pose": k} for k in range(len(poses))]
     for zi, where in enumerate(places):
-        if poses is None:
+        if stage_poses is not None:
+            c, r = _hit_pose(origin, direction, *stage_poses[zi], display)
+        elif poses is None:
             c, r = _hit(origin, direction, where["z_mm"], glass)
         else:
             c, r = _hit_pose(origin, direction, *poses[zi], display)
