@@ -30,7 +30,8 @@ def register(sub):
                    help="reduced-dimensional PRVM: from one stage position, write the undistortion map "
                         "(stereodic.undistort/1) instead of rays")
     p.add_argument("--position", type=float, default=None, metavar="Z_MM",
-                   help="with --reduced: the stage position to use (default the first)")
+                   help="with --reduced: the stage position to use, or the pose of a hand-held capture "
+                        "(default the first)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.npz")
     p.set_defaults(func=run)
 
@@ -129,16 +130,16 @@ def _reduced(args, capture, smoother) -> int:
     from calib.errors import InputError
     from calib.reduced import undistort_map
     camera = default_camera(capture, args.camera)
-    zs = capture.z_positions(camera)
-    z = zs[0] if args.position is None else args.position
+    zs = capture.positions(camera)
+    z = zs[0] if args.position is None else (int(args.position) if capture.posed else args.position)
     if z not in zs:
-        raise InputError("--position", f"camera {camera!r} has no frames at z={z} mm (have {zs})")
+        raise InputError("--position", f"camera {camera!r} has no frames at {capture.label(z)} (have {zs})")
     from calib.calibration import AUTO, auto_smoother
     decoded = decode_position(capture, camera, z, intensity_matrix(capture, camera, z))
     umap = undistort_map(decoded.coord, decoded.valid, auto_smoother(decoded) if smoother is AUTO else smoother)
-    umap.meta.update({"camera": camera, "dataset": str(capture.root), "z_mm": z})
+    umap.meta.update({"camera": camera, "dataset": str(capture.root), **capture.at(z)})
     umap.save(args.output)
-    print(f"{args.output}: undistortion map of {camera} at z={z} mm, {umap.valid.mean():.1%} of the output "
-          "image covered")
+    print(f"{args.output}: undistortion map of {camera} at {capture.label(z)}, {umap.valid.mean():.1%} of the "
+          "output image covered")
     return 0
 

@@ -135,3 +135,14 @@ def test_simulated_display_moved_during_its_fringes_is_left_out(tmp_path):
     assert any("pose(s) 3 left out" in n for n in cal.notes)
     truth = load_prvm(tmp_path / "truth.npz")
     assert ErrorStats.of(ray_error_px(cal.prvm, truth, 0.0)).rms < 0.01
+
+
+def test_reduced_prvm_of_one_pose(synthetic, tmp_path, capsys):
+    """--reduced works on one pose of a hand-held capture (the undistortion map of that display)."""
+    from calib.reduced import load_undistort_map
+    root = synthetic[0]
+    out = tmp_path / "map.npz"
+    assert main(["calibrate", str(root), "--reduced", "--position", "2", "-o", str(out)]) == 0
+    assert "at pose 2" in capsys.readouterr().out and load_undistort_map(out).meta["pose"] == 2
+    assert main(["calibrate", str(root), "--reduced", "--position", "9", "-o", str(out)]) == 2
+    assert "--position" in capsys.readouterr().err
