@@ -12,7 +12,7 @@ Jacobian: per pixel, the derivative of its points' offsets from its (fixed) line
 complement of the line fit's design. Levenberg-Marquardt steps solve the 6M x 6M normal equations,
 which are summed over the pixels from that structure (each point moves with its own pose; the
 projection is the identity less a rank-2 term per pixel), so the Jacobian of 2M rows per pixel is
-never formed. Then every pixel's ray is fitted once (`calib.prvm.fit_lines`).
+never formed. Then every pixel's ray is fitted once (`calib.prvm.fit_posed_lines`).
 
 The subsample (`pose_sample`) uses every pixel: the image is cut into square blocks (a few thousand),
 and each block's points at a pose are averaged with equal weights: that mean lies on the ray of the
@@ -30,7 +30,8 @@ unknown poses fix a generic ray field (Sturm and Ramalingam 2004). With (nearly)
 stage) the affine maps x + a z, y + b z, c z carry parallel planes isometrically onto parallel planes
 and lines onto lines, so the data cannot tell those three numbers: `staged_basis` keeps the
 stage's nominal travel for them (the linear trend of the positions along and across the axis), and
-estimates the rest (each position's tilt, and its z and lateral errors off that trend).
+leaves the rest free (each position's tilt, and its z and lateral errors off that trend), of which
+`calib.stage_poses` estimates what the data fix.
 
 Each pose is moved about the centroid of its own points (so rotation and translation decorrelate):
 X = Exp(w) (X0 - c) + c + d, with X0 = R0 q + t0 its starting pose. Uncertainty: the covariance of
