@@ -9,6 +9,10 @@ Frame order per stage position (nominal positions in the manifest; the true ones
 2*pi*k/N wrapped to (-pi, pi], then chessboards. Files: `z000/cam0_flat_128.png`,
 `z000/cam0_x_P60_s0.png`, `z000/cam0_chess_0.png`, ... The manifest is written last, so an interrupted
 run never leaves a folder that looks like a complete dataset.
+
+With `handheld` (`scanners.sim.handheld`) the display is held by hand in random poses instead: frames
+carry `pose` (files `pose00/cam0_x_P60_s0.png`, ...), the flats are at pose 0 only, and the truth is in
+the display's frame at pose 0 (DESIGN.md's WCS of a stage-free capture).
 """
 
 from __future__ import annotations
@@ -23,8 +27,10 @@ from calib.capture import MANIFEST, Capture, CoverGlass, Frame, Pattern, load_ca
 from calib.errors import InputError
 from calib.imageio import write_gray
 from calib.progress import progress
+from scanners.sim.bayer import BayerCamera, BayerSensor
 from scanners.sim.camera import SimCamera
 from scanners.sim.display import SimDisplay
+from scanners.sim.handheld import HandHeld, disturbed_pose, handheld_poses, relative_poses, to_pose0_frame
 from scanners.sim.lenses import Lens, make_lens
 from scanners.sim.pose import DisplayPose
 from scanners.sim.screens import fringe_shifts, screen_image
@@ -45,7 +51,8 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
                          stage_axis=(0.0, 0.0, 1.0), exposure_fraction: float = 0.87,
                          display: SimDisplay | None = None, lens_options: dict | None = None,
                          camera: str = "cam0", sensor_seed: int | None = None,
-                         board_lenses: tuple[Lens, ...] = ()) -> Capture:
+                         board_lenses: tuple[Lens, ...] = (), handheld: HandHeld | None = None,
+                         bayer: BayerSensor | None = None) -> Capture:
     """Write a simulated calibration dataset to `out_dir` and return it (as load_capture reads it).
 
     lens: a family of scanners.sim.lenses (with `lens_options` passed to make_lens) or a Lens;
@@ -59,7 +66,10 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
     (`scanners.sim.stage.SimStage`); exposure_fraction: brightest fringe pixel / full scale;
     sensor_seed: seed of the camera's gain map and noise (default `seed`; cameras of one rig share the
     stage's seed but each has its own sensor); board_lenses: further lenses (a stereo rig's other
-    cameras) that must see every chessboard whole too: one display shows one board to all of them.
+    cameras) that must see every chessboard whole too: one display shows one board to all of them;
+    handheld: hold the display by hand in random poses (`scanners.sim.handheld.HandHeld`) instead of the
+    stage (z_positions and the stage errors unused); bayer: a colour camera with that raw Bayer mosaic
+    (`scanners.sim.bayer.BayerSensor`; its lens gets the sensor's lateral chromatic aberration).
     Raises InputError naming the argument for bad arguments or a display that does not cover the field.
     """
     periods = _check_list("--periods", periods, positive=True)
@@ -86,30 +96,50 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
         display = dataclasses.replace(display, cover_glass=cover_glass)
     if isinstance(lens, str):
         lens = make_lens(lens, width, height, seed, **(lens_options or {}))
-    try:
-        stage = SimStage(tuple(z_nominal), stage_error_um, tuple(stage_axis), seed, stage_tilt_deg,
-                         stage_lateral_um, pivot_mm=tuple(np.array(display.size_mm) / 2))
-    except ValueError as exc:
-        raise InputError("stage", str(exc)) from None
-    cam = SimCamera(lens, Sensor(bit_depth=bit_depth), supersample,
-                    seed=seed if sensor_seed is None else sensor_seed)
-    cam.set_exposure(display, high, stage.poses[0], exposure_fraction)
+    if handheld is not None and chessboard:
+        raise InputError("--chessboard", "chessboards are rendered at stage positions only")
+    stage = None
+    if handheld is None:
+        try:
+            stage = SimStage(tuple(z_nominal), stage_error_um, tuple(stage_axis), seed, stage_tilt_deg,
+                             stage_lateral_um, pivot_mm=tuple(np.array(display.size_mm) / 2))
+        except ValueError as exc:
+            raise InputError("stage", str(exc)) from None
+    sensor_options = dict(seed=seed if sensor_seed is None else sensor_seed, cover=handheld is None)
+    if bayer is not None:
+        lens = dataclasses.replace(lens, colour=bayer.colour(lens.width, lens.height))
+        cam = BayerCamera(lens, Sensor(bit_depth=bit_depth), supersample, bayer=bayer, **sensor_options)
+    else:
+        cam = SimCamera(lens, Sensor(bit_depth=bit_depth), supersample, **sensor_options)
+    poses = list(stage.poses) if stage is not None else handheld_poses(lens, display, handheld, seed)
+    cam.set_exposure(display, high, poses[0], exposure_fraction)
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / MANIFEST).unlink(missing_ok=True)     # an old manifest must not describe half-new images
     others = [SimCamera(ln, Sensor(bit_depth=bit_depth), cam.supersample) for ln in board_lenses]
-    boards = [_chess_placements([cam, *others], display, pose) if chessboard else [] for pose in stage.poses]
-    frames = _frames(camera, z_nominal, flats, periods, steps, low, high, boards)
-    for f in progress(frames, "simulating", total=len(frames)):
+    boards = [_chess_placements([cam, *others], display, pose) if chessboard else [] for pose in poses]
+    places = ([{"z_mm": z} for z in z_nominal] if stage is not None else
+              [{"pose": i} for i in range(len(poses))])
+    frames = _frames(camera, places, flats, periods, steps, low, high, boards)
+    shown = _shown_poses(frames, poses, stage, handheld, display, seed)
+    for f, pose in progress(list(zip(frames, shown)), "simulating", total=len(frames)):
         image = screen_image(f.pattern, display.width_px, display.height_px)
-        write_gray(out / f.file, cam.render(image, display, stage.true_pose(f.z_mm), noise))
+        write_gray(out / f.file, cam.render(image, display, pose, noise))
 
-    _truth(cam, display, stage, seed, noise, camera).save(out / "truth.npz")
+    truth = _truth(cam, display, poses, seed, noise, camera, stage)
+    simulated = {"lens": lens.family, "seed": seed, "noise": noise, "supersample": cam.supersample,
+                 "truth": "truth.npz"}
+    if bayer is not None:
+        simulated["bayer"] = dataclasses.asdict(bayer)
+        truth.meta["bayer"] = simulated["bayer"]
+    if handheld is not None:
+        truth = _handheld_truth(truth, poses, handheld, shown, frames)
+        simulated["handheld"] = truth.meta["handheld"]
+    truth.save(out / "truth.npz")
     cap = Capture(out, "calibration", {camera: (lens.width, lens.height)}, frames, display.record(),
-                  stage.axis, {"simulated": {"lens": lens.family, "seed": seed, "noise": noise,
-                                             "supersample": cam.supersample, "truth": "truth.npz"}},
-                  {camera: bit_depth})
+                  stage.axis if stage is not None else (0.0, 0.0, 1.0), {"simulated": simulated},
+                  {camera: bit_depth}, {camera: bayer.pattern} if bayer is not None else {})
     cap.save()
     return load_capture(out, min_positions=1)
 
@@ -124,23 +154,38 @@ def _check_list(name: str, values, positive: bool = False, allow_empty: bool = F
     return [int(v) if v == int(v) else v for v in vals]
 
 
-def _frames(camera, z_nominal, flats, periods, steps, low, high, boards) -> list[Frame]:
+def _frames(camera, places, flats, periods, steps, low, high, boards) -> list[Frame]:
+    """The frames at each place ({"z_mm": z}: flats at every stage position; {"pose": i}: at pose 0)."""
     frames = []
-    for i, z in enumerate(z_nominal):
-        folder = f"z{i:03d}"
-        for level in flats:
+    for i, where in enumerate(places):
+        folder = f"z{i:03d}" if "z_mm" in where else f"pose{i:02d}"
+        for level in flats if "z_mm" in where or i == 0 else ():
             frames.append(Frame(camera, f"{folder}/{camera}_flat_{level}.png", Pattern("flat", {"level": level}),
-                                z_mm=z))
+                                **where))
         for axis in ("x", "y"):
             for p in periods:
                 for k, shift in enumerate(fringe_shifts(int(steps))):
                     frames.append(Frame(camera, f"{folder}/{camera}_{axis}_P{p:g}_s{k}.png",
                                         Pattern("fringe", {"axis": axis, "period_px": p, "shift_rad": shift,
-                                                           "low": low, "high": high}), z_mm=z))
+                                                           "low": low, "high": high}), **where))
         for j, board in enumerate(boards[i]):
             frames.append(Frame(camera, f"{folder}/{camera}_chess_{j}.png",
-                                Pattern("chessboard", {**board, "low": low, "high": high}), z_mm=z))
+                                Pattern("chessboard", {**board, "low": low, "high": high}), **where))
     return frames
+
+
+def _shown_poses(frames, poses, stage, held, display, seed) -> list[DisplayPose]:
+    """The display's true pose while each frame was captured: the stage's at its nominal position, or
+    the hand's, moved halfway through the fringe frames of the disturbed pose."""
+    if stage is not None:
+        return [stage.true_pose(f.z_mm) for f in frames]
+    shown = [poses[f.pose] for f in frames]
+    if held.disturbed is not None:
+        moved = disturbed_pose(poses[held.disturbed], display, held, seed)
+        index = [i for i, f in enumerate(frames) if f.pose == held.disturbed and f.pattern.type == "fringe"]
+        for i in index[len(index) // 2:]:
+            shown[i] = moved
+    return shown
 
 
 def _chess_placements(cams: list[SimCamera], display: SimDisplay, pose: DisplayPose) -> list[dict]:
@@ -187,32 +232,54 @@ def _inside(outline: np.ndarray, board: dict, margin: float) -> bool:
                for c, r in ((c0, r0), (c0 + w, r0), (c0, r0 + h), (c0 + w, r0 + h)))
 
 
-def _truth(cam: SimCamera, display: SimDisplay, stage: SimStage, seed: int, noise: bool, camera: str):
-    """The true PRVM with the rig's other truths: stage positions, the display's true poses, gain and
-    vignetting maps, and the display coordinates (c, r) each pixel centre's ray reaches at each true
-    pose."""
+def _truth(cam: SimCamera, display: SimDisplay, poses: list[DisplayPose], seed: int, noise: bool, camera: str,
+           stage: SimStage | None):
+    """The true PRVM (simulator frame) with the rig's other truths: stage positions (with a stage), the
+    display's true poses, gain and vignetting maps, and the display coordinates (c, r) each pixel
+    centre's ray reaches at each true pose."""
     lens = cam.lens
     o, d = lens.rays(*lens.pixel_grid())
-    display_cr = np.stack([np.stack(display.hit(o, d, pose), axis=-1) for pose in stage.poses])
-    first = cam.view(display, stage.poses[0]).points_mm
+    display_cr = np.stack([np.stack(display.hit(o, d, pose), axis=-1) for pose in poses])
+    first = cam.view(display, poses[0]).points_mm
     h, w = lens.height, lens.width
     centre = first[h // 2, w // 2]
     footprint = 0.5 * (np.linalg.norm(np.diff(first, axis=1), axis=-1).mean()
                        + np.linalg.norm(np.diff(first, axis=0), axis=-1).mean())
+    rig = {} if stage is None else {"stage": {
+        "nominal_mm": list(stage.nominal_mm), "true_mm": list(stage.true_mm), "axis": list(stage.axis),
+        "error_um": stage.error_um, "tilt_deg": stage.tilt_deg, "lateral_um": stage.lateral_um,
+        "true_tilt_deg": stage.tilts_deg.tolist(), "true_lateral_mm": stage.lateral_mm.tolist()}}
     prvm = lens.true_prvm(
         camera=camera, dataset="capture.json", seed=seed, noise=noise,
-        working_distance_mm=float(lens.axis_depth(centre)), pixel_footprint_mm=float(footprint),
-        stage={"nominal_mm": list(stage.nominal_mm), "true_mm": list(stage.true_mm),
-               "axis": list(stage.axis), "error_um": stage.error_um, "tilt_deg": stage.tilt_deg,
-               "lateral_um": stage.lateral_um, "true_tilt_deg": stage.tilts_deg.tolist(),
-               "true_lateral_mm": stage.lateral_mm.tolist()},
+        working_distance_mm=float(lens.axis_depth(centre)), pixel_footprint_mm=float(footprint), **rig,
         display={"fill_factor": list(display.fill_factor), "stripes": display.stripes,
                  "black_level": display.black_level, "gamma": display.gamma},
         sensor={**cam.sensor.__dict__, "exposure_e": cam.exposure_e, "supersample": cam.supersample,
                 "diffraction_sigma_px": cam.sigma_px})
-    prvm.extra = {"stage_nominal_z_mm": np.array(stage.nominal_mm, float),
-                  "stage_true_z_mm": np.array(stage.true_mm, float),
-                  "display_rotation": np.array([p.R for p in stage.poses]),
-                  "display_translation_mm": np.array([p.t for p in stage.poses]), "gain": cam.gain,
+    prvm.extra = {"display_rotation": np.array([p.R for p in poses]),
+                  "display_translation_mm": np.array([p.t for p in poses]), "gain": cam.gain,
                   "vignetting": cam.vignetting, "display_cr": display_cr.astype(np.float32)}
+    if stage is not None:
+        prvm.extra = {"stage_nominal_z_mm": np.array(stage.nominal_mm, float),
+                      "stage_true_z_mm": np.array(stage.true_mm, float), **prvm.extra}
     return prvm
+
+
+def _handheld_truth(truth, poses: list[DisplayPose], held: HandHeld, shown: list[DisplayPose],
+                    frames: list[Frame]):
+    """The truth of a hand-held capture in the display's frame at pose 0 (the WCS its calibration
+    reports): rays, and each pose relative to pose 0 (the disturbed pose: where its first frames saw it);
+    `sim_rotation`, `sim_translation_mm`: pose 0 in the simulator's frame (X_sim = R X_wcs + t)."""
+    out = to_pose0_frame(truth, poses[0])
+    rot, t = relative_poses(poses)
+    out.extra.update({"display_rotation": rot, "display_translation_mm": t, "sim_rotation": poses[0].R,
+                      "sim_translation_mm": poses[0].t})
+    meta = {"poses": held.poses, "distance_mm": list(held.distance_mm), "max_tilt_deg": held.max_tilt_deg,
+            "roll_deg": held.roll_deg, "min_cover": held.min_cover, "disturbed": held.disturbed}
+    if held.disturbed is not None:
+        moved = next(p for p, f in zip(reversed(shown), reversed(frames)) if f.pose == held.disturbed)
+        mr, mt = relative_poses([poses[0], moved])
+        out.extra.update({"disturbed_rotation": mr[1], "disturbed_translation_mm": mt[1]})
+        meta.update(disturbance_mm=held.disturbance_mm, disturbance_deg=held.disturbance_deg)
+    out.meta["handheld"] = meta
+    return out

@@ -51,17 +51,19 @@ class SimCamera:
 
     exposure_e: expected photo-electrons of a pixel with unit gain and unit relative illumination
     looking at unit mean display luminance (see `set_exposure`). seed draws the PRNU gain map and the
-    noise. diffraction: include the Airy blur (wavelength_mm).
+    noise. diffraction: include the Airy blur (wavelength_mm). cover: require the display to cover the
+    whole field at every pose (a hand-held display need not: the pixels beside it see black).
     """
 
     def __init__(self, lens: Lens, sensor: Sensor | None = None, supersample: int = 3,
                  exposure_e: float = 10_000.0, seed: int = 0, diffraction: bool = True,
-                 wavelength_mm: float = 550e-6):
+                 wavelength_mm: float = 550e-6, cover: bool = True):
         if int(supersample) != supersample or not 1 <= supersample <= 16:
             raise InputError("--supersample", f"must be a whole number 1..16, got {supersample}")
         self.lens = lens
         self.sensor = sensor or Sensor()
         self.supersample = int(supersample)
+        self.cover = cover
         self.exposure_e = float(exposure_e)
         self.sigma_px = lens.diffraction_sigma_px(wavelength_mm) if diffraction else 0.0
         self.gain = (1.0 + self.sensor.prnu * np.random.default_rng([seed, 1]).standard_normal(
@@ -97,7 +99,8 @@ class SimCamera:
             c[v0 * s:v0 * s + len(vs)] = cc
             r[v0 * s:v0 * s + len(vs)] = rr
         lo_c, hi_c, lo_r, hi_r = c.min(), c.max(), r.min(), r.max()
-        if lo_c < -0.5 or lo_r < -0.5 or hi_c > display.width_px - 0.5 or hi_r > display.height_px - 0.5:
+        outside = lo_c < -0.5 or lo_r < -0.5 or hi_c > display.width_px - 0.5 or hi_r > display.height_px - 0.5
+        if outside and self.cover:
             raise InputError("simulated rig", f"the display ({display.width_px}x{display.height_px} px) does "
                              f"not cover the camera's field at {_where(pose)}: the field "
                              f"spans columns {lo_c:.0f}..{hi_c:.0f} and rows {lo_r:.0f}..{hi_r:.0f}; move "

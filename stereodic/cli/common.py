@@ -271,6 +271,34 @@ def display_pitch(screen, pitch_mm: list[float] | None) -> tuple[float, float]:
     return tuple(float(p) for p in pitch_mm) * (2 // len(pitch_mm))
 
 
+def add_handheld_options(p: argparse.ArgumentParser) -> None:
+    """The options of a hand-held (stage-free) simulated capture: --handheld N and how it is held."""
+    p.add_argument("--handheld", type=int, default=None, metavar="N",
+                   help="hold the display by hand in N random poses instead of moving it on the stage (frames "
+                        "carry 'pose'; the truth is in the display's frame at pose 0)")
+    p.add_argument("--hold-distance", type=parse_floats, default=[300.0, 600.0], metavar="NEAR,FAR",
+                   help="with --handheld: range of the display's distance from the camera, mm (default 300,600)")
+    p.add_argument("--max-tilt", type=float, default=35.0, metavar="DEG",
+                   help="with --handheld: the largest tilt of the display, degrees (default 35)")
+    p.add_argument("--disturb", type=int, default=None, metavar="POSE",
+                   help="with --handheld: the display moves (0.2 mm, 0.1 deg) halfway through this pose's fringes")
+
+
+def handheld_from(args):
+    """The `scanners.sim.handheld.HandHeld` of the options of `add_handheld_options`, None without
+    --handheld; InputError naming the option for one that does not fit."""
+    from calib.errors import InputError
+    from scanners.sim.handheld import HandHeld
+    if args.handheld is None:
+        if args.disturb is not None:
+            raise InputError("--disturb", "needs --handheld")
+        return None
+    if len(args.hold_distance) != 2:
+        raise InputError("--hold-distance", f"expected NEAR,FAR in mm, got {args.hold_distance}")
+    return HandHeld(poses=args.handheld, distance_mm=tuple(args.hold_distance), max_tilt_deg=args.max_tilt,
+                    disturbed=args.disturb)
+
+
 def parse_size(text: str) -> tuple[int, int]:
     """'1920x1080' -> (1920, 1080); argparse type."""
     try:

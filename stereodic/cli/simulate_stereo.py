@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from stereodic.cli.common import add_simulation_options, parse_floats, wrote
+from stereodic.cli.common import add_handheld_options, add_simulation_options, handheld_from, parse_floats, wrote
 
 
 def register(modes) -> None:
@@ -28,21 +28,29 @@ def register(modes) -> None:
                    help="fringe periods in display pixels (default 60,360,1920)")
     s.add_argument("--positions", type=parse_floats, default=[0.0, 50.0],
                    help="nominal stage positions in mm (default 0,50)")
+    add_handheld_options(s)
     add_simulation_options(s, 1280, 1024, None, "lenses, poses, stage and noise", lens=None,
-                           supersample_help="sub-samples per pixel side (default max(3, 1280 / width): a "
-                                            "sub-sample below a display pixel)")
+                           supersample_help="sub-samples per pixel side (default max(3, 1280 / width, times "
+                                            "the farthest hand-held distance / 400 mm): a sub-sample below a "
+                                            "display pixel)")
     s.set_defaults(func=run)
 
 
 def run(args) -> int:
+    import numpy as np
+
     from scanners.sim.stereo import simulate_stereo
     left = args.lens or args.left
     right = args.lens or args.right
-    supersample = args.supersample or max(3, -(-1280 // args.width))
+    held = handheld_from(args)
+    # a sub-sample below a display pixel at the farthest display (the default rig's 400 mm, or a hand's)
+    reach = 1.0 if held is None else max(held.distance_mm) / 400.0
+    supersample = args.supersample or max(3, int(np.ceil(1280 / args.width * reach)))
     pixel_mm = args.pixel_mm if args.pixel_mm else 0.0053 * 1280 / args.width
     out = simulate_stereo(args.output, left, right, args.width, args.height, args.seed, args.separate,
                           args.baseline, args.distance, {"pixel_mm": pixel_mm}, periods=args.periods,
-                          z_positions=args.positions, noise=args.noise, supersample=supersample)
+                          z_positions=args.positions, noise=args.noise, supersample=supersample,
+                          handheld=held)
     what = "left/, right/ (own WCS each), register/ and registration_truth.json" if args.separate else \
         "capture.json (cam0, cam1), truth_cam0.npz, truth_cam1.npz"
     wrote(out, what)
