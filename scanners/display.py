@@ -114,6 +114,9 @@ class PygameScreen(Screen):
         self._pg = pygame
         try:
             pygame.display.init()
+            if pygame.display.get_driver() in ("offscreen", "dummy", "evdev"):   # SDL fell back: nothing shows
+                raise HardwareError(f"screen:{monitor}: no monitor to show patterns on (SDL video driver "
+                                    f"{pygame.display.get_driver()!r}; is DISPLAY set?)")
             sizes = pygame.display.get_desktop_sizes()
             if not 0 <= monitor < len(sizes):
                 raise HardwareError(f"screen:{monitor}: there are {len(sizes)} monitor(s), numbered from 0")

@@ -94,3 +94,13 @@ def test_full_screen_pixel_for_pixel(xvfb, vsync):
 def test_missing_monitor(xvfb):
     with pytest.raises(HardwareError, match=r"screen:3: there are 1 monitor\(s\)"):
         open_screen("screen:3")
+
+
+def test_no_monitor_is_refused_not_faked(monkeypatch):
+    """Without an X display SDL falls back to an off-screen driver (a 1024x768 'desktop' nobody sees):
+    patterns shown there would be lost, so the screen refuses to open."""
+    pytest.importorskip("pygame")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with pytest.raises(HardwareError, match="screen:0: "):
+        open_screen("screen:0")
