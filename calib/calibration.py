@@ -172,9 +172,9 @@ def calibrate_camera(capture: Capture, camera: str | None = None, smoother: Smoo
     left unregularised, but the noise is still estimated with the automatic smoother for the
     uncertainty). z_ref: the plane (WCS z, mm) of the rays' origins.
     """
-    camera = default_camera(capture, camera)
     if capture.kind != "calibration":
         raise InputError(capture.manifest_path, f"dataset kind is {capture.kind!r}, expected 'calibration'")
+    camera = default_camera(capture, camera)
     zs = capture.z_positions(camera)
     if len(zs) < 2:
         raise InputError(capture.manifest_path, f"camera {camera!r} has frames at {len(zs)} stage position(s); "

@@ -129,15 +129,6 @@ def rig_json(rig: Rig) -> dict:
             "stereo": {k: v.tolist() for k, v in stereo_matrices(rig).items()}}
 
 
-def is_rig_file(path: str | os.PathLike) -> bool:
-    """Whether `path` is a readable .npz whose meta says it is a rig file."""
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            return "meta" in z.files and json.loads(str(z["meta"])).get("format") == FORMAT
-    except Exception:  # not a file, not an npz, no JSON meta: not a rig file
-        return False
-
-
 def export_rig(path: str | os.PathLike, fmt: str, out: str | os.PathLike) -> None:
     """Write the rig file at `path` to `out` in format `fmt` (one of FORMATS); colmap writes a folder."""
     rig = load_rig(path)

@@ -27,7 +27,7 @@ import numpy as np
 from calib.capture import Frame, load_capture
 from calib.errors import InputError
 from calib.image_files import expand, natural_key
-from calib.imageio import IMAGE_SUFFIXES, image_size, read_gray
+from calib.imageio import IMAGE_SUFFIXES, check_size, read_gray
 from stereodic.rectify import rectify_pair
 from stereodic.rig import SIDES, Rig
 
@@ -61,12 +61,8 @@ class DicStates:
 def _check_sizes(rig: Rig, files: dict[str, list[Path]]) -> None:
     """InputError naming the first image that is unreadable or not its rig camera's size."""
     for side in SIDES:
-        want = rig.camera(side).imm.real_size
         for path in files[side]:
-            size = image_size(path)
-            if size != tuple(want):
-                raise InputError(path, f"image is {size[0]}x{size[1]} but the rig's {side} camera is "
-                                       f"{want[0]}x{want[1]}")
+            check_size(path, rig.camera(side).imm.real_size, f"the rig's {side} camera")
 
 
 def load_states(dataset: str | os.PathLike, rig: Rig) -> DicStates:
