@@ -29,7 +29,7 @@ from calib.errors import InputError
 from calib.image_files import expand, natural_key
 from calib.imageio import IMAGE_SUFFIXES, check_size, read_gray
 from stereodic.rectify import rectify_pair
-from stereodic.rig import SIDES, Rig
+from stereodic.rig import SIDES, Rig, check_camera_sizes
 
 
 @dataclass
@@ -76,12 +76,9 @@ def load_states(dataset: str | os.PathLike, rig: Rig) -> DicStates:
         if len(cap.cameras) != 2:
             raise InputError(where, f"has cameras {sorted(cap.cameras)}; the rig's are {names}")
         names = sorted(cap.cameras)
+    check_camera_sizes(rig, cap.cameras, names, where)
     frames = []
-    for name, side in zip(names, SIDES):
-        real = tuple(rig.camera(side).imm.real_size)
-        if tuple(cap.cameras[name]) != real:
-            raise InputError(where, f"camera {name} is {cap.cameras[name][0]}x{cap.cameras[name][1]} but the "
-                                    f"rig's {side} camera is {real[0]}x{real[1]}")
+    for name in names:
         by_state: dict[int, Frame] = {}
         for f in cap.frames:
             if f.camera == name:

@@ -38,12 +38,14 @@ from stereodic.cli import build_parser, main
 class In:
     """A path the command reads: its argparse dest, what it holds (a key of `_bad_inputs`), the good
     input (a key of the `inputs` fixture) and, where its size must match another input, an input of
-    another size."""
+    another size (and, where the message names the other input, the name it gives: a rig of other
+    cameras than the images')."""
 
     dest: str
     kind: str
     good: str
     wrong_size: str | None = None
+    named: str | None = None
 
 
 @dataclass(frozen=True)
@@ -76,20 +78,22 @@ COMMANDS: dict[str, list[list]] = {
     "undistort": [["undistort", In("camera", "camera", "cam"), In("images", IMG, "cal_image", "a"),
                    "-o", Out("output", "dir", "undistorted"), "--save-virtual", Out("save_virtual", "file", "v.npz")]],
     "rig": [["rig", In("left", "PRVM", "left"), In("right", "PRVM", "right"), "--register",
-             In("register", "PRVM", "left"), In("register", "PRVM", "right"), "-o", Out("output", "file", "rig.npz")]],
-    "rectify": [["rectify", In("rig", "rig", "dic_rig"), In("left", IMG, "dic_left", "small"),
-                 In("right", IMG, "dic_right", "small"), "-o", Out("output", "dir", "rectified")]],
-    "scan": [["scan", In("rig", "rig", "scan_rig"), In("dataset", "scan dataset", "scan"), "-o",
-              Out("output", "file", "cloud.ply"), "--mesh", Out("mesh", "file", "mesh.ply")]],
+             In("register", "PRVM", "left", "prvm_other_size"), In("register", "PRVM", "right", "prvm_other_size"), "-o",
+             Out("output", "file", "rig.npz")]],
+    "rectify": [["rectify", In("rig", "rig", "dic_rig", "scan_rig", "cam0.png"),
+                 In("left", IMG, "dic_left", "small"), In("right", IMG, "dic_right", "small"), "-o",
+                 Out("output", "dir", "rectified")]],
+    "scan": [["scan", In("rig", "rig", "scan_rig", "dic_rig", "capture.json"), In("dataset", "scan dataset", "scan"),
+              "-o", Out("output", "file", "cloud.ply"), "--mesh", Out("mesh", "file", "mesh.ply")]],
     "dic2d": [["dic2d", In("ref", IMG, "a"), In("defs", IMG, "b", "small"), "--mask", In("mask", IMG, "a", "small"),
                "-o", Out("output", "file", "r.csv"), "--npz", Out("npz", "file", "r.npz"), "--plot",
                Out("plot", "dir", "maps")]],
-    "dic": [["dic", In("rig", "rig", "dic_rig"), DIC, "--mask", In("mask", IMG, "dic_left", "small"), "-o",
-             Out("output", "dir", "run")],
-            ["dic", In("rig", "rig", "dic_rig"), "--left", In("left", IMG, "dic_left", "small"), "--right",
-             In("right", IMG, "dic_right", "small"), "-o", Out("output", "dir", "run")],
-            ["dic", In("rig", "rig", "dic_rig"), "--images", In("images", "image folder", "pairs"), "-o",
-             Out("output", "dir", "run")]],
+    "dic": [["dic", In("rig", "rig", "dic_rig", "scan_rig", "capture.json"), DIC, "--mask",
+             In("mask", IMG, "dic_left", "small"), "-o", Out("output", "dir", "run")],
+            ["dic", In("rig", "rig", "dic_rig", "scan_rig", "cam0.png"), "--left", In("left", IMG, "dic_left", "small"),
+             "--right", In("right", IMG, "dic_right", "small"), "-o", Out("output", "dir", "run")],
+            ["dic", In("rig", "rig", "dic_rig", "scan_rig", "img_0000_0.png"), "--images",
+             In("images", "image folder", "pairs"), "-o", Out("output", "dir", "run")]],
     "strain": [["strain", In("result", "DIC result", "result"), "-o", Out("output", "dir", "strain")]],
     "speckle": [["speckle", In("image", IMG, "a"), "--static", In("static", IMG, "b", "small"), "-o",
                  Out("output", "dir", "speckle")]],
@@ -281,7 +285,7 @@ def _bad_inputs(slot: In, paths) -> list[tuple[str, str, Path, str]]:
     cases += [("wrong kind", f"a {'rig' if o == 'dic_rig' else 'DIC result' if o == 'result' else 'PRVM'}",
                paths[o], paths[o].name) for o in others]
     if slot.wrong_size:
-        cases += [("wrong size", "another size", paths[slot.wrong_size], paths[slot.wrong_size].name)]
+        cases += [("wrong size", "another size", paths[slot.wrong_size], slot.named or paths[slot.wrong_size].name)]
     return cases
 
 
