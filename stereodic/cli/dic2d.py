@@ -130,7 +130,7 @@ def run(args) -> int:
             if args.npz:
                 save_npz(Path(tmp) / f"{k}.npz", **image_arrays(f, m))
             if args.plot:
-                plot_field(args.plot, k, f, m)
+                plot_field(args.plot, k, f, m, Path(defs[k]).name)
             n_ok = int(f.ok.sum())
             note(f"image {k} ({defs[k]}): {n_ok}/{int(grid.active.sum())} points converged, "
                  f"mean u {fixed(np.nanmean(f.u) if n_ok else np.nan, 4)} px, "

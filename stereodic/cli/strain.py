@@ -40,8 +40,9 @@ def run(args) -> int:
     from calib.npz_stream import write_stacked_npz
     from calib.progress import progress
     from stereodic.cli.common import wrote
-    from stereodic.dic.output import STRAIN_COLUMNS, fmt, save_map
-    from stereodic.strain_results import open_result, strains
+    from stereodic.dic.maps import save_map
+    from stereodic.dic.output import STRAIN_COLUMNS, fmt
+    from stereodic.strain_results import map_axes, open_result, state_labels, strains
 
     result = open_result(args.result)
     own = (result.meta.get("settings", {}).get("strain_window") if result.kind == "dic" else None)
@@ -53,6 +54,7 @@ def run(args) -> int:
     act = g.active.ravel()
     X, Y = g.points()
     label = "state" if result.kind == "dic" else "image"
+    axes, titles = (map_axes(result), state_labels(result)) if not args.no_plot else (None, None)
     keys = [c for c, _, _ in STRAIN_COLUMNS] + ["strain_valid"]
     fields = {c: f for c, f, _ in STRAIN_COLUMNS} | {"strain_valid": "valid"}
     tmp_dir = out / ".strain-states"
@@ -70,8 +72,9 @@ def run(args) -> int:
                 if not args.no_plot:
                     for c in ("exx", "eyy", "exy", "von_mises"):
                         name = "e_vm" if c == "von_mises" else c
-                        save_map(out / "maps" / f"{label}{k}_{name}.png", getattr(m, c) * 1e6, g,
-                                 f"{label} {k}: {name} ({args.measure})", f"{name} (microstrain)")
+                        save_map(out / "maps" / f"{label}{k}_{name}.png", getattr(m, c) * 1e6, axes,
+                                 title=f"{titles[k]} - {name}, {args.measure} strain", quantity=name,
+                                 unit="microstrain", decimals=0)
 
         def values(key):
             for k in range(result.states):

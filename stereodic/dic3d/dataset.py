@@ -35,14 +35,20 @@ from stereodic.rig import SIDES, Rig, check_camera_sizes
 @dataclass
 class DicStates:
     """The checked image files of an experiment: left[k] and right[k] are the images of state k;
-    `source` says where they were named (the dataset, the patterns, the folder)."""
+    `source` says where they were named (the dataset, the patterns, the folder); `names`: the states'
+    names where the dataset gives them (a simulated dataset's `simulated.states`), else None."""
 
     left: list[Path]
     right: list[Path]
     source: str
+    names: list[str] | None = None
 
     def __len__(self) -> int:
         return len(self.left)
+
+    def label(self, k: int) -> str:
+        """State k in words, for titles: "state 3: tension", or "state 3 (img_0003_0.tif)"."""
+        return f"state {k}: {self.names[k]}" if self.names else f"state {k} ({self.left[k].name})"
 
     def read(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         """The raw (left, right) images of state k (uint8 or uint16)."""
@@ -95,8 +101,10 @@ def load_states(dataset: str | os.PathLike, rig: Rig) -> DicStates:
                 raise InputError(where, f"state {s} of camera {name} is missing (states must be 0..{max(states)}, "
                                         f"found {', '.join(map(str, sorted(by_state)))})")
     n = max(states) + 1
+    names = (cap.extra.get("simulated") or {}).get("states")
+    names = [str(v) for v in names] if isinstance(names, list) and len(names) == n else None
     return DicStates([cap.path(frames[0][s]) for s in range(n)], [cap.path(frames[1][s]) for s in range(n)],
-                     os.fspath(dataset))
+                     os.fspath(dataset), names)
 
 
 def states_from_patterns(left: str, right: str, rig: Rig) -> DicStates:
