@@ -259,9 +259,9 @@ def calibrate_camera(capture: Capture, camera: str | None = None, smoother: Smoo
     positions, estimate the display's pose at each (`calib.stage_poses`) and use it where it lowers the
     residual significantly. A stage-free capture (poses) is calibrated by `calib.handheld`.
     """
-    camera = default_camera(capture, camera)
     if capture.kind != "calibration":
         raise InputError(capture.manifest_path, f"dataset kind is {capture.kind!r}, expected 'calibration'")
+    camera = default_camera(capture, camera)
     if capture.posed:
         from calib.handheld import calibrate_handheld
         return calibrate_handheld(capture, camera, smoother, z_ref)

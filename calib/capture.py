@@ -21,7 +21,8 @@ import numpy as np
 
 from calib.atomic import write_json
 from calib.errors import InputError
-from calib.imageio import image_size, read_gray, write_gray
+from calib.imageio import check_size, read_gray, write_gray
+from calib.jsonfile import read_json
 
 FORMAT = "stereodic.capture/1"
 KINDS = ("calibration", "scan", "dic")
@@ -412,14 +413,7 @@ def load_capture(path: str | os.PathLike, check_images: bool = True,
     """
     path = Path(path)
     manifest = path / MANIFEST if path.is_dir() else path
-    if not manifest.is_file():
-        raise InputError(manifest, "dataset manifest is missing")
-    try:
-        d = json.loads(manifest.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(manifest, f"not valid JSON ({exc})") from None
-    if not isinstance(d, dict):
-        raise InputError(manifest, "manifest must be a JSON object")
+    d = read_json(manifest, "dataset manifest")
     if d.get("format") != FORMAT:
         raise InputError(manifest, f"format is {d.get('format')!r}, expected {FORMAT!r}")
     kind = d.get("kind")
@@ -494,10 +488,7 @@ def load_capture(path: str | os.PathLike, check_images: bool = True,
                                                         "together)" if cap.posed else ""))
     if check_images:
         for f in frames:
-            w, h = image_size(cap.path(f))
-            if (w, h) != cameras[f.camera]:
-                cw, ch = cameras[f.camera]
-                raise InputError(cap.path(f), f"image is {w}x{h}, camera {f.camera!r} is {cw}x{ch}")
+            check_size(cap.path(f), cameras[f.camera], f"camera {f.camera!r}")
     return cap
 
 

@@ -7,6 +7,7 @@ image keeps its raw pixels. Values are returned in their native dtype (uint8 or 
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import cv2
@@ -18,6 +19,8 @@ from calib.errors import InputError
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
 SUPPORTED_MODES = ("1", "L", "LA", "P", "RGB", "RGBA", "I;16", "I;16B", "I;16L", "I;16N", "I")  # PIL's names
+MODE_NAMES = {"F": "float32", "I;16S": "int16", "CMYK": "CMYK colour", "YCbCr": "YCbCr colour", "LAB": "Lab colour",
+              "HSV": "HSV colour"}  # the unsupported ones, in words
 _TIFF_DATA = ((273, 279), (324, 325))  # TIFF tags (offsets, byte counts) of strips and of tiles
 
 
@@ -35,17 +38,25 @@ def image_size(path: str | os.PathLike) -> tuple[int, int]:
     images are checked in seconds before any work."""
     path = Path(path)
     _check_file(path)
+    if path.stat().st_size == 0:
+        raise InputError(path, "is empty, not an image")
     try:
-        with Image.open(path) as im:
-            size, mode, fmt = im.size, im.mode, im.format
-            tags = dict(im.tag_v2) if fmt == "TIFF" else {}
-        if fmt == "PNG":
+        with warnings.catch_warnings():  # PIL warns of a damaged TIFF's EXIF: the checks below say it
+            warnings.simplefilter("ignore")
+            with Image.open(path) as im:
+                size, mode, fmt = im.size, im.mode, im.format
+                tags = dict(im.tag_v2) if fmt == "TIFF" else {}
+    except Exception:  # PIL raises several types for unreadable files
+        raise InputError(path, "not a readable image: not an 8/16-bit PNG or TIFF, or damaged") from None
+    if fmt == "PNG":
+        try:
             with Image.open(path) as im:
                 im.verify()
-    except Exception:  # PIL raises several types for unreadable files
-        raise InputError(path, "not a readable image (8/16-bit PNG or TIFF)") from None
+        except Exception:
+            raise InputError(path, "not a readable image: the PNG is damaged or cut short") from None
     if mode not in SUPPORTED_MODES:
-        raise InputError(path, f"pixel type {mode!r} is not supported (8- or 16-bit grey or colour)")
+        raise InputError(path, f"pixel type {MODE_NAMES.get(mode, repr(mode))} is not supported (8- or 16-bit "
+                               "grey or colour)")
     for offsets, counts in _TIFF_DATA:
         if offsets in tags and counts in tags:
             o, c = (v if isinstance(v, tuple) else (v,) for v in (tags[offsets], tags[counts]))
@@ -56,12 +67,28 @@ def image_size(path: str | os.PathLike) -> tuple[int, int]:
     return size
 
 
+def check_size(path: str | os.PathLike, size: tuple[int, int], of: str) -> None:
+    """InputError naming `path` unless it is a readable image (`image_size`: its header) of `size`
+    (width, height in pixels); `of` names what sets the size in the message ("the reference a.png",
+    "the rig's left camera", "camera 'cam0'")."""
+    w, h = image_size(path)
+    if (w, h) != tuple(size):
+        raise InputError(path, f"image is {w}x{h} but {of} is {size[0]}x{size[1]}")
+
+
 def read_gray(path: str | os.PathLike) -> np.ndarray:
-    """Read an image as a 2-D uint8 or uint16 array (colour -> luminance, alpha dropped)."""
+    """Read an image as a 2-D uint8 or uint16 array (colour -> luminance, alpha dropped); InputError
+    naming the file if it is missing or not a readable image."""
     path = Path(path)
     _check_file(path)
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # the InputError below says it, once
+    try:
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    finally:
+        cv2.utils.logging.setLogLevel(level)
     if img is None:
+        image_size(path)  # says what is wrong (empty, cut short, not an image) where it can
         raise InputError(path, "not a readable image (8/16-bit PNG or TIFF)")
     if img.ndim == 3:
         code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -39,13 +40,21 @@ def read_npz(path: str | os.PathLike, fmt: str | tuple[str, ...], what: str,
     if head != b"PK\x03\x04":
         raise InputError(path, f"not a readable {what} file: not an .npz (zip) archive")
     try:
+        with zipfile.ZipFile(path) as archive:
+            others = [n for n in archive.namelist() if not n.endswith(".npy")]
+    except (zipfile.BadZipFile, OSError):
+        raise InputError(path, f"not a readable {what} file: the .npz archive is damaged") from None
+    if others:
+        raise InputError(path, f"not a {what} file: a zip archive, but not of numpy arrays (it holds "
+                               f"{others[0]})")
+    try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files if keys is None or k in keys or k == "meta"}
     except Exception:  # zipfile and numpy raise several types for a damaged archive
         raise InputError(path, f"not a readable {what} file: the .npz archive is damaged or holds other "
                                "than numpy arrays") from None
     if "meta" not in arrays:
-        raise InputError(path, f"not a {what} file: lacks 'meta'")
+        raise InputError(path, f"not a {what} file: lacks 'meta' (an .npz that stereodic did not write)")
     try:
         meta = json.loads(str(arrays.pop("meta")))
     except json.JSONDecodeError:

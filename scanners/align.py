@@ -301,7 +301,6 @@ class AlignRecord:
         self.folder = Path(folder)
         if self.folder.exists() and (not self.folder.is_dir() or any(self.folder.iterdir())):
             raise InputError(self.folder, "exists and is not an empty folder; give a new one")
-        self.folder.mkdir(parents=True, exist_ok=True)
         self.header: dict = {}
         self.data: dict = {"stage": None, "updates": []}
 

@@ -40,7 +40,7 @@ from calib.errors import InputError
 from calib.pinhole import PinholeCamera
 from stereodic.export import camera_json, colmap_cameras, in_world, pinhole_of
 from stereodic.formats import mrcal, vic3d
-from stereodic.rig import FORMAT, SIDES, Rig, load_rig
+from stereodic.rig import SIDES, Rig, load_rig
 
 FORMATS = ("opencv", "colmap", "dice", "json", "vic3d", "mrcal")
 
@@ -127,15 +127,6 @@ def rig_json(rig: Rig) -> dict:
             "working_distance_mm": rig.working_distance_mm, "world_from_rig": rig.world_from_rig.tolist(),
             "cameras": [camera_json(side, rig.virtual_camera(side)) for side in SIDES],
             "stereo": {k: v.tolist() for k, v in stereo_matrices(rig).items()}}
-
-
-def is_rig_file(path: str | os.PathLike) -> bool:
-    """Whether `path` is a readable .npz whose meta says it is a rig file."""
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            return "meta" in z.files and json.loads(str(z["meta"])).get("format") == FORMAT
-    except Exception:  # not a file, not an npz, no JSON meta: not a rig file
-        return False
 
 
 def export_rig(path: str | os.PathLike, fmt: str, out: str | os.PathLike) -> None:

@@ -159,6 +159,17 @@ class Rig:
 
 # ------------------------------------------------------------------------------------------ checks
 
+def check_camera_sizes(rig: Rig, sizes: dict, names: tuple[str, str], where) -> None:
+    """InputError naming `where` (a dataset's manifest) unless its cameras `names` (the rig's left and
+    right camera, in that order) have the sizes of the rig's real cameras; `sizes`: camera name ->
+    (width, height) in pixels."""
+    for name, side in zip(names, SIDES):
+        real = tuple(rig.camera(side).imm.real_size)
+        if name in sizes and tuple(sizes[name]) != real:
+            raise InputError(where, f"camera {name} is {sizes[name][0]}x{sizes[name][1]} but the rig's {side} "
+                                    f"camera is {real[0]}x{real[1]}")
+
+
 def wcs_name(prvm: PRVM) -> str:
     """The name of a PRVM's WCS: meta `wcs` (set by a registration) or else its calibration `dataset`,
     normalised; "" when it has neither."""

@@ -42,7 +42,7 @@ from calib.errors import InputError
 from calib.phase import LOW_MODULATION, UNWRAP, WaveformCorrection, decode_frames, unwrap_temporal
 from stereodic.matching import match_rows
 from stereodic.phase_filter import smooth_phase
-from stereodic.rig import Rig
+from stereodic.rig import Rig, check_camera_sizes
 from stereodic.triangulate import triangulate
 
 MIN_MODULATION_FRACTION = 0.02   # of full scale: fringes weaker than this are not measured
@@ -288,6 +288,9 @@ def scan_to_files(rig: Rig, dataset: str | os.PathLike, out: str | os.PathLike, 
     for s in states:
         if s not in all_states:
             raise InputError(capture.manifest_path, f"has no state {s} (states: {all_states})")
+    check_camera_sizes(rig, capture.cameras, cameras, capture.manifest_path)
+    for s in states:  # every state's frames checked before the first is scanned
+        check_scan_dataset(capture, cameras, s)
     out = Path(out)
     viewpoint = (rig.left.centre + rig.right.centre) / 2
     written = []

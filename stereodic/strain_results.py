@@ -19,6 +19,7 @@ from calib.errors import InputError
 from calib.npz_stream import iter_slices
 from calib.npzfile import read_npz
 from stereodic.dic.grid import Grid
+from stereodic.dic.maps import MapAxes, pixel_axes, surface_axes
 from stereodic.strain import strain_2d, strain_3d
 from stereodic.strain_measures import StrainMeasure, measure_strain
 
@@ -50,6 +51,26 @@ def open_result(path: str | os.PathLike) -> DicResult:
     if count == 0:
         raise InputError(path, "holds no state")
     return DicResult(path, kind, Grid(arrays["x"], arrays["y"], arrays["active"].astype(bool)), count, meta)
+
+
+def state_labels(result: DicResult) -> list[str]:
+    """Each state (or deformed image) of `result` in words, for map titles: the names `stereodic dic`
+    recorded ("state 3: tension", "state 3 (img_0003_0.tif)"), else "state k"; for a dic2d result
+    "deformed image k (its file name)"."""
+    if result.kind == "dic2d":
+        return [f"deformed image {k} ({Path(name).name})" for k, name in enumerate(result.meta["images"])]
+    labels = result.meta.get("state_labels")
+    return list(labels) if isinstance(labels, list) and len(labels) == result.states else \
+        [f"state {k}" for k in range(result.states)]
+
+
+def map_axes(result: DicResult) -> MapAxes:
+    """The axes of `result`'s maps: the reference surface's X, Y in mm for a stereo result, the reference
+    image's pixels for a dic2d one (stereodic.dic.maps)."""
+    g = result.grid
+    if result.kind == "dic2d":
+        return pixel_axes(g.xs, g.ys)
+    return surface_axes(g.xs, g.ys, next(iter_slices(result.path, "points")))
 
 
 def strains(result: DicResult, window: int, measure: str) -> Iterator[StrainMeasure]:

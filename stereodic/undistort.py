@@ -29,7 +29,7 @@ def check_image(image: np.ndarray, imm: IMM, im: IntensityMatrix | None, where) 
     w, h = imm.real_size
     if image.ndim != 2 or image.shape != (h, w):
         raise InputError(where, f"image is {image.shape[1] if image.ndim > 1 else '?'}x{image.shape[0]}"
-                                f"{'' if image.ndim == 2 else ' with channels'}, the camera is {w}x{h}")
+                                f"{'' if image.ndim == 2 else ' with channels'} but the camera is {w}x{h}")
     if image.dtype not in (np.uint8, np.uint16):
         raise InputError(where, f"pixel type {image.dtype} is not supported (8- or 16-bit grayscale)")
     if im is not None:

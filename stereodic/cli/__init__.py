@@ -41,11 +41,13 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    from stereodic.cli.common import check_paths, new_folders, remove_empty
+    created = new_folders(args)
     try:
-        from stereodic.cli.common import check_paths
         check_paths(args)  # every path the command declared, before any work
         status = args.func(args)
     except InputError as exc:
+        remove_empty(created)  # nothing left behind: the folders made for outputs never written
         print(f"stereodic: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

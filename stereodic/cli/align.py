@@ -10,7 +10,7 @@ import argparse
 import contextlib
 import sys
 
-from stereodic.cli.common import parse_floats
+from stereodic.cli.common import add_input, add_output, parse_floats
 
 DEVICES = """devices (as for `stereodic acquire`):
   --display  screen[:N]          full screen on monitor N (the live aid; Esc stops, s re-measures the stage)
@@ -40,7 +40,8 @@ def register(sub):
     p.add_argument("--positions", type=parse_floats, default=[0.0, 50.0],
                    help="the two stage positions in mm for the stage axis; the camera is read at the first "
                         "(default 0,50)")
-    p.add_argument("--intrinsics", metavar="FILE", help="the camera's PRVM (.npz) or OpenCV pinhole file")
+    add_input(p, "--intrinsics", what="intrinsics", metavar="FILE",
+              help="the camera's PRVM (.npz) or OpenCV pinhole file")
     p.add_argument("--focal-px", type=float, metavar="F",
                    help="without --intrinsics: the focal length in pixels, if known (lens focal length / pixel "
                         "pitch)")
@@ -64,7 +65,8 @@ def register(sub):
                         "0 headless)")
     p.add_argument("--vsync", action="store_true", help="flip the screen on the vertical blank")
     p.add_argument("--average", type=int, default=1, metavar="K", help="frames averaged per image (default 1)")
-    p.add_argument("-o", "--output", metavar="DIR", help="write the fused pictures and readings.json here")
+    add_output(p, kind="dir", default=None, metavar="DIR",
+               help="write the fused pictures and readings.json here (a new or empty folder)")
     p.set_defaults(func=run)
 
 
@@ -129,14 +131,15 @@ def _truth(camera, screen, stage, z_mm: float) -> dict:
 
 def run(args) -> int:
     from calib.atomic import write_json
+    from calib.errors import InputError
     from scanners import align
     from scanners.camera import SimulatedCamera
     from scanners.display import PygameScreen
-    from stereodic.cli.common import display_pitch, open_devices
+    from stereodic.cli.common import display_pitch, open_devices, wrote
     headless = args.display == "sim" or args.display.startswith("file:")
     _check(args, headless)
-    record = align.AlignRecord(args.output) if args.output is not None else None
     model = _intrinsics(args.intrinsics)
+    record = align.AlignRecord(args.output) if args.output is not None else None
     hold = (0.0 if headless else 0.6) if args.hold_ms is None else args.hold_ms / 1000
     with contextlib.ExitStack() as stack:
         stage, screen, (camera,) = open_devices(stack, args.stage, args.display, [args.camera],
@@ -145,7 +148,12 @@ def run(args) -> int:
         periods = tuple(args.periods) if args.periods else align.default_periods(screen.size)
         settings = align.AlignSettings(periods, args.steps, args.low, args.high, tolerance_deg=args.tolerance_deg,
                                        average=args.average, hold_s=hold, full_every=args.full_every)
-        session = align.AlignSession(screen, camera, pitch, model, settings=settings, focal_px=args.focal_px)
+        try:
+            session = align.AlignSession(screen, camera, pitch, model, settings=settings, focal_px=args.focal_px)
+        except InputError as exc:
+            if exc.where != "--intrinsics":
+                raise
+            raise InputError(args.intrinsics, exc.problem) from None   # another camera's: name the file
         described = {"prvm": f"PRVM {args.intrinsics}", "pinhole": f"pinhole {args.intrinsics}"}.get(
             getattr(model, "kind", ""), "")
         if isinstance(camera, SimulatedCamera):
@@ -165,5 +173,6 @@ def run(args) -> int:
                          described=described, report=lambda line: print(line, file=sys.stderr),
                          interactive=isinstance(screen, PygameScreen))
     if record is not None:
-        print(f"{record.folder / 'readings.json'}: {len(done)} update(s)")
+        wrote(record.folder / "readings.json", f"{len(done)} update(s); fused pictures fused_NNNN.png in "
+                                               f"{record.folder}")
     return 0

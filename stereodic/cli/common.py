@@ -1,5 +1,5 @@
 """What the sub-command modules share: one spelling per option, paths checked before any work, one line
-per output written, and small argument parsers.
+per output written, nothing left behind by a refused command, and small argument parsers.
 
 Options: `SPELLINGS` is the one spelling of each option that more than one command has (the test
 tests/stereodic/test_cli_options.py walks every sub-parser and fails on a second spelling of one meaning;
@@ -8,7 +8,9 @@ tests/stereodic/test_cli_options.py walks every sub-parser and fails on a second
 `stereodic.cli.main` before the command runs, stops with one line (exit status 2) on a path that cannot
 work - a missing input, a directory where a file is expected or the reverse, a parent that is a file, a
 folder without write permission, an output that would overwrite an input - so that no command fails
-after its work, or half-way. Outputs: `wrote(path, summary)` prints the one line per file written.
+after its work, or half-way; `new_folders`/`remove_empty` take away the folders a command created
+before it was refused (files are written atomically, calib.atomic). Outputs: `wrote(path, summary)`
+prints the one line per file written.
 """
 
 from __future__ import annotations
@@ -60,7 +62,7 @@ SYNONYMS = {  # second spellings of those meanings, refused by the test
     "--resolution": "size", "--image-size": "size", "--reference-z": "plane_z",
 }
 
-INPUT_KINDS = ("file", "dir", "dataset", "pattern")
+INPUT_KINDS = ("file", "dir", "any", "dataset", "pattern")
 OUTPUT_KINDS = ("file", "dir", "any")
 
 
@@ -86,9 +88,9 @@ def _declare(p: argparse.ArgumentParser, option: PathOption) -> None:
 
 def add_input(p: argparse.ArgumentParser, *flags: str, kind: str = "file", what: str = "", **kwargs):
     """Add a path argument (positional: one name; option: its flags) that the command reads; kind is
-    'file', 'dir', 'dataset' or 'pattern' (files, each named or given as a shell-style pattern that the
-    program expands: `calib.image_files.expand`); `what` names its content in messages ("image", "PRVM",
-    "rig"). Returns the argparse action."""
+    'file', 'dir', 'any' (a file or a folder: the command tells which), 'dataset' or 'pattern' (files,
+    each named or given as a shell-style pattern that the program expands: `calib.image_files.expand`);
+    `what` names its content in messages ("image", "PRVM", "rig"). Returns the argparse action."""
     assert kind in INPUT_KINDS, kind
     action = p.add_argument(*flags, **kwargs)
     name = "/".join(action.option_strings) if action.option_strings else (action.metavar or action.dest)
@@ -126,6 +128,9 @@ def _check_input(path: Path, option: PathOption) -> None:
     if option.kind == "dataset":
         if not path.exists():
             raise InputError(path, "dataset is missing (a folder holding capture.json, or the manifest itself)")
+    elif option.kind == "any":
+        if not path.exists():
+            raise InputError(path, f"{what or 'input '}is missing")
     elif option.kind == "dir":
         if path.is_file():
             raise InputError(path, f"is a file; {option.name} expects a folder")
@@ -180,6 +185,28 @@ def check_paths(args: argparse.Namespace) -> None:
         if option.output:
             for value in _values(args, option):
                 _check_output(Path(value), option, inputs)
+
+
+def new_folders(args: argparse.Namespace) -> list[Path]:
+    """The folders that writing the declared outputs of `args` may create: each output folder and each
+    missing parent, up to the nearest that exists (deepest first)."""
+    folders = []
+    for option in getattr(args, "_paths", None) or []:
+        if option.output:
+            for value in _values(args, option):
+                p = Path(value) if option.kind != "file" else Path(value).parent
+                while not p.exists() and p != p.parent:
+                    folders.append(p)
+                    p = p.parent
+    return sorted(set(folders), key=lambda p: len(p.parts), reverse=True)
+
+
+def remove_empty(folders: list[Path]) -> None:
+    """Remove those of `folders` (deepest first) that exist and are empty: what a command that stopped on
+    bad input created without writing into it."""
+    for p in folders:
+        if p.is_dir() and not any(p.iterdir()):
+            p.rmdir()
 
 
 def wrote(path: str | os.PathLike, summary: str = "") -> None:
@@ -343,19 +370,6 @@ def parse_roi(text: str | None, width: int, height: int, image: str) -> tuple[in
     return x0, y0, x1, y1
 
 
-def output_folder(path):
-    """The output folder `path` (a Path), created if needed; InputError naming it if it cannot be."""
-    from pathlib import Path
-
-    from calib.errors import InputError
-    path = Path(path)
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(path, f"cannot create the output folder ({exc.strerror})") from None
-    return path
-
-
 def dic_grid(args, width: int, height: int, image: str, source: str):
     """The DIC point grid and seeds from the options --subset, --step, --roi, --mask and --seed, for a
     reference image of width x height pixels (`image` names it in messages, `source` is the file blamed
@@ -390,20 +404,3 @@ def dic_grid(args, width: int, height: int, image: str, source: str):
         raise InputError(args.roi and "--roi" or source,
                          f"no point of the grid has its {args.subset}-pixel subset inside the {image}")
     return grid, seeds
-
-
-def check_output(path) -> None:
-    """InputError naming the option's value unless `path` can be written as a file: not an existing folder,
-    and its nearest existing parent a writable folder (checked before any work starts)."""
-    import os
-    from pathlib import Path
-
-    from calib.errors import InputError
-    p = Path(path)
-    if p.is_dir():
-        raise InputError(p, "is a folder; the output is a file")
-    parent = p.parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir() or not os.access(parent, os.W_OK):
-        raise InputError(p, f"cannot be written ({parent} is not a writable folder)")

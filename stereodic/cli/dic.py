@@ -176,13 +176,15 @@ def run(args) -> int:
             print(f"stereodic dic: warning: the rig's epipolar error (median {report.median:+.3f} px, p95 "
                   f"{report.p95:.3f} px) is larger than its calibration allows (p95 {report.expected_p95:.3f} px): "
                   f"has a camera moved since the calibration?", file=sys.stderr)
-    info = {"rig": str(args.rig), "dataset": data.source, "world_from_rig": rig.world_from_rig.tolist()}
+    labels = [data.label(k) for k in range(n)]
+    info = {"rig": str(args.rig), "dataset": data.source, "world_from_rig": rig.world_from_rig.tolist(),
+            "state_labels": labels}
     dice = None
     if args.columns == "dice":
         from stereodic.dice_columns import StereoDiceWriter
         dice = StereoDiceWriter(out, grid, data, settings, args.step)
     write_outputs(store, grid, out, settings, info, vtk=not args.no_vtk, plot_every=outputs["plot_every"],
-                  dice=dice, csv=args.columns != "dice")
+                  dice=dice, csv=args.columns != "dice", labels=labels)
     store.record_outputs(outputs)
     states = f"{active} points x {n} states"
     if args.columns == "dice":

@@ -75,7 +75,7 @@ def run(args) -> int:
     from calib.atomic import write_npz as save_npz
     from calib.errors import InputError
     from calib.image_files import expand
-    from calib.imageio import image_size, read_gray
+    from calib.imageio import check_size, read_gray
     from calib.numbers import fixed
     from calib.progress import note, progress
     from stereodic.cli.common import dic_grid, wrote
@@ -91,9 +91,7 @@ def run(args) -> int:
     height, width = ref.shape
     defs = [p for pattern in args.defs for p in expand(pattern)]
     for path in defs:  # every file checked before the (long) work starts
-        w, h = image_size(path)
-        if (w, h) != (width, height):
-            raise InputError(path, f"image is {w}x{h} but the reference {args.ref} is {width}x{height}")
+        check_size(path, (width, height), f"the reference {args.ref}")
     _check_args(args)
     grid, seeds = dic_grid(args, width, height, "reference", args.ref)
     settings = DicSettings(subset=args.subset, shape=args.shape, order=3 if args.interp == "cubic" else 5,
@@ -132,7 +130,7 @@ def run(args) -> int:
             if args.npz:
                 save_npz(Path(tmp) / f"{k}.npz", **image_arrays(f, m))
             if args.plot:
-                plot_field(args.plot, k, f, m)
+                plot_field(args.plot, k, f, m, Path(defs[k]).name)
             n_ok = int(f.ok.sum())
             note(f"image {k} ({defs[k]}): {n_ok}/{int(grid.active.sum())} points converged, "
                  f"mean u {fixed(np.nanmean(f.u) if n_ok else np.nan, 4)} px, "

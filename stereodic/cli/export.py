@@ -48,14 +48,18 @@ def run(args) -> int:
 
     from calib.atomic import write_text
     from calib.errors import InputError
+    from calib.npzfile import read_npz
+    from calib.prvm_file import FORMAT as PRVM_FORMAT
     from calib.prvm_file import load_prvm
     from stereodic.export import export_text
+    from stereodic.export_rig import export_rig
+    from stereodic.rig import FORMAT as RIG_FORMAT
     from stereodic.rig import world_from_rig
     from stereodic.virtual import VirtualCamera, default_camera
     from stereodic.virtual_prvm import is_virtual
 
-    from stereodic.export_rig import export_rig, is_rig_file
-    rig = is_rig_file(args.file)
+    meta, _ = read_npz(args.file, (PRVM_FORMAT, RIG_FORMAT), "camera or rig", keys=())   # the meta alone
+    rig = meta["format"] == RIG_FORMAT
     folder = rig and args.format in ("colmap", "mrcal")
     if Path(args.output).is_dir() != folder and Path(args.output).exists():
         raise InputError(args.output, f"is a file; the {args.format} export of a rig is a folder" if folder else

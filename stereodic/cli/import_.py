@@ -16,13 +16,13 @@ from __future__ import annotations
 
 import argparse
 
-from stereodic.cli.common import parse_size
+from stereodic.cli.common import add_input, add_output, parse_size, wrote
 
 
 def register(sub):
     p = sub.add_parser("import", help="another program's calibration as a rig (RIG.npz) or camera (CAM.npz)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("calibration", nargs="+", metavar="CALIBRATION",
+    add_input(p, "calibration", what="calibration", nargs="+", metavar="CALIBRATION",
                    help="calibration file (two for a pair of mrcal models or OpenCV's intrinsics + extrinsics)")
     p.add_argument("--format", default="auto", choices=["auto", "opencv", "vic3d", "dice", "mrcal", "kalibr"],
                    help="the file's format (default: recognised from its content)")
@@ -39,7 +39,7 @@ def register(sub):
     p.add_argument("--pitch", type=float, metavar="MM", help="as `stereodic rig --pitch`")
     p.add_argument("--plane-z", type=float, metavar="MM",
                    help="as `stereodic rig --plane-z`, in the rig's frame (default: the cameras' working point)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.npz", help="output rig or camera file")
+    add_output(p, metavar="OUT.npz", help="output rig or camera file")
     p.set_defaults(func=run)
 
 
@@ -47,11 +47,9 @@ def run(args) -> int:
     import numpy as np
 
     from calib.prvm_file import PRVM
-    from stereodic.cli.common import check_output
     from stereodic.formats import import_calibration
     from stereodic.rig import save_rig
 
-    check_output(args.output)
     names = [n.strip() for n in args.camera.split(",")] if args.camera else None
     imp = import_calibration(args.calibration, args.format, size=args.size, units=args.units, cameras=names,
                              model=args.model, virtual_size=args.virtual_size, pitch_mm=args.pitch,
@@ -62,12 +60,12 @@ def run(args) -> int:
     if isinstance(out, PRVM):
         out.save(args.output)
         c = cams[0]
-        print(f"{args.output}: {fmt} camera {c.name!r}, {c.width}x{c.height}, {out.valid.mean():.1%} of pixels "
-              f"with a ray{flipped}")
+        wrote(args.output, f"{fmt} camera {c.name!r}, {c.width}x{c.height}, {out.valid.mean():.1%} of pixels "
+                           f"with a ray{flipped}")
         return 0
     save_rig(args.output, out)
     s = out.sensor
-    print(f"{args.output}: {fmt} cameras {cams[0].name!r} (left) and {cams[1].name!r} (right); {s.width}x{s.height} "
-          f"virtual pixels of {s.pitch_mm[0] * 1e3:.1f} um, baseline {np.linalg.norm(out.baseline):.2f} mm, working "
-          f"distance {out.working_distance_mm:.1f} mm{flipped}")
+    wrote(args.output, f"{fmt} cameras {cams[0].name!r} (left) and {cams[1].name!r} (right); {s.width}x{s.height} "
+                       f"virtual pixels of {s.pitch_mm[0] * 1e3:.1f} um, baseline {np.linalg.norm(out.baseline):.2f} "
+                       f"mm, working distance {out.working_distance_mm:.1f} mm{flipped}")
     return 0

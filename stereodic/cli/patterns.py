@@ -21,17 +21,15 @@ def register(sub):
     p.add_argument("--flat-levels", type=parse_floats, default=[0, 32, 64, 96, 128, 160, 192, 224, 255],
                    help="grey levels of the flat frames for the intensity calibration ('' for none)")
     add_input(p, "--response", what="display response", metavar="FILE",
-                   help="measured display response (display_response.json from `stereodic calibrate --report`): "
-                        "pre-compensate the fringes so the emitted luminance follows the cosine")
+              help="measured display response (display_response.json from `stereodic calibrate --report`): "
+                   "pre-compensate the fringes so the emitted luminance follows the cosine")
     add_output(p, kind="dir", metavar="DIR", help="folder of the pattern images and patterns.json")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    import json
-    from pathlib import Path
-
     from calib.errors import InputError
+    from calib.jsonfile import read_json
     from calib.patterns import DisplayResponse, calibration_sequence, write_patterns
 
     w, h = args.display
@@ -50,12 +48,14 @@ def run(args) -> int:
                                       f"({extent} px) for an absolute phase")
     response = None
     if args.response:
+        d = read_json(args.response, "display response")
+        if "levels" not in d or "luminance" not in d:
+            raise InputError(args.response, "not a display response: lacks 'levels' and 'luminance' (write one "
+                                            "with `stereodic calibrate --report`)")
         try:
-            response = DisplayResponse.from_json(json.loads(Path(args.response).read_text()))
-        except FileNotFoundError:
-            raise InputError(args.response, "response file is missing") from None
-        except (ValueError, KeyError, TypeError) as exc:
-            raise InputError(args.response, f"not a display response ({exc})") from None
+            response = DisplayResponse.from_json(d)
+        except (ValueError, TypeError) as exc:
+            raise InputError(args.response, f"not a usable display response: {exc}") from None
     seq = calibration_sequence(w, h, args.periods, args.steps, axes, args.low, args.high,
                                [int(v) for v in args.flat_levels], response)
     path = write_patterns(args.output, w, h, seq)

@@ -9,33 +9,42 @@ DIR/noise_map.npz (the maps: predicted error and SSSIG at --subset) (stereodic.d
 from __future__ import annotations
 
 
+from stereodic.cli.common import add_input, add_output
+
+
 def register(sub):
     p = sub.add_parser("speckle", help="speckle quality: noise, MIG, SSSIG, predicted displacement noise",
                        description="Before the test: the image noise, mean intensity gradient, SSSIG per subset "
                                    "and the predicted displacement noise for each subset size of a speckle image.")
-    p.add_argument("image", metavar="IMAGE", help="an image of the speckled specimen (8/16-bit PNG or TIFF)")
+    add_input(p, "image", what="image", metavar="IMAGE",
+              help="an image of the speckled specimen (8/16-bit PNG or TIFF)")
     p.add_argument("--subset", type=int, default=21, help="subset size of the maps, odd (default 21)")
     p.add_argument("--target", type=float, default=0.01, metavar="PX",
                    help="target random error: the smallest subset whose median prediction reaches it (default "
                         "0.01 px)")
-    p.add_argument("--static", metavar="IMAGE2", help="a second image of the same static scene: the noise is "
-                                                      "measured from the two (default: estimated from IMAGE)")
+    add_input(p, "--static", what="image", metavar="IMAGE2",
+              help="a second image of the same static scene: the noise is measured from the two (default: "
+                   "estimated from IMAGE)")
     p.add_argument("--roi", metavar="X0,Y0,X1,Y1", help="subset centres inside this region only")
-    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
+    add_output(p, kind="dir", metavar="DIR", help="output folder")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    from pathlib import Path
+
     import numpy as np
 
     from calib.atomic import write_json, write_npz
     from calib.errors import InputError
-    from calib.imageio import read_gray
-    from stereodic.cli.common import output_folder, parse_roi
+    from calib.imageio import check_size, read_gray
+    from stereodic.cli.common import parse_roi, wrote
     from stereodic.dic.speckle_quality import plot, speckle_quality
 
     img = read_gray(args.image)
     h, w = img.shape
+    if args.static:
+        check_size(args.static, (w, h), args.image)
     if args.subset < 5 or args.subset % 2 == 0 or args.subset > min(w, h):
         raise InputError("--subset", f"must be an odd number >= 5 that fits the {w}x{h} image, got {args.subset}")
     if not args.target > 0:
@@ -43,10 +52,8 @@ def run(args) -> int:
     second = None
     if args.static:
         second = read_gray(args.static)
-        if second.shape != img.shape:
-            raise InputError(args.static, f"image is {second.shape[1]}x{second.shape[0]} but {args.image} is {w}x{h}")
     roi = parse_roi(args.roi, w, h, "image")
-    out = output_folder(args.output)
+    out = Path(args.output)
     q = speckle_quality(img, subset=args.subset, target_px=args.target, roi=roi, second=second)
     at = int(np.flatnonzero(q.sizes == args.subset)[0]) if args.subset in q.sizes else None
     record = {"image": str(args.image), "noise_grey": q.sigma, "noise_from": q.sigma_source, "mig_grey_per_px": q.mig,
@@ -66,4 +73,7 @@ def run(args) -> int:
         print(f"no subset up to {int(q.sizes[-1])} px reaches {q.target_px:g} px (median {q.median_px[-1]:.4f} px)")
     else:
         print(f"smallest subset reaching {q.target_px:g} px (median): {q.smallest} px")
+    wrote(out / "speckle.json", "noise, mean intensity gradient, predicted error per subset size")
+    wrote(out / "noise_map.npz", f"maps of the predicted error and SSSIG at subset {args.subset} px")
+    wrote(out / "speckle.png", "the predicted error map and the error against the subset size")
     return 0

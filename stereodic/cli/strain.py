@@ -10,23 +10,28 @@ memory at a time (stereodic.strain_results).
 from __future__ import annotations
 
 
+from stereodic.cli.common import add_input, add_output
+
+
 def register(sub):
     from stereodic.cli.common import STRAIN_MEASURES as MEASURES
     p = sub.add_parser("strain", help="strain recomputed from saved DIC results",
                        description="Strain of saved DIC results (a `dic` output folder or a `dic2d` NPZ) with "
                                    "another window or measure, without correlating again.")
-    p.add_argument("result", metavar="DIC_RESULT", help="a `stereodic dic` output folder or dic.npz, or a dic2d NPZ")
+    add_input(p, "result", kind="any", what="DIC result", metavar="DIC_RESULT",
+              help="a `stereodic dic` output folder or dic.npz, or a dic2d NPZ")
     p.add_argument("--window", type=int, metavar="N",
                    help="strain fitted over N x N grid points, odd (default: the run's own, else 5)")
     p.add_argument("--measure", choices=MEASURES, default="green-lagrange",
                    help="strain measure (default green-lagrange)")
-    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
+    add_output(p, kind="dir", metavar="DIR", help="output folder")
     p.add_argument("--no-plot", action="store_true", help="skip the PNG maps")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     import json
+    from pathlib import Path
 
     import numpy as np
 
@@ -34,24 +39,26 @@ def run(args) -> int:
     from calib.errors import InputError
     from calib.npz_stream import write_stacked_npz
     from calib.progress import progress
-    from stereodic.cli.common import output_folder
-    from stereodic.dic.output import STRAIN_COLUMNS, fmt, save_map
-    from stereodic.strain_results import open_result, strains
+    from stereodic.cli.common import wrote
+    from stereodic.dic.maps import save_map
+    from stereodic.dic.output import STRAIN_COLUMNS, fmt
+    from stereodic.strain_results import map_axes, open_result, state_labels, strains
 
     result = open_result(args.result)
     own = (result.meta.get("settings", {}).get("strain_window") if result.kind == "dic" else None)
     window = args.window or own or 5
     if window < 3 or window % 2 == 0:
         raise InputError("--window", f"must be an odd number >= 3, got {window}")
-    out = output_folder(args.output)
+    out = Path(args.output)
     g = result.grid
     act = g.active.ravel()
     X, Y = g.points()
     label = "state" if result.kind == "dic" else "image"
+    axes, titles = (map_axes(result), state_labels(result)) if not args.no_plot else (None, None)
     keys = [c for c, _, _ in STRAIN_COLUMNS] + ["strain_valid"]
     fields = {c: f for c, f, _ in STRAIN_COLUMNS} | {"strain_valid": "valid"}
     tmp_dir = out / ".strain-states"
-    tmp_dir.mkdir(exist_ok=True)
+    tmp_dir.mkdir(parents=True, exist_ok=True)
     try:
         with atomic_output(out / "strain.csv") as tmp, open(tmp, "w") as csv:
             csv.write(",".join([label, "x", "y"] + keys) + "\n")
@@ -65,8 +72,9 @@ def run(args) -> int:
                 if not args.no_plot:
                     for c in ("exx", "eyy", "exy", "von_mises"):
                         name = "e_vm" if c == "von_mises" else c
-                        save_map(out / "maps" / f"{label}{k}_{name}.png", getattr(m, c) * 1e6, g,
-                                 f"{label} {k}: {name} ({args.measure})", f"{name} (microstrain)")
+                        save_map(out / "maps" / f"{label}{k}_{name}.png", getattr(m, c) * 1e6, axes,
+                                 title=f"{titles[k]} - {name}, {args.measure} strain", quantity=name,
+                                 unit="microstrain", decimals=0)
 
         def values(key):
             for k in range(result.states):
@@ -81,5 +89,9 @@ def run(args) -> int:
         for p in tmp_dir.glob("*.npz"):
             p.unlink()
         tmp_dir.rmdir()
-    print(f"{out}: {args.measure} strain of {result.states} {label}s of {result.path}, window {window} points")
+    what = f"{args.measure} strain of {result.states} {label}s of {result.path}, window {window} points"
+    wrote(out / "strain.csv", f"{what}: one row per point and {label}")
+    wrote(out / "strain.npz", "the same as arrays")
+    if not args.no_plot:
+        wrote(out / "maps", f"PNG maps of exx, eyy, exy and e_vm per {label}")
     return 0

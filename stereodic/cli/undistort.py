@@ -43,7 +43,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from calib.errors import InputError
-    from calib.imageio import read_gray, write_gray
+    from calib.imageio import check_size, read_gray, write_gray
     from calib.prvm_file import load_prvm
     from calib.progress import progress
     from stereodic.undistort import intensity_matrix, undistort_image
@@ -51,11 +51,19 @@ def run(args) -> int:
 
     prvm = load_prvm(args.camera)
     im = None if args.no_intensity else intensity_matrix(prvm)
+    setup = None
     if is_virtual(prvm):
         if args.size or args.pitch or args.plane_z is not None:
             raise InputError(args.camera, "is a virtual camera file: --size, --pitch and --plane-z do not apply")
         setup = as_virtual(prvm)
-    else:
+    out = Path(args.output)
+    names = [Path(f).name for f in args.images]
+    if len(set(names)) != len(names):
+        raise InputError(args.output, "two input images have the same name; outputs are named after the inputs")
+    real = setup.imm.real_size if setup is not None else (prvm.width, prvm.height)
+    for path in args.images:  # every image checked before the work
+        check_size(path, real, "the camera")
+    if setup is None:
         setup = virtual_setup(prvm, args)
     if args.save_virtual:
         if im is not None:
@@ -63,10 +71,6 @@ def run(args) -> int:
         save_virtual(args.save_virtual, setup)
         wrote(args.save_virtual, f"virtual camera ({args.model}), {setup.imm.valid.shape[1]}x"
                                  f"{setup.imm.valid.shape[0]}")
-    out = Path(args.output)
-    names = [Path(f).name for f in args.images]
-    if len(set(names)) != len(names):
-        raise InputError(args.output, "two input images have the same name; outputs are named after the inputs")
     for path, name in progress(list(zip(args.images, names)), "undistort"):
         virtual = undistort_image(read_gray(path), setup.imm, im, args.fixed_point, where=path)
         write_gray(out / name, virtual)

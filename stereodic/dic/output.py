@@ -103,30 +103,16 @@ def write_npz(path: str | os.PathLike, grid, values: Callable[[str], Iterable[np
                       {key: (lambda key=key: values(key)) for key in keys}, count)
 
 
-def save_map(path: str | os.PathLike, arr: np.ndarray, grid, title: str, label: str) -> None:
-    """One PNG map (matplotlib, atomic) of a (ny, nx) array on `grid` (axes in reference pixels); NaN
-    points are left blank."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    extent = (grid.xs[0], grid.xs[-1], grid.ys[-1], grid.ys[0])
-    fig, ax = plt.subplots(figsize=(6, 5))
-    im = ax.imshow(arr, extent=extent, cmap="viridis", interpolation="nearest")
-    fig.colorbar(im, ax=ax, label=label)
-    ax.set_title(title)
-    ax.set_xlabel("x (px)")
-    ax.set_ylabel("y (px)")
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-
-
-def plot_field(folder: str | os.PathLike, k: int, f: DicField, m: StrainMeasure | None) -> None:
-    """PNG maps of deformed image k: image{k}_u.png, _v, _zncc [, _exx, _eyy, _exy]."""
+def plot_field(folder: str | os.PathLike, k: int, f: DicField, m: StrainMeasure | None, name: str) -> None:
+    """PNG maps of deformed image k, whose file is `name`: image{k}_u.png, _v, _zncc [, _exx, _eyy, _exy]
+    (stereodic.dic.maps: axes in reference-image pixels, strains in microstrain)."""
+    from stereodic.dic.maps import pixel_axes, save_map
     folder = Path(folder)
-    maps = {"u": (f.u, "px"), "v": (f.v, "px"), "zncc": (np.where(f.ok, f.zncc, np.nan), "")}
+    axes = pixel_axes(f.grid.xs, f.grid.ys)
+    maps = {"u": (f.u, "px", 3), "v": (f.v, "px", 3), "zncc": (np.where(f.ok, f.zncc, np.nan), "", 4)}
     if m is not None:
-        maps.update(exx=(m.exx, ""), eyy=(m.eyy, ""), exy=(m.exy, ""))
-    for name, (arr, unit) in maps.items():
-        save_map(folder / f"image{k}_{name}.png", arr, f.grid, f"image {k}: {name}", f"{name} {unit}".strip())
+        maps.update({c: (getattr(m, c) * 1e6, "microstrain", 0) for c in ("exx", "eyy", "exy")})
+    for q, (arr, unit, decimals) in maps.items():
+        what = f"{q}, {m.measure} strain" if q.startswith("e") and m is not None else q
+        save_map(folder / f"image{k}_{q}.png", arr, axes, title=f"deformed image {k} ({name}) - {what}", quantity=q,
+                 unit=unit, decimals=decimals, signed=q != "zncc")

@@ -27,22 +27,28 @@ import numpy as np
 from calib.capture import Frame, load_capture
 from calib.errors import InputError
 from calib.image_files import expand, natural_key
-from calib.imageio import IMAGE_SUFFIXES, image_size, read_gray
+from calib.imageio import IMAGE_SUFFIXES, check_size, read_gray
 from stereodic.rectify import rectify_pair
-from stereodic.rig import SIDES, Rig
+from stereodic.rig import SIDES, Rig, check_camera_sizes
 
 
 @dataclass
 class DicStates:
     """The checked image files of an experiment: left[k] and right[k] are the images of state k;
-    `source` says where they were named (the dataset, the patterns, the folder)."""
+    `source` says where they were named (the dataset, the patterns, the folder); `names`: the states'
+    names where the dataset gives them (a simulated dataset's `simulated.states`), else None."""
 
     left: list[Path]
     right: list[Path]
     source: str
+    names: list[str] | None = None
 
     def __len__(self) -> int:
         return len(self.left)
+
+    def label(self, k: int) -> str:
+        """State k in words, for titles: "state 3: tension", or "state 3 (img_0003_0.tif)"."""
+        return f"state {k}: {self.names[k]}" if self.names else f"state {k} ({self.left[k].name})"
 
     def read(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         """The raw (left, right) images of state k (uint8 or uint16)."""
@@ -61,12 +67,8 @@ class DicStates:
 def _check_sizes(rig: Rig, files: dict[str, list[Path]]) -> None:
     """InputError naming the first image that is unreadable or not its rig camera's size."""
     for side in SIDES:
-        want = rig.camera(side).imm.real_size
         for path in files[side]:
-            size = image_size(path)
-            if size != tuple(want):
-                raise InputError(path, f"image is {size[0]}x{size[1]} but the rig's {side} camera is "
-                                       f"{want[0]}x{want[1]}")
+            check_size(path, rig.camera(side).imm.real_size, f"the rig's {side} camera")
 
 
 def load_states(dataset: str | os.PathLike, rig: Rig) -> DicStates:
@@ -80,12 +82,9 @@ def load_states(dataset: str | os.PathLike, rig: Rig) -> DicStates:
         if len(cap.cameras) != 2:
             raise InputError(where, f"has cameras {sorted(cap.cameras)}; the rig's are {names}")
         names = sorted(cap.cameras)
+    check_camera_sizes(rig, cap.cameras, names, where)
     frames = []
-    for name, side in zip(names, SIDES):
-        real = tuple(rig.camera(side).imm.real_size)
-        if tuple(cap.cameras[name]) != real:
-            raise InputError(where, f"camera {name} is {cap.cameras[name][0]}x{cap.cameras[name][1]} but the "
-                                    f"rig's {side} camera is {real[0]}x{real[1]}")
+    for name in names:
         by_state: dict[int, Frame] = {}
         for f in cap.frames:
             if f.camera == name:
@@ -102,8 +101,10 @@ def load_states(dataset: str | os.PathLike, rig: Rig) -> DicStates:
                 raise InputError(where, f"state {s} of camera {name} is missing (states must be 0..{max(states)}, "
                                         f"found {', '.join(map(str, sorted(by_state)))})")
     n = max(states) + 1
+    names = (cap.extra.get("simulated") or {}).get("states")
+    names = [str(v) for v in names] if isinstance(names, list) and len(names) == n else None
     return DicStates([cap.path(frames[0][s]) for s in range(n)], [cap.path(frames[1][s]) for s in range(n)],
-                     os.fspath(dataset))
+                     os.fspath(dataset), names)
 
 
 def states_from_patterns(left: str, right: str, rig: Rig) -> DicStates:

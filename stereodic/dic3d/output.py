@@ -30,7 +30,8 @@ from calib.atomic import atomic_output
 from calib.npz_stream import write_stacked_npz
 from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import STATUS_NAMES
-from stereodic.dic.output import STRAIN_COLUMNS, fmt, save_map
+from stereodic.dic.maps import MapAxes, save_map
+from stereodic.dic.output import STRAIN_COLUMNS, fmt
 from stereodic.dic3d.stereo import NO_REFERENCE, RAY_GAP, CameraMatch, StereoSettings, StereoState
 from stereodic.strain_measures import StrainMeasure
 
@@ -156,12 +157,15 @@ def write_npz(path: str | os.PathLike, grid: Grid, values: Callable[[str], Itera
     write_stacked_npz(path, arrays, {key: (lambda key=key: values(key)) for key in npz_keys(has_strain)}, count)
 
 
-def plot_state(folder: str | os.PathLike, grid: Grid, st: StereoState) -> None:
-    """PNG maps of one state k: state{k}_{Z,dX,dY,dZ}.png [+ _exx, _eyy, _exy] (axes: left reference pixels)."""
+def plot_state(folder: str | os.PathLike, st: StereoState, axes: MapAxes, label: str) -> None:
+    """PNG maps of one state k, named `label` (its load case): state{k}_{Z,dX,dY,dZ}.png [+ _exx, _eyy,
+    _exy, microstrain] on `axes` (stereodic.dic.maps.surface_axes: the reference surface's X, Y in mm)."""
     folder = Path(folder)
-    maps = {"Z": (st.points[..., 2], "mm"), "dX": (st.displacement[..., 0], "mm"),
-            "dY": (st.displacement[..., 1], "mm"), "dZ": (st.displacement[..., 2], "mm")}
+    maps = {"Z": (st.points[..., 2], "mm", 3), "dX": (st.displacement[..., 0], "mm", 4),
+            "dY": (st.displacement[..., 1], "mm", 4), "dZ": (st.displacement[..., 2], "mm", 4)}
     if st.measure is not None:
-        maps.update({c: (getattr(st.measure, c) * 1e6, "microstrain") for c in ("exx", "eyy", "exy")})
-    for name, (arr, unit) in maps.items():
-        save_map(folder / f"state{st.state}_{name}.png", arr, grid, f"state {st.state}: {name}", f"{name} ({unit})")
+        maps.update({c: (getattr(st.measure, c) * 1e6, "microstrain", 0) for c in ("exx", "eyy", "exy")})
+    for name, (arr, unit, decimals) in maps.items():
+        what = f"{name}, {st.measure.measure} strain" if name.startswith("e") else name
+        save_map(folder / f"state{st.state}_{name}.png", arr, axes, title=f"{label} - {what}", quantity=name,
+                 unit=unit, decimals=decimals, signed=name != "Z")

@@ -16,6 +16,7 @@ from typing import Callable
 
 from calib.progress import progress
 from stereodic.dic.grid import Grid
+from stereodic.dic.maps import surface_axes
 from stereodic.dic.sequence import prefetch
 from stereodic.dic3d.dataset import DicStates
 from stereodic.dic3d.output import plot_state, write_csv, write_npz
@@ -59,10 +60,11 @@ def run_states(store: RunStore, data: DicStates, rig: Rig, grid: Grid, seeds, se
 
 def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: StereoSettings, info: dict, *,
                   vtk: bool = True, plot_every: int = 0, dice: Callable[[StereoState], None] | None = None,
-                  csv: bool = True) -> None:
+                  csv: bool = True, labels: list[str] | None = None) -> None:
     """The combined outputs from the store's state files (module docstring): folder/dic.csv (unless
     `dice` writes DICe's files instead, or not `csv`), folder/dic.npz, folder/vtk/ (with `vtk`),
-    folder/maps/ (every `plot_every`-th state, 0 = none)."""
+    folder/maps/ (every `plot_every`-th state, 0 = none; titled by `labels`, one per state, default
+    "state k")."""
     folder = Path(folder)
     n = store.manifest["states"]
     has_strain = bool(settings.strain_window)
@@ -70,11 +72,14 @@ def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: Ste
     if csv:
         write_csv(folder / "dic.csv", grid, store.states())
     if vtk or plot_every or dice is not None:
+        axes = None
         for st in progress(store.states(), "writing", total=n, unit="state"):
             if vtk:
                 write_state(folder / "vtk", st)
+            if axes is None:  # state 0: the reference surface gives every map its mm axes
+                axes = surface_axes(grid.xs, grid.ys, st.points)
             if plot_every and st.state % plot_every == 0:
-                plot_state(folder / "maps", grid, st)
+                plot_state(folder / "maps", st, axes, labels[st.state] if labels else f"state {st.state}")
             if dice is not None:
                 dice(st)
     if vtk:

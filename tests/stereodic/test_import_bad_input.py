@@ -88,4 +88,4 @@ def test_output_checked_before_the_work(tmp_path, capsys):
     """-o naming a folder is refused before the calibration is read (the file given is not one)."""
     (tmp_path / "out").mkdir()
     (tmp_path / "notes.txt").write_text("nothing")
-    _one_line(*_run(["import", str(tmp_path / "notes.txt"), "-o", str(tmp_path / "out")], capsys), "out", "folder")
+    _one_line(*_run(["import", str(tmp_path / "notes.txt"), "-o", str(tmp_path / "out")], capsys), "out", "is a directory")

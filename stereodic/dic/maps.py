@@ -1,0 +1,128 @@
+"""PNG maps of DIC fields that a lab engineer reads without the docs.
+
+Each map says where its points are (2-D DIC: x, y in the reference image, pixels, rows downwards; stereo
+DIC: X, Y of the reference surface in the reporting frame, mm, turned so that the map looks as the left
+camera sees the specimen), which load case it shows (the dataset's state name, or the image's file name)
+and what the colour is (the quantity and its unit on the colour bar, ticks to the precision the numbers
+carry, never "-0"). The title adds the median, the range of the middle 90 % (5th to 95th percentile) and
+how many points were measured. The colour range spans the 1st-99th percentile (arrows on the bar where values go beyond);
+a range across zero is centred on zero with a diverging colour map.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib.atomic import atomic_output
+from calib.numbers import fixed
+
+
+@dataclass(frozen=True)
+class MapAxes:
+    """Where each grid point of a map is: x, y (ny, nx) float arrays in `unit` ("px" or "mm"), named
+    `names` on the axes; flip_x / flip_y: the axis runs right to left / top to bottom."""
+
+    x: np.ndarray
+    y: np.ndarray
+    unit: str
+    names: tuple[str, str]
+    flip_x: bool
+    flip_y: bool
+
+
+def pixel_axes(xs: np.ndarray, ys: np.ndarray) -> MapAxes:
+    """The axes of a map on a grid of reference-image pixels: columns xs (nx,), rows ys (ny,)."""
+    x, y = np.meshgrid(np.asarray(xs, float), np.asarray(ys, float))
+    return MapAxes(x, y, "px", ("x", "y"), False, True)
+
+
+def surface_axes(xs: np.ndarray, ys: np.ndarray, points_mm: np.ndarray) -> MapAxes:
+    """The axes of a map of a stereo result: the X, Y (mm, reporting frame) of each grid point's reference
+    position `points_mm` (ny, nx, 3; NaN where not measured), smoothed by a least-squares cubic in the
+    grid's pixel positions (points more than 3 sigma off refitted without them) so that every cell, measured
+    or not, has a place and neighbours stay in order; each axis is flipped where it runs against the left
+    image's columns or rows."""
+    px = pixel_axes(xs, ys)
+    X, Y = (np.asarray(points_mm[..., i], float) for i in (0, 1))
+    ok = np.isfinite(X) & np.isfinite(Y)
+    if ok.sum() < 12:
+        return px
+    u, v = (a - a.mean() for a in (px.x, px.y))
+    scale = max(np.abs(u).max(), np.abs(v).max(), 1.0)
+    u, v = u / scale, v / scale
+    terms = np.stack([u ** i * v ** j for n in range(4) for i in range(n, -1, -1) for j in [n - i]], -1)
+    target = np.stack([X, Y], -1)
+    for _ in range(2):
+        coef, *_ = np.linalg.lstsq(terms[ok], target[ok], rcond=None)
+        off = np.linalg.norm(terms @ coef - target, axis=-1)
+        ok &= ~(off > 3 * np.sqrt(np.nanmean(off[ok] ** 2)))
+    fit = terms @ coef
+    X, Y = fit[..., 0], fit[..., 1]
+    # which way X and Y run along the image's columns (coef[1]) and rows (coef[2])
+    if abs(coef[1, 0]) >= abs(coef[1, 1]):
+        return MapAxes(X, Y, "mm", ("X", "Y"), coef[1, 0] < 0, coef[2, 1] > 0)
+    return MapAxes(Y, X, "mm", ("Y", "X"), coef[1, 1] < 0, coef[2, 0] > 0)   # the frame turned a quarter
+
+
+def _decimals(step: float) -> int:
+    """The fewest decimals (up to 6) that write every multiple of the tick step `step` exactly."""
+    for d in range(7):
+        scaled = step * 10 ** d
+        if abs(scaled - round(scaled)) <= 1e-6 * max(1.0, scaled):
+            return d
+    return 6
+
+
+def save_map(path: str | os.PathLike, values: np.ndarray, axes: MapAxes, *, title: str, quantity: str,
+             unit: str, decimals: int, signed: bool = True) -> None:
+    """One map (matplotlib PNG, atomic) of `values` (ny, nx; NaN where not measured, left blank) on
+    `axes`; `title` names the load case, `quantity` and `unit` label the colour bar ("exx",
+    "microstrain"; unit "" for a pure number), `decimals` is the precision of the title's figures;
+    `signed`: a change (displacement, strain) whose range across zero is centred on zero, not a
+    position or a score."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter, MaxNLocator
+
+    values = np.asarray(values, float)
+    finite = values[np.isfinite(values)]
+    label = f"{quantity} ({unit})" if unit else quantity
+    if finite.size:
+        lo, hi = np.percentile(finite, [1, 99])
+        if hi <= lo:
+            lo, hi = lo - 10.0 ** -decimals, hi + 10.0 ** -decimals
+        cmap = "viridis"
+        if signed and lo < 0 < hi:
+            lo, hi, cmap = -max(-lo, hi), max(-lo, hi), "RdBu_r"
+        median, p5, p95 = np.percentile(finite, [50, 5, 95])
+        units = f" {unit}" if unit else ""
+        summary = (f"median {fixed(median, decimals)}{units}; 90 % within {fixed(p5, decimals)} .. "
+                   f"{fixed(p95, decimals)}; {finite.size} of {values.size} points measured")
+    else:
+        lo, hi, cmap, summary = -1.0, 1.0, "viridis", f"no point measured of {values.size}"
+    fig, ax = plt.subplots(figsize=(7.2, 5.6), layout="constrained")
+    im = ax.pcolormesh(axes.x, axes.y, np.ma.masked_invalid(values), shading="nearest", cmap=cmap, vmin=lo,
+                       vmax=hi)
+    extend = {(False, False): "neither", (True, False): "min", (False, True): "max", (True, True): "both"}[
+        (bool(finite.size and finite.min() < lo), bool(finite.size and finite.max() > hi))]
+    bar = fig.colorbar(im, ax=ax, label=label, extend=extend, shrink=0.9)
+    bar.locator = MaxNLocator(7)
+    ticks = bar.locator.tick_values(lo, hi)
+    places = _decimals(float(np.min(np.diff(ticks)))) if len(ticks) > 1 else decimals
+    bar.formatter = FuncFormatter(lambda v, _: fixed(v, places))
+    bar.update_ticks()
+    ax.set_aspect("equal")
+    ax.set_xlabel(f"{axes.names[0]} ({axes.unit})")
+    ax.set_ylabel(f"{axes.names[1]} ({axes.unit})")
+    if axes.flip_x:
+        ax.invert_xaxis()
+    if axes.flip_y:
+        ax.invert_yaxis()
+    ax.set_title(f"{title}\n{summary}", fontsize=9.5)
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, dpi=100)
+    plt.close(fig)

@@ -1,0 +1,92 @@
+"""The DIC maps' geometry and words (stereodic.dic.maps): axes in mm from the reference surface, oriented
+as the left camera sees it; the load case named from the dataset; tick precision."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stereodic.cli import main
+from stereodic.dic.maps import _decimals, pixel_axes, save_map, surface_axes
+from stereodic.dic3d.dataset import DicStates
+from stereodic.strain_results import map_axes, open_result, state_labels
+
+XS, YS = np.arange(10, 300, 10.0), np.arange(5, 200, 10.0)
+
+
+def _surface(f):
+    """(ny, nx, 3) points of the grid XS x YS through the mapping f(x_px, y_px) -> (X, Y) mm."""
+    x, y = np.meshgrid(XS, YS)
+    X, Y = f(x, y)
+    return np.stack([X, Y, np.zeros_like(X)], -1)
+
+
+def test_surface_axes_are_the_reference_positions_with_holes_filled():
+    """A plate seen in perspective (a homography from pixels to mm, as for a pinhole camera), X to the
+    right and Y up: the axes give every point's X, Y - measured or not - to well below a cell, and
+    the vertical axis is not flipped (Y grows up the image)."""
+    def homography(x, y):
+        w = 1 + 2e-4 * x + 1e-4 * y
+        return (0.2 * x + 15) / w, (-0.2 * y + 60) / w
+    pts = _surface(homography)
+    truth = pts.copy()
+    pts[3:6, 4:9] = np.nan                     # a hole (no texture)
+    pts[10, 10] += (5.0, -3.0, 0.0)            # a wrong match
+    axes = surface_axes(XS, YS, pts)
+    assert axes.unit == "mm" and axes.names == ("X", "Y")
+    assert not axes.flip_x and not axes.flip_y
+    err = np.hypot(axes.x - truth[..., 0], axes.y - truth[..., 1])
+    assert err.max() < 0.02 * 10 * 0.2        # 2 % of a cell (10 px of 0.2 mm)
+    assert err[3:6, 4:9].max() < 0.04 and err[10, 10] < 0.04
+
+
+def test_surface_axes_follow_the_camera_view():
+    """X decreasing along the image's columns flips the horizontal axis; Y growing down the rows flips
+    the vertical one (the map looks as the left image does); X running down the rows (the frame turned
+    a quarter) puts Y across and X down."""
+    flipped = surface_axes(XS, YS, _surface(lambda x, y: (-0.1 * x, 0.1 * y)))
+    assert flipped.flip_x and flipped.flip_y and flipped.names == ("X", "Y")
+    turned = surface_axes(XS, YS, _surface(lambda x, y: (0.1 * y, 0.1 * x)))
+    assert turned.names == ("Y", "X") and not turned.flip_x and turned.flip_y
+    assert np.allclose(turned.x, 0.1 * np.meshgrid(XS, YS)[0])
+
+
+def test_too_few_positions_give_pixel_axes():
+    pts = np.full((len(YS), len(XS), 3), np.nan)
+    axes = surface_axes(XS, YS, pts)
+    assert axes.unit == "px" and axes.flip_y and np.array_equal(axes.x[0], XS)
+
+
+@pytest.mark.parametrize("step, decimals", [(250.0, 0), (1.0, 0), (0.5, 1), (0.25, 2), (0.002, 3)])
+def test_tick_decimals_follow_the_step(step, decimals):
+    assert _decimals(step) == decimals
+
+
+def test_a_map_is_written(tmp_path):
+    values = np.where(np.arange(len(XS))[None, :] > 3, 1e4 + np.zeros((len(YS), len(XS))), np.nan)
+    save_map(tmp_path / "m.png", values, pixel_axes(XS, YS), title="state 3: tension - exx", quantity="exx",
+             unit="microstrain", decimals=0)
+    assert (tmp_path / "m.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_states_are_named_from_the_dataset_or_their_files():
+    files = [Path("pairs/img_0000_0.tif"), Path("pairs/img_0001_0.tif")]
+    assert DicStates(files, files, "--images pairs").label(1) == "state 1 (img_0001_0.tif)"
+    assert DicStates(files, files, "d", ["reference", "tension"]).label(1) == "state 1: tension"
+
+
+def test_a_run_records_its_state_names_and_maps_in_mm(dic_sim, tmp_path):
+    out = tmp_path / "run"
+    assert main(["dic", str(dic_sim / "rig.npz"), str(dic_sim), "--step", "8", "--strain-window", "5", "--no-vtk",
+                 "--plot-every", "2", "-o", str(out)]) == 0
+    names = json.loads((dic_sim / "capture.json").read_text())["simulated"]["states"]
+    result = open_result(out)
+    assert state_labels(result) == [f"state {k}: {n}" for k, n in enumerate(names)]
+    axes = map_axes(result)
+    with np.load(out / "dic.npz") as z:
+        reference = z["points"][0]
+    ok = np.isfinite(reference[..., 0])
+    assert np.abs(axes.x[ok] - reference[..., 0][ok]).max() < 0.05     # mm, grid step ~1 mm
+    assert np.abs(axes.y[ok] - reference[..., 1][ok]).max() < 0.05
+    assert sorted(p.name for p in (out / "maps").glob("*_exx.png")) == ["state0_exx.png", "state2_exx.png"]
