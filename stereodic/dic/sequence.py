@@ -257,7 +257,7 @@ def correlate_sequence(ref_img: np.ndarray, def_imgs: Iterable[np.ndarray], grid
     s = settings
     seed_list = seed_indices(grid, seeds)
     images = prefetch(def_imgs, lambda img: BSplineImage.from_image(img, s.order, s.prefilter_sigma))
-    ref = ImageRef.prepare(ref_img, s)
+    ref = ImageRef.prepare(ref_img, s, keep_subsets=True)
     previous = ref
     carry = TrackCarry.initial(grid, incremental, start)
     for img, img_b in images:

@@ -134,15 +134,18 @@ class PreparedPair:
         return cls(left, right, *(BSplineImage.from_image(img, settings.order, settings.prefilter_sigma)
                                   for img in (left, right)))
 
-    def left_ref(self) -> ImageRef:
-        return ImageRef(self.left, self.left_b)
+    def left_ref(self, *, keep_subsets: bool = False) -> ImageRef:
+        """The left image as a registration's reference (`ImageRef`; keep_subsets: that of a run)."""
+        return ImageRef(self.left, self.left_b, keep_subsets)
 
 
 @dataclass
 class StereoRun:
     """Per-run data: the rig, the grid, the settings, seed positions (left rectified reference pixels)
-    and their grid indices, the left reference image prepared (`ImageRef`), and once state 0 is solved
-    its points (ny, nx, 3) reporting frame mm (`with_reference`)."""
+    and their grid indices, the left reference image prepared (`ImageRef`, which keeps the reference
+    side of the grid's subsets once computed: every state's temporal and cross matches register the
+    same reference subsets), and once state 0 is solved its points (ny, nx, 3) reporting frame mm
+    (`with_reference`)."""
 
     rig: Rig
     grid: Grid
@@ -155,7 +158,7 @@ class StereoRun:
     @classmethod
     def prepare(cls, rig: Rig, grid: Grid, settings: StereoSettings, seeds: Sequence[tuple[float, float]],
                 reference: PreparedPair) -> "StereoRun":
-        return cls(rig, grid, settings, list(seeds), seed_indices(grid, seeds), reference.left_ref())
+        return cls(rig, grid, settings, list(seeds), seed_indices(grid, seeds), reference.left_ref(keep_subsets=True))
 
     def with_reference(self, state0: StereoState) -> "StereoRun":
         return replace(self, ref_points=state0.points)
