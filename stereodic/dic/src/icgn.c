@@ -17,19 +17,26 @@
 
 #include "icgn.h"
 
-int work_alloc(Work *w, int half, int nparams)
+/* The fast path: affine warps, bicubic interpolation. */
+static inline int fast_path(const Problem *pb)
 {
-    const size_t m = (size_t)(2 * half + 1) * (size_t)(2 * half + 1), n = (size_t)nparams;
-    const size_t lanes = (n + 2 + 3) / 4 * 4;
-    w->J = malloc(sizeof(double) * (m * lanes + n * n + 4 * n + lanes));
+    return pb->nparams == 6 && pb->ref.order == 3;
+}
+
+int work_alloc(Work *w, const Problem *pb)
+{
+    const size_t side = 2 * (size_t)pb->half + 1, m = side * side, n = (size_t)pb->nparams;
+    const size_t sums = (n + 2 + 3) / 4 * 4, lanes = fast_path(pb) ? 4 : sums;
+    w->J = malloc(sizeof(double) * (m * lanes + n * n + 4 * n + sums));
     if (!w->J)
         return -1;
     w->lanes = (int)lanes;
+    w->value = fast_path(pb) ? 2 : (int)n;
     w->H = w->J + m * lanes;
     w->JS = w->H + n * n;
     w->JF = w->JS + n;
     w->SJg = w->JF + n;
-    w->rhs = w->SJg + lanes;
+    w->rhs = w->SJg + sums;
     w->dp = w->rhs + n;
     return 0;
 }
@@ -170,8 +177,8 @@ static void compose_quadratic(double *p, const double *d, const double *fit, int
     }
 }
 
-/* Lower triangle of H = J^T J, JS = sum J and JF = sum J fc over the m rows of J (m rows of `lanes`
- * values, fc in lane n). */
+/* Lower triangle of H = J^T J, JS = sum J and JF = sum J fc over the m rows of J (`lanes` values per
+ * row, fc in lane n). */
 static void sums_generic(const double *J, int lanes, int m, int n, double *H, double *JS, double *JF)
 {
     for (int a = 0; a < n * n; ++a)
@@ -191,23 +198,26 @@ static void sums_generic(const double *J, int lanes, int m, int n, double *H, do
     }
 }
 
-/* sums_generic for 6 parameters (8 lanes), in scalars (the compiler keeps them in registers). */
-static void sums_affine(const double *J, int m, double *H, double *JS, double *JF)
+/* sums_generic for the fast path's rows (gx, gy, fc, 1) of a subset of half-width `half`, the 6
+ * steepest-descent values (gx, gx dx, gx dy, gy, gy dx, gy dy) formed on the way, in scalars. */
+static void sums_affine(const double *Q, int half, double *H, double *JS, double *JF)
 {
     double h00 = 0, h10 = 0, h11 = 0, h20 = 0, h21 = 0, h22 = 0, h30 = 0, h31 = 0, h32 = 0, h33 = 0, h40 = 0;
     double h41 = 0, h42 = 0, h43 = 0, h44 = 0, h50 = 0, h51 = 0, h52 = 0, h53 = 0, h54 = 0, h55 = 0;
     double s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0, s5 = 0, f0 = 0, f1 = 0, f2 = 0, f3 = 0, f4 = 0, f5 = 0;
-    for (int k = 0; k < m; ++k) {
-        const double *Jk = J + 8L * k;
-        const double c = Jk[6], j0 = Jk[0], j1 = Jk[1], j2 = Jk[2], j3 = Jk[3], j4 = Jk[4], j5 = Jk[5];
-        s0 += j0; s1 += j1; s2 += j2; s3 += j3; s4 += j4; s5 += j5;
-        f0 += j0 * c; f1 += j1 * c; f2 += j2 * c; f3 += j3 * c; f4 += j4 * c; f5 += j5 * c;
-        h00 += j0 * j0;
-        h10 += j1 * j0; h11 += j1 * j1;
-        h20 += j2 * j0; h21 += j2 * j1; h22 += j2 * j2;
-        h30 += j3 * j0; h31 += j3 * j1; h32 += j3 * j2; h33 += j3 * j3;
-        h40 += j4 * j0; h41 += j4 * j1; h42 += j4 * j2; h43 += j4 * j3; h44 += j4 * j4;
-        h50 += j5 * j0; h51 += j5 * j1; h52 += j5 * j2; h53 += j5 * j3; h54 += j5 * j4; h55 += j5 * j5;
+    for (int dy = -half; dy <= half; ++dy) {
+        for (int dx = -half; dx <= half; ++dx, Q += 4) {
+            const double c = Q[2], j0 = Q[0], j1 = Q[0] * dx, j2 = Q[0] * dy, j3 = Q[1], j4 = Q[1] * dx,
+                         j5 = Q[1] * dy;
+            s0 += j0; s1 += j1; s2 += j2; s3 += j3; s4 += j4; s5 += j5;
+            f0 += j0 * c; f1 += j1 * c; f2 += j2 * c; f3 += j3 * c; f4 += j4 * c; f5 += j5 * c;
+            h00 += j0 * j0;
+            h10 += j1 * j0; h11 += j1 * j1;
+            h20 += j2 * j0; h21 += j2 * j1; h22 += j2 * j2;
+            h30 += j3 * j0; h31 += j3 * j1; h32 += j3 * j2; h33 += j3 * j3;
+            h40 += j4 * j0; h41 += j4 * j1; h42 += j4 * j2; h43 += j4 * j3; h44 += j4 * j4;
+            h50 += j5 * j0; h51 += j5 * j1; h52 += j5 * j2; h53 += j5 * j3; h54 += j5 * j4; h55 += j5 * j5;
+        }
     }
     const double lower[21] = {h00, h10, h11, h20, h21, h22, h30, h31, h32, h33, h40,
                               h41, h42, h43, h44, h50, h51, h52, h53, h54, h55};
@@ -218,12 +228,12 @@ static void sums_affine(const double *J, int m, double *H, double *JS, double *J
     JF[0] = f0; JF[1] = f1; JF[2] = f2; JF[3] = f3; JF[4] = f4; JF[5] = f5;
 }
 
-/* The rows of the reference subset at (x0, y0) in w->J: steepest-descent values, the reference value,
- * 1, zeros. OUTSIDE if the subset leaves the image, else OK. */
+/* The rows of the reference subset at (x0, y0) in w->J, one per pixel: on the fast path (gx, gy, f, 1),
+ * otherwise the n steepest-descent values, f, 1, zeros. OUTSIDE if the subset leaves the image, else OK. */
 static int subset_rows(const Problem *pb, Work *w, double x0, double y0)
 {
     const int n = pb->nparams, nb = n / 2, half = pb->half, side = 2 * half + 1, lanes = w->lanes;
-    const int width = pb->ref.width, height = pb->ref.height;
+    const int width = pb->ref.width, height = pb->ref.height, fast = fast_path(pb);
     if (!(0.0 <= x0 - half && x0 + half <= width - 1 && 0.0 <= y0 - half && y0 + half <= height - 1))
         return OUTSIDE;
     const int on_pixel = x0 == floor(x0) && y0 == floor(y0);
@@ -241,6 +251,13 @@ static int subset_rows(const Problem *pb, Work *w, double x0, double y0)
                 gy = pb->refpix[2 * plane + at];
             } else {
                 sample_with_gradient(&pb->ref, x0 + dx, y0 + dy, &f, &gx, &gy);
+            }
+            if (fast) {
+                Jk[0] = gx;
+                Jk[1] = gy;
+                Jk[2] = f;
+                Jk[3] = 1.0;
+                continue;
             }
             Jk[0] = gx;
             Jk[1] = gx * dx;
@@ -273,22 +290,22 @@ static int reference_side(const Problem *pb, Work *w, double x0, double y0, doub
     const int st = subset_rows(pb, w, x0, y0);
     if (st != OK)
         return st;
-    double *J = w->J;
+    double *J = w->J, *values = J + w->value;
     double fsum = 0.0;
     for (int k = 0; k < m; ++k)
-        fsum += J[(long)k * lanes + n];
+        fsum += values[(long)k * lanes];
     const double fmean = fsum / m;
     double ss = 0.0;
     for (int k = 0; k < m; ++k) {
-        double *c = J + (long)k * lanes + n;
+        double *c = values + (long)k * lanes;
         *c -= fmean;
         ss += *c * *c;
     }
     if (ss <= 1e-10 * m)
         return NO_TEXTURE;
     double *H = w->H, *JS = w->JS, *JF = w->JF;
-    if (n == 6)
-        sums_affine(J, m, H, JS, JF);
+    if (fast_path(pb))
+        sums_affine(J, pb->half, H, JS, JF);
     else
         sums_generic(J, lanes, m, n, H, JS, JF);
     if (!cholesky(H, n))
@@ -306,8 +323,9 @@ static int cached_side(const Problem *pb, Work *w, double x0, double y0, const d
     if (st != OK || subset_rows(pb, w, x0, y0) != OK)
         return st;
     const double fmean = row[REF_MEAN];
+    double *values = w->J + w->value;
     for (int k = 0; k < m; ++k)
-        w->J[(long)k * lanes + n] -= fmean;
+        values[(long)k * lanes] -= fmean;
     memcpy(w->JS, row + REF_HEAD, sizeof(double) * (size_t)n);
     memcpy(w->JF, row + REF_HEAD + n, sizeof(double) * (size_t)n);
     memcpy(w->H, row + REF_HEAD + 2 * n, sizeof(double) * (size_t)(n * n));
@@ -369,8 +387,9 @@ static int pass_generic(const Problem *pb, Work *w, const double *p, double x0, 
     return 1;
 }
 
-/* pass_generic for affine warps and bicubic interpolation (the common, fast case): the rows' 8 lanes
- * in two vectors, the interpolation's factor 1/36 applied to the sums. */
+/* pass_generic for affine warps and bicubic interpolation (the common, fast case), from the rows (gx,
+ * gy, fc, 1): per pixel q g and q g dx summed in two vectors, per row of the subset their sum and its
+ * dy-weighted sum; the interpolation's factor 1/36 applied to the sums at the end. */
 static int pass_affine_cubic(const Problem *pb, Work *w, const double *p, double x0, double y0, double *sgg_)
 {
     const int half = pb->half, side = 2 * half + 1;
@@ -386,25 +405,34 @@ static int pass_affine_cubic(const Problem *pb, Work *w, const double *p, double
     }
     const float *c = pb->dfm.c;
     const long stride = pb->dfm.stride;
-    const double *Jk = w->J;
-    v4d lo = {0.0}, hi = {0.0};
+    const double *Q = w->J;
+    v4d all = {0.0}, by_dx = {0.0}, by_dy = {0.0};
     double sgg = 0.0;
     for (int j = 0; j < side; ++j) {
         const double dy = j - half;
         const double xr = x0 + p[0] + a12 * dy - a11 * half, yr = y0 + p[3] + a22 * dy - a21 * half;
-        double di = 0.0;
-        for (int i = 0; i < side; ++i, Jk += 8, di += 1.0) {
+        v4d row = {0.0};
+        double di = 0.0, dx = -half;
+        for (int i = 0; i < side; ++i, Q += 4, di += 1.0, dx += 1.0) {
             const double g = sample_cubic36(c, stride, xr + a11 * di, yr + a21 * di);
+            const v4d qg = load4d(Q) * g;
             sgg += g * g;
-            lo += load4d(Jk) * g;
-            hi += load4d(Jk + 4) * g;
+            row += qg;
+            by_dx += qg * dx;
         }
+        all += row;
+        by_dy += row * dy;
     }
     const double s = 1.0 / 36.0;
-    lo *= s;
-    hi *= s;
-    memcpy(w->SJg, &lo, sizeof lo);
-    memcpy(w->SJg + 4, &hi, sizeof hi);
+    double *SJg = w->SJg;   /* J = (gx, gx dx, gx dy, gy, gy dx, gy dy), then fc, 1 */
+    SJg[0] = all[0] * s;
+    SJg[1] = by_dx[0] * s;
+    SJg[2] = by_dy[0] * s;
+    SJg[3] = all[1] * s;
+    SJg[4] = by_dx[1] * s;
+    SJg[5] = by_dy[1] * s;
+    SJg[6] = all[2] * s;
+    SJg[7] = all[3] * s;
     *sgg_ = sgg * (s * s);
     return 1;
 }
@@ -420,7 +448,7 @@ int solve_point(const Problem *pb, Work *w, double x0, double y0, const double *
     if (st != OK)
         return st;
     const double h2 = 0.5 * half * half, hh = (double)half * half;
-    const int fast = nb == 3 && pb->ref.order == 3;
+    const int fast = fast_path(pb);
     for (int it = 1; it <= pb->max_iter; ++it) {
         double sgg;
         *iters = it;

@@ -22,14 +22,16 @@ typedef struct {
     const int64_t *rows;
 } Problem;
 
-/* Per-thread scratch space of one registration. J: one row of `lanes` values per subset pixel, the n
- * steepest-descent values, the reference value (zero-mean once prepared), 1, zeros. */
+/* Per-thread scratch space of one registration. J: one row of `lanes` values per subset pixel: for
+ * affine warps and bicubic interpolation (gx, gy, f, 1), else the n steepest-descent values, f, 1,
+ * zeros; f, in lane `value`, is the reference value (zero-mean once prepared). SJg: sum J g (n), sum
+ * fc g, sum g. */
 typedef struct {
     double *J, *H, *JS, *JF, *SJg, *rhs, *dp;
-    int lanes;
+    int lanes, value;
 } Work;
 
-int work_alloc(Work *w, int half, int nparams);
+int work_alloc(Work *w, const Problem *pb);
 void work_free(Work *w);
 
 /* The warp p of a point re-expressed for a point offset by (ox, oy) pixels, into out. */

@@ -20,7 +20,7 @@ int solve_many(const Problem *pb, Points *pts, const int64_t *idx, long count)
     #pragma omp parallel
     {
         Work w;
-        const int ok = work_alloc(&w, pb->half, n) == 0;
+        const int ok = work_alloc(&w, pb) == 0;
         if (!ok) {
             #pragma omp atomic write
             failed = 1;
@@ -55,7 +55,7 @@ int status_many(const Problem *pb, const double *xs, const double *ys, long coun
     #pragma omp parallel
     {
         Work w;
-        const int ok = work_alloc(&w, pb->half, pb->nparams) == 0;
+        const int ok = work_alloc(&w, pb) == 0;
         if (!ok) {
             #pragma omp atomic write
             failed = 1;
