@@ -52,6 +52,34 @@ static inline double sample_cubic36(const float *c, long stride, double x, doubl
     return (acc[0] + acc[1]) + (acc[2] + acc[3]);
 }
 
+/* sample_cubic36 of four samples at once, lanes = samples: (x0 + a * (d + q), y0 + b * (d + q)) for
+ * q = 0..3 (the positions along a row of an affine subset), if their taps share the same 4 rows and
+ * start on 4 consecutive columns (true of nearly every group when the subset is not stretched or
+ * rotated much); returns 0 otherwise, without writing out. */
+static inline int sample_cubic36_row4(const float *c, long stride, double x0, double y0, double a, double b, double d,
+                                      v4d *out)
+{
+    const v4d q = {0.0, 1.0, 2.0, 3.0};
+    const v4d xp = x0 + a * (d + q) + PAD, yp = y0 + b * (d + q) + PAD;
+    const long ix = (long)xp[0], iy = (long)yp[0];
+    if ((long)xp[1] != ix + 1 || (long)xp[2] != ix + 2 || (long)xp[3] != ix + 3 || (long)yp[1] != iy ||
+        (long)yp[2] != iy || (long)yp[3] != iy)
+        return 0;
+    const v4d tx = xp - (double)ix - q, ty = yp - (double)iy;
+    /* the weight of each tap, per lane (the rows of sample_cubic36's b0..b3) */
+    const v4d wx0 = ((-tx + 3.0) * tx - 3.0) * tx + 1.0, wx1 = ((3.0 * tx - 6.0) * tx) * tx + 4.0;
+    const v4d wx2 = ((-3.0 * tx + 3.0) * tx + 3.0) * tx + 1.0, wx3 = tx * tx * tx;
+    const v4d wy0 = ((-ty + 3.0) * ty - 3.0) * ty + 1.0, wy1 = ((3.0 * ty - 6.0) * ty) * ty + 4.0;
+    const v4d wy2 = ((-3.0 * ty + 3.0) * ty + 3.0) * ty + 1.0, wy3 = ty * ty * ty;
+    const float *r = c + (iy - 1) * stride + (ix - 1);
+    v4d col[4];
+    for (int k = 0; k < 4; ++k)
+        col[k] = wy0 * load4f(r + k) + wy1 * load4f(r + stride + k) + wy2 * load4f(r + 2 * stride + k)
+                 + wy3 * load4f(r + 3 * stride + k);
+    *out = (wx0 * col[0] + wx1 * col[1]) + (wx2 * col[2] + wx3 * col[3]);
+    return 1;
+}
+
 /* Bicubic value at (x, y). */
 static inline double sample_cubic(const float *c, long stride, double x, double y)
 {

@@ -412,13 +412,20 @@ static int pass_affine_cubic(const Problem *pb, Work *w, const double *p, double
         const double dy = j - half;
         const double xr = x0 + p[0] + a12 * dy - a11 * half, yr = y0 + p[3] + a22 * dy - a21 * half;
         v4d row = {0.0};
-        double di = 0.0, dx = -half;
-        for (int i = 0; i < side; ++i, Q += 4, di += 1.0, dx += 1.0) {
-            const double g = sample_cubic36(c, stride, xr + a11 * di, yr + a21 * di);
-            const v4d qg = load4d(Q) * g;
-            sgg += g * g;
-            row += qg;
-            by_dx += qg * dx;
+        double dx = -half;
+        for (int i = 0; i < side; i += 4) {   /* four samples at a time, then one by one */
+            v4d g4 = {0.0};
+            const int count = side - i < 4 ? side - i : 4;
+            if (count < 4 || !sample_cubic36_row4(c, stride, xr, yr, a11, a21, i, &g4))
+                for (int q = 0; q < count; ++q)
+                    g4[q] = sample_cubic36(c, stride, xr + a11 * (i + q), yr + a21 * (i + q));
+            for (int q = 0; q < count; ++q, Q += 4, dx += 1.0) {
+                const double g = g4[q];
+                const v4d qg = load4d(Q) * g;
+                sgg += g * g;
+                row += qg;
+                by_dx += qg * dx;
+            }
         }
         all += row;
         by_dy += row * dy;
