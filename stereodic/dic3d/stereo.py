@@ -50,7 +50,7 @@ from stereodic.dic.icgn import OK, OUTSIDE, STATUS_NAMES, UNREACHED
 from stereodic.dic.sequence import (DECORRELATED, SWITCH_ZNCC, TrackCarry, merge_track, prefetch, register_direct,
                                     register_steps, shifted, switch_candidates)
 from stereodic.rig import Rig
-from stereodic.strain import Strain, strain_3d
+from stereodic.strain import Strain, StrainFit, strain_3d
 from stereodic.strain_measures import StrainMeasure, measure_strain
 from stereodic.triangulate import triangulate
 
@@ -146,8 +146,8 @@ class StereoRun:
     """Per-run data: the rig, the grid, the settings, seed positions (left rectified reference pixels)
     and their grid indices, the left reference image prepared (`ImageRef`, which keeps the reference
     side of the grid's subsets once computed: every state's temporal and cross matches register the
-    same reference subsets), and once state 0 is solved its points (ny, nx, 3) reporting frame mm
-    (`with_reference`)."""
+    same reference subsets), and once state 0 is solved its points (ny, nx, 3) reporting frame mm and
+    the strain fit on them (`with_reference`)."""
 
     rig: Rig
     grid: Grid
@@ -156,6 +156,7 @@ class StereoRun:
     seed_idx: list
     ref: ImageRef
     ref_points: np.ndarray | None = None
+    ref_strain: StrainFit | None = None
 
     @classmethod
     def prepare(cls, rig: Rig, grid: Grid, settings: StereoSettings, seeds: Sequence[tuple[float, float]],
@@ -163,7 +164,8 @@ class StereoRun:
         return cls(rig, grid, settings, list(seeds), seed_indices(grid, seeds), reference.left_ref(keep_subsets=True))
 
     def with_reference(self, state0: StereoState) -> "StereoRun":
-        return replace(self, ref_points=state0.points)
+        window = self.settings.strain_window
+        return replace(self, ref_points=state0.points, ref_strain=StrainFit(state0.points, window) if window else None)
 
     @property
     def disparity(self) -> tuple[int, int]:
@@ -399,8 +401,7 @@ def _state(run: StereoRun, k: int, left: CameraMatch, right: CameraMatch, increm
     disp = pts - (pts if ref_points is None else ref_points)
     strain = measure = None
     if run.settings.strain_window:
-        base = pts if ref_points is None else ref_points
-        strain = strain_3d(base, disp, run.settings.strain_window)
+        strain = strain_3d(pts, disp, run.settings.strain_window) if ref_points is None else run.ref_strain(disp)
         measure = measure_strain(strain, run.settings.strain_measure)
     return StereoState(k, left, right, pts, disp, np.where(converged, gap.reshape(g.shape), np.nan),
                        converged, status, strain, incremental, measure)
