@@ -4,6 +4,15 @@ Depends on `calib` only; `stereodic.cli` and `stereodic.bench` are the two place
 packages (they drive the simulated rig of `scanners.sim`).
 """
 
-from calib import __version__
+import os
+
+# OpenMP threads that finished their share sleep instead of spinning (libgomp spins for milliseconds by
+# default): between the DIC kernels' parallel loops the process runs Python, and in a DIC run the next
+# image pair is prepared in a thread beside it - a spinning thread would take the core from both
+# (docs/dic.md, "Speed of long sequences"). Read once, when libgomp loads: set here, before anything of
+# ours loads it; an explicit setting wins.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+from calib import __version__  # noqa: E402
 
 __all__ = ["__version__"]

@@ -2,7 +2,7 @@
 
 Reads a `dic` result (its output folder, or the folder's dic.npz: per state the points and
 displacements) or a `dic2d` NPZ (per image u, v on the reference grid) one state at a time
-(`calib.npz_stream`), fits the strain over another window (`strain_3d` on the state-0 surface,
+(`calib.npz_stream`), fits the strain over another window (`StrainFit` on the state-0 surface,
 `strain_2d` on the image grid) in another measure (`strain_measures`) and returns, per state, the
 measure on the result's grid.
 """
@@ -20,7 +20,7 @@ from calib.npz_stream import iter_slices
 from calib.npzfile import read_npz
 from stereodic.dic.grid import Grid
 from stereodic.dic.maps import MapAxes, pixel_axes, surface_axes
-from stereodic.strain import strain_2d, strain_3d
+from stereodic.strain import StrainFit, strain_2d
 from stereodic.strain_measures import StrainMeasure, measure_strain
 
 FORMATS = {"stereodic.dic/1": "dic", "stereodic.dic2d/1": "dic2d"}
@@ -81,6 +81,6 @@ def strains(result: DicResult, window: int, measure: str) -> Iterator[StrainMeas
             yield measure_strain(strain_2d(g.xs, g.ys, u, v, window), measure)
         return
     points = iter_slices(result.path, "points")
-    reference = next(points)
+    fit = StrainFit(next(points), window)
     for disp in iter_slices(result.path, "displacement"):
-        yield measure_strain(strain_3d(reference, disp, window), measure)
+        yield measure_strain(fit(disp), measure)

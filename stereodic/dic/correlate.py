@@ -16,7 +16,7 @@ import numpy as np
 
 from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import (INCONSISTENT, LOW_TEXTURE, LOW_ZNCC, OK, SHAPE_PARAMS, UNREACHED,
-                                quadratic_fit_matrix, reference_status, shift_warp, solve_points)
+                                quadratic_fit_matrix, reference_status, reference_width, shift_warp, solve_points)
 from stereodic.dic.initial_guess import search_integer
 from stereodic.dic.interpolation import BSplineImage
 from stereodic.dic.outliers import inconsistent
@@ -113,9 +113,12 @@ def _arrays(n: int, nparams: int):
 
 
 def correlate_points(ref: BSplineImage, dfm: BSplineImage, xs: np.ndarray, ys: np.ndarray,
-                     guess: np.ndarray, settings: DicSettings = DicSettings()) -> PointResult:
+                     guess: np.ndarray, settings: DicSettings = DicSettings(), *, subsets: np.ndarray | None = None,
+                     rows: np.ndarray | None = None) -> PointResult:
     """Register the subsets centred on (xs[k], ys[k]) (reference pixels, sub-pixel allowed) starting from
-    `guess`: (N, 2) displacements (u, v) or (N, n) full warps. Runs in parallel over points."""
+    `guess`: (N, 2) displacements (u, v) or (N, n) full warps. Runs in parallel over points. subsets: the
+    reference side of the subsets computed beforehand (`reference_subsets`), row rows[k] (int64) for
+    point k (row k without rows); the result is the same as without."""
     xs = np.ascontiguousarray(xs, np.float64)
     ys = np.ascontiguousarray(ys, np.float64)
     n = settings.nparams
@@ -128,7 +131,7 @@ def correlate_points(ref: BSplineImage, dfm: BSplineImage, xs: np.ndarray, ys: n
         warp[:] = guess
     solve_points(ref.coef, ref.pixel_gradients(), dfm.coef, ref.order, ref.width, ref.height, xs, ys,
                  settings.half, warp, quadratic_fit_matrix(settings.half), settings.max_iter, settings.tol,
-                 settings.min_zncc, zncc, iters, status)
+                 settings.min_zncc, zncc, iters, status, subsets, rows)
     return PointResult(warp, zncc, iters, status)
 
 
@@ -143,6 +146,18 @@ def subset_status(ref: BSplineImage, xs: np.ndarray, ys: np.ndarray, settings: D
     return st
 
 
+def reference_subsets(ref: BSplineImage, xs: np.ndarray, ys: np.ndarray, settings: DicSettings = DicSettings()
+                      ) -> np.ndarray:
+    """The reference side of the subsets at (xs, ys) (their steepest-descent sums and Hessian, what IC-GN
+    computes first for every registration): (N, icgn.reference_width(nparams)) float64, for
+    `correlate_points(subsets=...)`; it holds each point's status (OK, NO_TEXTURE or OUTSIDE) in column 0."""
+    xs, ys = np.ascontiguousarray(xs, np.float64), np.ascontiguousarray(ys, np.float64)
+    data = np.empty((xs.size, reference_width(settings.nparams)))
+    reference_status(ref.coef, ref.pixel_gradients(), ref.order, ref.width, ref.height, xs, ys, settings.half,
+                     settings.nparams, np.empty(xs.size, np.int8), data)
+    return data
+
+
 LATTICE = 4  # stride of the coarse lattice that large grids are propagated on first
 
 
@@ -150,8 +165,10 @@ class _PairSolver:
     """State of one reference/deformed pair on a grid while seeds and propagation fill it."""
 
     def __init__(self, ref: BSplineImage, dfm: BSplineImage, ref_img: np.ndarray, def_img: np.ndarray,
-                 grid: Grid, xs: np.ndarray, ys: np.ndarray, settings: DicSettings, search: Callable | None = None):
+                 grid: Grid, xs: np.ndarray, ys: np.ndarray, settings: DicSettings, search: Callable | None = None,
+                 subsets: np.ndarray | None = None):
         self.ref, self.dfm, self.ref_img, self.def_img = ref, dfm, ref_img, def_img
+        self.subsets = subsets  # reference_subsets(ref, xs, ys), or None
         self.search = search or search_integer
         self.grid, self.xs, self.ys, self.s = grid, xs, ys, settings
         self.warp, self.zncc, self.iters, self.status = _arrays(xs.size, settings.nparams)
@@ -162,7 +179,8 @@ class _PairSolver:
     def solve(self, idx: np.ndarray) -> None:
         """Solve points `idx` from the warps already in self.warp."""
         s = self.s
-        res = correlate_points(self.ref, self.dfm, self.xs[idx], self.ys[idx], self.warp[idx], s)
+        res = correlate_points(self.ref, self.dfm, self.xs[idx], self.ys[idx], self.warp[idx], s,
+                               subsets=self.subsets, rows=None if self.subsets is None else np.asarray(idx, np.int64))
         self.warp[idx], self.zncc[idx], self.iters[idx], self.status[idx] = (
             res.warp, res.zncc, res.iterations, res.status)
         self.done[idx] = 1
@@ -171,7 +189,7 @@ class _PairSolver:
         s = self.s
         propagate(self.ref.coef, self.ref.pixel_gradients(), self.dfm.coef, self.ref.order, self.ref.width,
                   self.ref.height, self.xs, self.ys, self.grid.shape[1], stride, s.half, self.warp, self.fit,
-                  s.max_iter, s.tol, s.min_zncc, self.zncc, self.iters, self.status, self.done)
+                  s.max_iter, s.tol, s.min_zncc, self.zncc, self.iters, self.status, self.done, self.subsets)
 
     def flag_untextured(self, idx: np.ndarray) -> np.ndarray:
         """Mark the points of `idx` whose reference subset cannot be registered (no texture, outside)
@@ -305,23 +323,30 @@ def seed_indices(grid: Grid, seeds: Iterable[tuple[float, float]]) -> list[int]:
     return [int(act[np.argmin((X[act] - x) ** 2 + (Y[act] - y) ** 2)]) for x, y in seeds] if act.size else []
 
 
+REFERENCE_CACHE_BYTES = 256 * 2 ** 20  # at most this much memory for the kept subsets of one reference image
+
+
 @dataclass
 class ImageRef:
     """An image as the reference of a registration: its pixels, its B-spline and (computed on first use)
-    its white-noise estimate `sigma` (grey levels, `texture.estimate_noise`)."""
+    its white-noise estimate `sigma` (grey levels, `texture.estimate_noise`). With `keep_subsets` (the
+    reference image of a sequence, registered against image after image on the same points) the
+    reference side of its subsets is kept between registrations (`subsets`)."""
 
     image: np.ndarray
     bspline: BSplineImage
+    keep_subsets: bool = False
     _sigma: float | None = field(default=None, repr=False, compare=False)
     _sssig: dict = field(default_factory=dict, repr=False, compare=False)
+    _subsets: dict = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def prepare(cls, image: np.ndarray, settings: DicSettings = DicSettings(),
-                bspline: BSplineImage | None = None) -> "ImageRef":
+                bspline: BSplineImage | None = None, *, keep_subsets: bool = False) -> "ImageRef":
         """The reference data of `image` (its B-spline is computed unless given)."""
         if bspline is None:
             bspline = BSplineImage.from_image(image, settings.order, settings.prefilter_sigma)
-        return cls(image, bspline)
+        return cls(image, bspline, keep_subsets)
 
     @property
     def sigma(self) -> float:
@@ -334,6 +359,24 @@ class ImageRef:
         if half not in self._sssig:
             self._sssig[half] = sssig(self.bspline, half)
         return predicted_noise(self.bspline, xs, ys, half, self.sigma, self._sssig[half])
+
+    def subsets(self, xs: np.ndarray, ys: np.ndarray, settings: DicSettings) -> np.ndarray | None:
+        """`reference_subsets` of the points (xs, ys) if kept (`keep_subsets`): computed on first use,
+        kept for one set of points per subset size and shape function; None for points off the pixel
+        centres (the reference subsets of tracked, moving points) or where they would take more than
+        REFERENCE_CACHE_BYTES."""
+        if not self.keep_subsets:
+            return None
+        key = (settings.half, settings.nparams)
+        kept = self._subsets.get(key)
+        if kept is not None and np.array_equal(kept[0], xs) and np.array_equal(kept[1], ys):
+            return kept[2]
+        if (xs.size * reference_width(settings.nparams) * 8 > REFERENCE_CACHE_BYTES
+                or not (np.all(xs == np.floor(xs)) and np.all(ys == np.floor(ys)))):
+            return None
+        data = reference_subsets(self.bspline, xs, ys, settings)
+        self._subsets[key] = (np.array(xs, np.float64), np.array(ys, np.float64), data)
+        return data
 
 
 def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid: Grid, xs: np.ndarray,
@@ -355,7 +398,7 @@ def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid
     (pixels, `texture.predicted_noise` at (xs, ys) in the reference)."""
     s = settings
     nb = s.nparams // 2
-    solver = _PairSolver(ref.bspline, def_b, ref.image, def_img, grid, xs, ys, s, search)
+    solver = _PairSolver(ref.bspline, def_b, ref.image, def_img, grid, xs, ys, s, search, ref.subsets(xs, ys, s))
     if skip is not None:
         solver.done[skip] = 1
         solver.status[skip] = UNREACHED if skip_status is None else skip_status[skip]

@@ -7,22 +7,29 @@ Warp parameters of one point, relative to its reference position (x0, y0), local
   with phi = (1, dx, dy) or (1, dx, dy, dx^2/2, dx dy, dy^2/2), nb = len(phi); pixels.
 
 Per point, the reference subset's values, gradients (from the B-spline), steepest-descent images and
-Hessian are computed once (the point of the inverse-compositional scheme); each iteration samples the
-deformed image's B-spline only. The criterion is zero-normalised SSD, so offset and scale changes of the
+Hessian are computed once (the point of the inverse-compositional scheme) - once per registration, or
+once for a whole sequence whose reference image and points stay the same (`reference_status` with
+`data`, passed back as `solve_points`' cache); each iteration samples the deformed image's B-spline only. The criterion is zero-normalised SSD, so offset and scale changes of the
 intensity between images do not bias the result. Status codes say why a point is not trusted.
 
 The kernels are compiled (stereodic/dic/src/icgn.c, Pan, Li & Tong, Exp. Mech. 53, 2013); arrays are
 C-contiguous, of the dtypes named:
 - `solve_points(ref, refpix, dfm, order, width, height, xs, ys, half, P, fit, max_iter, tol, min_zncc,
-  zncc, iters, status)`: register the subsets of half-width `half` centred on (xs[k], ys[k]) (float64,
+  zncc, iters, status, cache, rows)`: register the subsets of half-width `half` centred on (xs[k], ys[k]) (float64,
   reference pixels) in parallel. ref, dfm: padded float32 B-spline coefficients (`BSplineImage.coef`) of
   the reference and deformed images of width x height pixels; refpix: the reference's
   `pixel_gradients()`, used where a point is a pixel centre; P (N, 6 or 12) float64 holds the guesses on
   entry and the warps on return; fit: `quadratic_fit_matrix(half)`; a point stops when its update moves
   the subset edge by less than `tol` pixels, after `max_iter` iterations at most, and is LOW_ZNCC below
-  `min_zncc`. Fills zncc (float64), iters (int32), status (int8).
-- `reference_status(ref, refpix, order, width, height, xs, ys, half, nparams, status)`: whether each
-  reference subset can be registered at all (OK, NO_TEXTURE or OUTSIDE), into status (int8).
+  `min_zncc`. Fills zncc (float64), iters (int32), status (int8). cache: None, or the reference side
+  of the subsets computed beforehand (`reference_status`' data, M rows), point k's row being rows[k]
+  (rows (N,) int64; None: row k, M = N); a row is used only if it was computed at the point's position,
+  and the results are the same as without it.
+- `reference_status(ref, refpix, order, width, height, xs, ys, half, nparams, status[, data])`: whether
+  each reference subset can be registered at all (OK, NO_TEXTURE or OUTSIDE), into status (int8); with
+  data ((N, reference_width(nparams)) float64), the reference side of every subset too: the status, x,
+  y, the mean value, the norm of the zero-mean values, the steepest-descent sums (2 nparams) and the
+  Hessian's Cholesky factor (nparams^2).
 - `shift_warp(p, ox, oy, out)`: the warp `p` of a point re-expressed for a point offset by (ox, oy)
   pixels (for guesses), into out.
 """
@@ -38,7 +45,13 @@ STATUS_NAMES = ("ok", "no_texture", "outside", "diverged", "low_zncc", "unreache
 SHAPE_PARAMS = {"affine": 6, "quadratic": 12}
 
 __all__ = ["DIVERGED", "INCONSISTENT", "LOW_TEXTURE", "LOW_ZNCC", "NO_TEXTURE", "OK", "OUTSIDE", "SHAPE_PARAMS",
-           "STATUS_NAMES", "UNREACHED", "quadratic_fit_matrix", "reference_status", "shift_warp", "solve_points"]
+           "STATUS_NAMES", "UNREACHED", "quadratic_fit_matrix", "reference_status", "reference_width", "shift_warp",
+           "solve_points"]
+
+
+def reference_width(nparams: int) -> int:
+    """Values per point of `reference_status`' data (icgn.h, reference_width)."""
+    return 5 + 2 * nparams + nparams * nparams
 
 
 def quadratic_fit_matrix(half: int) -> np.ndarray:

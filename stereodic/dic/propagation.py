@@ -16,9 +16,10 @@ through fine propagation again.
 
 The kernels are compiled (stereodic/dic/src/propagation.c):
 `propagate(ref, refpix, dfm, order, width, height, xs, ys, nx, stride, half, P, fit, max_iter, tol,
-min_zncc, zncc, iters, status, done)` solves every pending point reachable from the solved good ones
+min_zncc, zncc, iters, status, done, cache)` solves every pending point reachable from the solved good ones
 (done[k] = 1 and status OK), moving `stride` grid points at a time; done (int8 per point: 0 pending, 1
 solved or not a point), P, zncc, iters and status are updated (arguments as `icgn.solve_points`);
+cache: None or the reference side of every point's subset (row k for point k, see `icgn.solve_points`);
 returns the number of points solved.
 """
 

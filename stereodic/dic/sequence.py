@@ -1,8 +1,10 @@
 """Tracking a grid through a series of deformed images, switching point by point to incremental DIC.
 
 Every point is registered directly against the reference image, each image starting from the previous
-image's warps (`register_image`): the reference subset is compared with every image, so errors do not
-add up over the sequence. A point whose match against the reference decorrelates - its ZNCC falls below
+image's warps moved on by the point's last change of displacement (velocity-based starts, as DICe's
+VELOCITY_BASED initialisation: a loading that goes on at a steady rate lands the start within a small
+fraction of a pixel, and IC-GN needs about one iteration less; `register_image`): the reference subset
+is compared with every image, so errors do not add up over the sequence. A point whose match against the reference decorrelates - its ZNCC falls below
 `switch_zncc`, or it diverges, is left unreached, inconsistent or outside the image - switches to incremental
 (updated-reference) correlation for good: from then on it is registered from the previous image to the
 current one, its subset taken around its position in the previous image, and its displacement goes on
@@ -38,7 +40,7 @@ DECORRELATED = (LOW_ZNCC, DIVERGED, UNREACHED, INCONSISTENT, OUTSIDE)
 
 MARGIN = 2  # pixels: a subset this far inside the image whose match went "outside" may have a stray warp
 ANCHOR = 2  # grid points around a switch candidate whose direct points are also registered incrementally
-CARRY_KEYS = ("incremental", "x", "y", "ok", "lost", "lost_status")
+CARRY_KEYS = ("incremental", "x", "y", "ok", "lost", "lost_status", "velocity")
 
 
 @dataclass
@@ -50,7 +52,9 @@ class TrackCarry:
     points' positions in the previous image), or None; incremental (N,) bool: the points registered image
     to image; x, y (N,): the points' positions in the last image (pixels; their last known position where
     they were not measured); ok (N,) bool: measured in the last image; lost (N,) bool: incremental points
-    lost for good, lost_status (N,) int8 their status then; images: how many images were tracked."""
+    lost for good, lost_status (N,) int8 their status then; velocity (N, 2): the last change of the
+    direct translation (u, v) from one image to the next (pixels; 0 where the point was not measured
+    directly in both), which the next image's start adds; images: how many images were tracked."""
 
     direct: PointResult | None
     step: PointResult | None
@@ -60,6 +64,7 @@ class TrackCarry:
     ok: np.ndarray
     lost: np.ndarray
     lost_status: np.ndarray
+    velocity: np.ndarray
     images: int = 0
 
     @classmethod
@@ -69,7 +74,7 @@ class TrackCarry:
         X, Y = grid.points()
         n = X.size
         return cls(start, None, np.full(n, bool(incremental)), X, Y, grid.active.ravel().copy(),
-                   np.zeros(n, bool), np.zeros(n, np.int8))
+                   np.zeros(n, bool), np.zeros(n, np.int8), np.zeros((n, 2)))
 
     def to_arrays(self, prefix: str) -> dict[str, np.ndarray]:
         """Arrays (for an npz file) named prefix + key; `from_arrays` reads them back exactly."""
@@ -96,12 +101,24 @@ def register_direct(ref: ImageRef, img: np.ndarray, img_b: BSplineImage, grid: G
                     settings: DicSettings, *, seeds: Sequence[int] = (), search: Callable | None = None
                     ) -> tuple[PointResult, np.ndarray] | tuple[None, None]:
     """The points that are not incremental, registered against the reference from the last direct warps
-    (`register_image`); (None, None) when every point is incremental."""
+    moved on by the carry's velocity (`register_image`); (None, None) when every point is incremental."""
     if carry.incremental.all():
         return None, None
     X, Y = grid.points()
-    return register_image(ref, img, img_b, grid, X, Y, settings, seeds=seeds, search=search, start=carry.direct,
+    start = None if carry.direct is None else shifted(carry.direct, carry.velocity[:, 0], carry.velocity[:, 1])
+    return register_image(ref, img, img_b, grid, X, Y, settings, seeds=seeds, search=search, start=start,
                           skip=carry.incremental)
+
+
+def shifted(res: PointResult, du: np.ndarray, dv: np.ndarray) -> PointResult:
+    """`res` with the translations of its OK points moved by (du, dv) (flat, pixels; where those are NaN
+    the warp stays as it was)."""
+    warp = res.warp.copy()
+    nb = warp.shape[1] // 2
+    good = (res.status == OK) & np.isfinite(du) & np.isfinite(dv)
+    warp[good, 0] += du[good]
+    warp[good, nb] += dv[good]
+    return PointResult(warp, res.zncc, res.iterations, res.status.astype(np.int8))
 
 
 def switch_candidates(direct: PointResult | None, carry: TrackCarry, switch_zncc: float, shape: tuple[int, int],
@@ -204,8 +221,14 @@ def merge_track(grid: Grid, carry: TrackCarry, direct: PointResult | None, direc
     else:
         u, v = new_x - X, new_y - Y
         x, y = np.where(ok, new_x, carry.x), np.where(ok, new_y, carry.y)
+    velocity = carry.velocity
+    if direct is not None:
+        both = ((direct.status == OK) & (carry.direct.status == OK) if carry.direct is not None
+                else np.zeros(X.size, bool))[:, None]
+        moved = direct.warp[:, [0, nb]] - (0.0 if carry.direct is None else carry.direct.warp[:, [0, nb]])
+        velocity = np.where(both, moved, 0.0)
     nxt = TrackCarry(direct if direct is not None else carry.direct, steps if steps is not None else carry.step,
-                     incr, x, y, ok, lost, lost_status, carry.images + 1)
+                     incr, x, y, ok, lost, lost_status, velocity, carry.images + 1)
     return DicField(grid, res, u.reshape(grid.shape), v.reshape(grid.shape), noise.reshape(grid.shape),
                     incr.reshape(grid.shape)), nxt
 
@@ -257,7 +280,7 @@ def correlate_sequence(ref_img: np.ndarray, def_imgs: Iterable[np.ndarray], grid
     s = settings
     seed_list = seed_indices(grid, seeds)
     images = prefetch(def_imgs, lambda img: BSplineImage.from_image(img, s.order, s.prefilter_sigma))
-    ref = ImageRef.prepare(ref_img, s)
+    ref = ImageRef.prepare(ref_img, s, keep_subsets=True)
     previous = ref
     carry = TrackCarry.initial(grid, incremental, start)
     for img, img_b in images:

@@ -6,11 +6,13 @@ grid of points lies in the LEFT image of the reference state 0. Per state s:
   (`row_seed_search`; the rectified pair puts a scene point on one row of both images), then IC-GN with
   the affine (or quadratic) subset shape - the right subset is foreshortened differently - and
   reliability-guided propagation (the 2-D engine, `stereodic.dic`);
-- temporal match left_0 -> left_s (the 2-D engine's tracking, `stereodic.dic.sequence`);
+- temporal match left_0 -> left_s (the 2-D engine's tracking, `stereodic.dic.sequence`, each point
+  starting from its previous displacement plus its last change);
 - cross match left_0 -> right_s, starting from the previous state's cross warps moved by the left
-  camera's change of displacement (DICe's and VIC-3D's scheme): every state compares the SAME reference
-  subset in both cameras, so each camera measures the same material patch and errors do not add up
-  over states;
+  camera's change of displacement (DICe's and VIC-3D's scheme) and by the last change of the disparity
+  (the velocity-based start of the temporal match, carried over to the second camera): every state
+  compares the SAME reference subset in both cameras, so each camera measures the same material patch
+  and errors do not add up over states;
 - incremental points (large deformations, where the reference subset no longer resembles the deformed
   images): a point whose ZNCC against the reference - left or cross - falls below `switch_zncc` (or whose
   match fails in a way an updated reference can cure) switches for good, if that matches it better: its
@@ -46,9 +48,9 @@ from stereodic.dic.correlate import register_image, seed_indices, subset_status
 from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import OK, OUTSIDE, STATUS_NAMES, UNREACHED
 from stereodic.dic.sequence import (DECORRELATED, SWITCH_ZNCC, TrackCarry, merge_track, prefetch, register_direct,
-                                    register_steps, switch_candidates)
+                                    register_steps, shifted, switch_candidates)
 from stereodic.rig import Rig
-from stereodic.strain import Strain, strain_3d
+from stereodic.strain import Strain, StrainFit, strain_3d
 from stereodic.strain_measures import StrainMeasure, measure_strain
 from stereodic.triangulate import triangulate
 
@@ -134,15 +136,18 @@ class PreparedPair:
         return cls(left, right, *(BSplineImage.from_image(img, settings.order, settings.prefilter_sigma)
                                   for img in (left, right)))
 
-    def left_ref(self) -> ImageRef:
-        return ImageRef(self.left, self.left_b)
+    def left_ref(self, *, keep_subsets: bool = False) -> ImageRef:
+        """The left image as a registration's reference (`ImageRef`; keep_subsets: that of a run)."""
+        return ImageRef(self.left, self.left_b, keep_subsets)
 
 
 @dataclass
 class StereoRun:
     """Per-run data: the rig, the grid, the settings, seed positions (left rectified reference pixels)
-    and their grid indices, the left reference image prepared (`ImageRef`), and once state 0 is solved
-    its points (ny, nx, 3) reporting frame mm (`with_reference`)."""
+    and their grid indices, the left reference image prepared (`ImageRef`, which keeps the reference
+    side of the grid's subsets once computed: every state's temporal and cross matches register the
+    same reference subsets), and once state 0 is solved its points (ny, nx, 3) reporting frame mm and
+    the strain fit on them (`with_reference`)."""
 
     rig: Rig
     grid: Grid
@@ -151,14 +156,16 @@ class StereoRun:
     seed_idx: list
     ref: ImageRef
     ref_points: np.ndarray | None = None
+    ref_strain: StrainFit | None = None
 
     @classmethod
     def prepare(cls, rig: Rig, grid: Grid, settings: StereoSettings, seeds: Sequence[tuple[float, float]],
                 reference: PreparedPair) -> "StereoRun":
-        return cls(rig, grid, settings, list(seeds), seed_indices(grid, seeds), reference.left_ref())
+        return cls(rig, grid, settings, list(seeds), seed_indices(grid, seeds), reference.left_ref(keep_subsets=True))
 
     def with_reference(self, state0: StereoState) -> "StereoRun":
-        return replace(self, ref_points=state0.points)
+        window = self.settings.strain_window
+        return replace(self, ref_points=state0.points, ref_strain=StrainFit(state0.points, window) if window else None)
 
     @property
     def disparity(self) -> tuple[int, int]:
@@ -178,13 +185,16 @@ class StereoCarry:
     """What state k + 1 needs from state k (flat, grid order): left: the left track (`TrackCarry`);
     cross: the last direct cross registration left_0 -> right (warps about the grid points); stereo: the
     last stereo match left_s -> right_s of the incremental points (warps about their left positions);
-    prev_u, prev_v: the left displacements the cross warps were last moved by."""
+    prev_u, prev_v: the left displacements the cross warps were last moved by; disparity_rate (N, 2): the
+    last change, from one state to the next, of the cross translation less the left one (pixels; 0 where
+    not measured in both), by which the next cross start is moved on beyond the left's change."""
 
     left: TrackCarry
     cross: PointResult
     stereo: PointResult
     prev_u: np.ndarray
     prev_v: np.ndarray
+    disparity_rate: np.ndarray
     state: int = 0
 
     def to_arrays(self) -> dict[str, np.ndarray]:
@@ -192,14 +202,15 @@ class StereoCarry:
         out = self.left.to_arrays("left_")
         for name in ("cross", "stereo"):
             out.update({f"{name}_{k}": getattr(getattr(self, name), k) for k in CROSS_KEYS})
-        out.update(prev_u=self.prev_u, prev_v=self.prev_v, state=np.array(self.state))
+        out.update(prev_u=self.prev_u, prev_v=self.prev_v, disparity_rate=self.disparity_rate,
+                   state=np.array(self.state))
         return out
 
     @classmethod
     def from_arrays(cls, a) -> "StereoCarry":
         res = lambda name: PointResult(*(np.array(a[f"{name}_{k}"]) for k in CROSS_KEYS))  # noqa: E731
         return cls(TrackCarry.from_arrays(a, "left_"), res("cross"), res("stereo"), np.array(a["prev_u"]),
-                   np.array(a["prev_v"]), int(a["state"]))
+                   np.array(a["prev_v"]), np.array(a["disparity_rate"]), int(a["state"]))
 
 
 def _match(grid: Grid, res: PointResult, xs: np.ndarray, ys: np.ndarray, noise: np.ndarray) -> CameraMatch:
@@ -212,16 +223,6 @@ def _match(grid: Grid, res: PointResult, xs: np.ndarray, ys: np.ndarray, noise: 
     return CameraMatch(u.reshape(grid.shape), v.reshape(grid.shape),
                        np.where(ok, res.zncc, np.nan).reshape(grid.shape), res.status.reshape(grid.shape),
                        noise.reshape(grid.shape))
-
-
-def _shifted(res: PointResult, du: np.ndarray, dv: np.ndarray) -> PointResult:
-    """`res` with its translations moved by (du, dv) (flat); points where those are NaN are dropped."""
-    warp = res.warp.copy()
-    nb = warp.shape[1] // 2
-    good = (res.status == OK) & np.isfinite(du) & np.isfinite(dv)
-    warp[good, 0] += du[good]
-    warp[good, nb] += dv[good]
-    return PointResult(warp, res.zncc, res.iterations, np.where(good, OK, res.status).astype(np.int8))
 
 
 def _composed(cross: PointResult, temporal: PointResult | None, du: np.ndarray, dv: np.ndarray, nparams: int
@@ -274,7 +275,7 @@ def _reference_state(run: StereoRun, pair: PreparedPair) -> tuple[StereoState, S
                        ref_st.reshape(g.shape), left_noise)
     right = _match(g, stereo, X, Y, noise)
     carry = StereoCarry(TrackCarry.initial(g, run.settings.incremental), stereo, stereo, np.zeros(X.size),
-                        np.zeros(X.size), 0)
+                        np.zeros(X.size), np.zeros((X.size, 2)), 0)
     return _state(run, 0, left, right, np.zeros(g.shape, bool)), carry
 
 
@@ -294,12 +295,13 @@ def solve_state(run: StereoRun, k: int, pair: PreparedPair, carry: StereoCarry |
     lc = carry.left
     ldir, ldn = register_direct(run.ref, pair.left, pair.left_b, g, lc, s, seeds=run.seed_idx)
     cdir = cdn = None
-    prev_u, prev_v = carry.prev_u, carry.prev_v
+    prev_u, prev_v, rate = carry.prev_u, carry.prev_v, carry.disparity_rate
     if ldir is not None:
         lu, lv = ldir.u, ldir.v
-        start = _shifted(carry.cross, lu - prev_u, lv - prev_v)
+        start = shifted(carry.cross, lu - prev_u + rate[:, 0], lv - prev_v + rate[:, 1])
         cdir, cdn = register_image(run.ref, pair.right, pair.right_b, g, X, Y, s, seeds=run.seed_idx, start=start,
                                    skip=lc.incremental)
+        rate = _disparity_rate(carry, cdir, lu, lv, s.nparams // 2)
         prev_u, prev_v = np.where(np.isfinite(lu), lu, prev_u), np.where(np.isfinite(lv), lv, prev_v)
     cand = switch_candidates(ldir, lc, st.switch_zncc, pair.left.shape, s.half)
     if cdir is not None and st.switch_zncc > 0:   # a right subset outside the right image stays outside
@@ -341,8 +343,19 @@ def solve_state(run: StereoRun, k: int, pair: PreparedPair, carry: StereoCarry |
     else:
         direct = _match(g, cdir, X, Y, cdn)
         right = direct if lsteps is None or not incr.any() else _pick(direct, tracked, incr.reshape(g.shape))
-    nxt = StereoCarry(left_carry, cdir if cdir is not None else carry.cross, stereo, prev_u, prev_v, k)
+    nxt = StereoCarry(left_carry, cdir if cdir is not None else carry.cross, stereo, prev_u, prev_v, rate, k)
     return _state(run, k, left, right, incr.reshape(g.shape)), nxt
+
+
+def _disparity_rate(carry: StereoCarry, cross: PointResult, lu: np.ndarray, lv: np.ndarray, nb: int) -> np.ndarray:
+    """(N, 2) the change of (cross translation - left displacement) from the carry's state to this one
+    (`cross`, left displacements (lu, lv)); 0 where either state did not measure it."""
+    now = cross.warp[:, [0, nb]] - np.stack([lu, lv], 1)
+    before = carry.cross.warp[:, [0, nb]] - np.stack([carry.prev_u, carry.prev_v], 1)
+    left_before = carry.left.direct  # None: the carry's state is the reference, where the left moved by 0
+    both = ((cross.status == OK) & (carry.cross.status == OK) & np.isfinite(now).all(1)
+            & (True if left_before is None else left_before.status == OK))
+    return np.where(both[:, None], now - before, 0.0)
 
 
 def _pick(a: CameraMatch, b: CameraMatch, take_b: np.ndarray) -> CameraMatch:
@@ -388,8 +401,7 @@ def _state(run: StereoRun, k: int, left: CameraMatch, right: CameraMatch, increm
     disp = pts - (pts if ref_points is None else ref_points)
     strain = measure = None
     if run.settings.strain_window:
-        base = pts if ref_points is None else ref_points
-        strain = strain_3d(base, disp, run.settings.strain_window)
+        strain = strain_3d(pts, disp, run.settings.strain_window) if ref_points is None else run.ref_strain(disp)
         measure = measure_strain(strain, run.settings.strain_measure)
     return StereoState(k, left, right, pts, disp, np.where(converged, gap.reshape(g.shape), np.nan),
                        converged, status, strain, incremental, measure)

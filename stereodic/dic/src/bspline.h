@@ -6,6 +6,8 @@
 #ifndef STEREODIC_BSPLINE_H
 #define STEREODIC_BSPLINE_H
 
+#include <string.h>
+
 #define PAD 4
 
 typedef struct {
@@ -14,27 +16,74 @@ typedef struct {
     int width, height, order;   /* image size in pixels; order 3 (bicubic) or 5 (biquintic) */
 } Spline;
 
-/* Bicubic value at (x, y). */
-static inline double sample_cubic(const float *c, long stride, double x, double y)
+/* Vectors of 4 lanes (GCC/Clang vector extensions: the target's SIMD instructions, or scalar code). */
+typedef double v4d __attribute__((vector_size(32)));
+typedef float v4f __attribute__((vector_size(16)));
+
+static inline v4d load4f(const float *p)   /* 4 float32 from p (any alignment) as doubles */
+{
+    v4f f;
+    memcpy(&f, p, sizeof f);
+    return __builtin_convertvector(f, v4d);
+}
+
+static inline v4d load4d(const double *p)   /* 4 doubles from p (any alignment) */
+{
+    v4d v;
+    memcpy(&v, p, sizeof v);
+    return v;
+}
+
+/* 36 times the bicubic value at (x, y) (the weights' common factor 1/36 left to the caller): the 4 x 4
+ * taps as four rows of 4 lanes. The weights (times 6) of the taps at floor - 1 .. floor + 2 for the
+ * fraction t: (1 - t)^3, 3t^3 - 6t^2 + 4, -3t^3 + 3t^2 + 3t + 1, t^3. */
+static inline double sample_cubic36(const float *c, long stride, double x, double y)
 {
     const double xp = x + PAD, yp = y + PAD;
     const long ix = (long)xp, iy = (long)yp;
     const double tx = xp - ix, ty = yp - iy;
-    const double sx = 1.0 - tx, tx2 = tx * tx, tx3 = tx2 * tx;
-    const double wx0 = sx * sx * sx, wx1 = 3.0 * tx3 - 6.0 * tx2 + 4.0, wx3 = tx3;
-    const double wx2 = 6.0 - wx0 - wx1 - wx3;
-    const double sy = 1.0 - ty, ty2 = ty * ty, ty3 = ty2 * ty;
-    const double wy0 = sy * sy * sy, wy1 = 3.0 * ty3 - 6.0 * ty2 + 4.0, wy3 = ty3;
-    const double wy2 = 6.0 - wy0 - wy1 - wy3;
+    const v4d b0 = {1.0, 4.0, 1.0, 0.0}, b1 = {-3.0, 0.0, 3.0, 0.0}, b2 = {3.0, -6.0, 3.0, 0.0},
+              b3 = {-1.0, 3.0, -3.0, 1.0};
+    const v4d wx = ((b3 * tx + b2) * tx + b1) * tx + b0;
+    const v4d wy = ((b3 * ty + b2) * ty + b1) * ty + b0;
     const float *r = c + (iy - 1) * stride + (ix - 1);
-    const double v0 = wx0 * r[0] + wx1 * r[1] + wx2 * r[2] + wx3 * r[3];
-    r += stride;
-    const double v1 = wx0 * r[0] + wx1 * r[1] + wx2 * r[2] + wx3 * r[3];
-    r += stride;
-    const double v2 = wx0 * r[0] + wx1 * r[1] + wx2 * r[2] + wx3 * r[3];
-    r += stride;
-    const double v3 = wx0 * r[0] + wx1 * r[1] + wx2 * r[2] + wx3 * r[3];
-    return (wy0 * v0 + wy1 * v1 + wy2 * v2 + wy3 * v3) * (1.0 / 36.0);
+    const v4d acc = (wy[0] * load4f(r) + wy[1] * load4f(r + stride) + wy[2] * load4f(r + 2 * stride)
+                     + wy[3] * load4f(r + 3 * stride)) * wx;
+    return (acc[0] + acc[1]) + (acc[2] + acc[3]);
+}
+
+/* sample_cubic36 of four samples at once, lanes = samples: (x0 + a * (d + q), y0 + b * (d + q)) for
+ * q = 0..3 (the positions along a row of an affine subset), if their taps share the same 4 rows and
+ * start on 4 consecutive columns (true of nearly every group when the subset is not stretched or
+ * rotated much); returns 0 otherwise, without writing out. */
+static inline int sample_cubic36_row4(const float *c, long stride, double x0, double y0, double a, double b, double d,
+                                      v4d *out)
+{
+    const v4d q = {0.0, 1.0, 2.0, 3.0};
+    const v4d xp = x0 + a * (d + q) + PAD, yp = y0 + b * (d + q) + PAD;
+    const long ix = (long)xp[0], iy = (long)yp[0];
+    if ((long)xp[1] != ix + 1 || (long)xp[2] != ix + 2 || (long)xp[3] != ix + 3 || (long)yp[1] != iy ||
+        (long)yp[2] != iy || (long)yp[3] != iy)
+        return 0;
+    const v4d tx = xp - (double)ix - q, ty = yp - (double)iy;
+    /* the weight of each tap, per lane (the rows of sample_cubic36's b0..b3) */
+    const v4d wx0 = ((-tx + 3.0) * tx - 3.0) * tx + 1.0, wx1 = ((3.0 * tx - 6.0) * tx) * tx + 4.0;
+    const v4d wx2 = ((-3.0 * tx + 3.0) * tx + 3.0) * tx + 1.0, wx3 = tx * tx * tx;
+    const v4d wy0 = ((-ty + 3.0) * ty - 3.0) * ty + 1.0, wy1 = ((3.0 * ty - 6.0) * ty) * ty + 4.0;
+    const v4d wy2 = ((-3.0 * ty + 3.0) * ty + 3.0) * ty + 1.0, wy3 = ty * ty * ty;
+    const float *r = c + (iy - 1) * stride + (ix - 1);
+    v4d col[4];
+    for (int k = 0; k < 4; ++k)
+        col[k] = wy0 * load4f(r + k) + wy1 * load4f(r + stride + k) + wy2 * load4f(r + 2 * stride + k)
+                 + wy3 * load4f(r + 3 * stride + k);
+    *out = (wx0 * col[0] + wx1 * col[1]) + (wx2 * col[2] + wx3 * col[3]);
+    return 1;
+}
+
+/* Bicubic value at (x, y). */
+static inline double sample_cubic(const float *c, long stride, double x, double y)
+{
+    return sample_cubic36(c, stride, x, y) * (1.0 / 36.0);
 }
 
 /* Value of the B-spline of order 3 or 5 at (x, y). */

@@ -8,25 +8,35 @@
  *   quadratic (12): p = (u, ux, uy, uxx, uxy, uyy, v, vx, vy, vxx, vxy, vyy)
  *   x' = x0 + dx + sum_i p[i] phi_i(dx, dy),  y' = y0 + dy + sum_i p[nb + i] phi_i(dx, dy)
  *   with phi = (1, dx, dy) or (1, dx, dy, dx^2/2, dx dy, dy^2/2), nb = number of phi; pixels.
- * The reference side of a subset (values, steepest-descent images, Hessian) is computed once; each
- * iteration samples the deformed image only. */
+ * The reference side of a subset (values, steepest-descent images, Hessian) is computed once per
+ * registration, or once per run where it is kept (`reference_data`: the reference image and the points
+ * are the same in every state of a sequence); each iteration samples the deformed image only. */
 #include <math.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "icgn.h"
 
-int work_alloc(Work *w, int half, int nparams)
+/* The fast path: affine warps, bicubic interpolation. */
+static inline int fast_path(const Problem *pb)
 {
-    const size_t m = (size_t)(2 * half + 1) * (size_t)(2 * half + 1), n = (size_t)nparams;
-    w->J = malloc(sizeof(double) * (m * n + m + n * n + 5 * n));
+    return pb->nparams == 6 && pb->ref.order == 3;
+}
+
+int work_alloc(Work *w, const Problem *pb)
+{
+    const size_t side = 2 * (size_t)pb->half + 1, m = side * side, n = (size_t)pb->nparams;
+    const size_t sums = (n + 2 + 3) / 4 * 4, lanes = fast_path(pb) ? 4 : sums;
+    w->J = malloc(sizeof(double) * (m * lanes + n * n + 4 * n + sums));
     if (!w->J)
         return -1;
-    w->fc = w->J + m * n;
-    w->H = w->fc + m;
+    w->lanes = (int)lanes;
+    w->value = fast_path(pb) ? 2 : (int)n;
+    w->H = w->J + m * lanes;
     w->JS = w->H + n * n;
     w->JF = w->JS + n;
     w->SJg = w->JF + n;
-    w->rhs = w->SJg + n;
+    w->rhs = w->SJg + sums;
     w->dp = w->rhs + n;
     return 0;
 }
@@ -167,16 +177,17 @@ static void compose_quadratic(double *p, const double *d, const double *fit, int
     }
 }
 
-/* Lower triangle of H = J^T J, JS = sum J and JF = sum J fc over the m rows of J (m, n). */
-static void sums_generic(const double *J, const double *fc, int m, int n, double *H, double *JS, double *JF)
+/* Lower triangle of H = J^T J, JS = sum J and JF = sum J fc over the m rows of J (`lanes` values per
+ * row, fc in lane n). */
+static void sums_generic(const double *J, int lanes, int m, int n, double *H, double *JS, double *JF)
 {
     for (int a = 0; a < n * n; ++a)
         H[a] = 0.0;
     for (int a = 0; a < n; ++a)
         JS[a] = JF[a] = 0.0;
     for (int k = 0; k < m; ++k) {
-        const double *Jk = J + (long)k * n;
-        const double c = fc[k];
+        const double *Jk = J + (long)k * lanes;
+        const double c = Jk[n];
         for (int a = 0; a < n; ++a) {
             const double ja = Jk[a];
             JS[a] += ja;
@@ -187,23 +198,26 @@ static void sums_generic(const double *J, const double *fc, int m, int n, double
     }
 }
 
-/* sums_generic for 6 parameters, in scalars (the compiler keeps them in registers). */
-static void sums_affine(const double *J, const double *fc, int m, double *H, double *JS, double *JF)
+/* sums_generic for the fast path's rows (gx, gy, fc, 1) of a subset of half-width `half`, the 6
+ * steepest-descent values (gx, gx dx, gx dy, gy, gy dx, gy dy) formed on the way, in scalars. */
+static void sums_affine(const double *Q, int half, double *H, double *JS, double *JF)
 {
     double h00 = 0, h10 = 0, h11 = 0, h20 = 0, h21 = 0, h22 = 0, h30 = 0, h31 = 0, h32 = 0, h33 = 0, h40 = 0;
     double h41 = 0, h42 = 0, h43 = 0, h44 = 0, h50 = 0, h51 = 0, h52 = 0, h53 = 0, h54 = 0, h55 = 0;
     double s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0, s5 = 0, f0 = 0, f1 = 0, f2 = 0, f3 = 0, f4 = 0, f5 = 0;
-    for (int k = 0; k < m; ++k) {
-        const double *Jk = J + 6L * k;
-        const double c = fc[k], j0 = Jk[0], j1 = Jk[1], j2 = Jk[2], j3 = Jk[3], j4 = Jk[4], j5 = Jk[5];
-        s0 += j0; s1 += j1; s2 += j2; s3 += j3; s4 += j4; s5 += j5;
-        f0 += j0 * c; f1 += j1 * c; f2 += j2 * c; f3 += j3 * c; f4 += j4 * c; f5 += j5 * c;
-        h00 += j0 * j0;
-        h10 += j1 * j0; h11 += j1 * j1;
-        h20 += j2 * j0; h21 += j2 * j1; h22 += j2 * j2;
-        h30 += j3 * j0; h31 += j3 * j1; h32 += j3 * j2; h33 += j3 * j3;
-        h40 += j4 * j0; h41 += j4 * j1; h42 += j4 * j2; h43 += j4 * j3; h44 += j4 * j4;
-        h50 += j5 * j0; h51 += j5 * j1; h52 += j5 * j2; h53 += j5 * j3; h54 += j5 * j4; h55 += j5 * j5;
+    for (int dy = -half; dy <= half; ++dy) {
+        for (int dx = -half; dx <= half; ++dx, Q += 4) {
+            const double c = Q[2], j0 = Q[0], j1 = Q[0] * dx, j2 = Q[0] * dy, j3 = Q[1], j4 = Q[1] * dx,
+                         j5 = Q[1] * dy;
+            s0 += j0; s1 += j1; s2 += j2; s3 += j3; s4 += j4; s5 += j5;
+            f0 += j0 * c; f1 += j1 * c; f2 += j2 * c; f3 += j3 * c; f4 += j4 * c; f5 += j5 * c;
+            h00 += j0 * j0;
+            h10 += j1 * j0; h11 += j1 * j1;
+            h20 += j2 * j0; h21 += j2 * j1; h22 += j2 * j2;
+            h30 += j3 * j0; h31 += j3 * j1; h32 += j3 * j2; h33 += j3 * j3;
+            h40 += j4 * j0; h41 += j4 * j1; h42 += j4 * j2; h43 += j4 * j3; h44 += j4 * j4;
+            h50 += j5 * j0; h51 += j5 * j1; h52 += j5 * j2; h53 += j5 * j3; h54 += j5 * j4; h55 += j5 * j5;
+        }
     }
     const double lower[21] = {h00, h10, h11, h20, h21, h22, h30, h31, h32, h33, h40,
                               h41, h42, h43, h44, h50, h51, h52, h53, h54, h55};
@@ -214,22 +228,20 @@ static void sums_affine(const double *J, const double *fc, int m, double *H, dou
     JF[0] = f0; JF[1] = f1; JF[2] = f2; JF[3] = f3; JF[4] = f4; JF[5] = f5;
 }
 
-/* Reference side of one subset: steepest-descent images J (m, n), zero-mean values fc (m), the Hessian's
- * Cholesky factor H (n, n), JS = sum J, JF = sum J fc. Returns the status; *norm = |fc|. */
-static int prepare_reference(const Problem *pb, Work *w, double x0, double y0, double *norm)
+/* The rows of the reference subset at (x0, y0) in w->J, one per pixel: on the fast path (gx, gy, f, 1),
+ * otherwise the n steepest-descent values, f, 1, zeros. OUTSIDE if the subset leaves the image, else OK. */
+static int subset_rows(const Problem *pb, Work *w, double x0, double y0)
 {
-    const int n = pb->nparams, nb = n / 2, half = pb->half, side = 2 * half + 1, m = side * side;
-    const int width = pb->ref.width, height = pb->ref.height;
+    const int n = pb->nparams, nb = n / 2, half = pb->half, side = 2 * half + 1, lanes = w->lanes;
+    const int width = pb->ref.width, height = pb->ref.height, fast = fast_path(pb);
     if (!(0.0 <= x0 - half && x0 + half <= width - 1 && 0.0 <= y0 - half && y0 + half <= height - 1))
         return OUTSIDE;
-    double *J = w->J, *fc = w->fc;
     const int on_pixel = x0 == floor(x0) && y0 == floor(y0);
     const long ix0 = (long)x0, iy0 = (long)y0, plane = (long)width * height;
-    double fsum = 0.0;
-    int k = 0;
+    double *Jk = w->J;
     for (int j = 0; j < side; ++j) {
         const double dy = j - half;
-        for (int i = 0; i < side; ++i, ++k) {
+        for (int i = 0; i < side; ++i, Jk += lanes) {
             const double dx = i - half;
             double f, gx, gy;
             if (on_pixel) {
@@ -240,9 +252,13 @@ static int prepare_reference(const Problem *pb, Work *w, double x0, double y0, d
             } else {
                 sample_with_gradient(&pb->ref, x0 + dx, y0 + dy, &f, &gx, &gy);
             }
-            fc[k] = f;
-            fsum += f;
-            double *Jk = J + (long)k * n;
+            if (fast) {
+                Jk[0] = gx;
+                Jk[1] = gy;
+                Jk[2] = f;
+                Jk[3] = 1.0;
+                continue;
+            }
             Jk[0] = gx;
             Jk[1] = gx * dx;
             Jk[2] = gx * dy;
@@ -257,71 +273,124 @@ static int prepare_reference(const Problem *pb, Work *w, double x0, double y0, d
                 Jk[10] = gy * dx * dy;
                 Jk[11] = 0.5 * gy * dy * dy;
             }
+            Jk[n] = f;
+            Jk[n + 1] = 1.0;
+            for (int a = n + 2; a < lanes; ++a)
+                Jk[a] = 0.0;
         }
     }
+    return OK;
+}
+
+/* Reference side of one subset: its rows (subset_rows) with zero-mean values, the Hessian's Cholesky
+ * factor H (n, n), JS = sum J, JF = sum J fc. Returns the status; *fmean = the mean value, *norm = |fc|. */
+static int reference_side(const Problem *pb, Work *w, double x0, double y0, double *fmean_, double *norm)
+{
+    const int n = pb->nparams, lanes = w->lanes, m = (2 * pb->half + 1) * (2 * pb->half + 1);
+    const int st = subset_rows(pb, w, x0, y0);
+    if (st != OK)
+        return st;
+    double *J = w->J, *values = J + w->value;
+    double fsum = 0.0;
+    for (int k = 0; k < m; ++k)
+        fsum += values[(long)k * lanes];
     const double fmean = fsum / m;
     double ss = 0.0;
-    for (k = 0; k < m; ++k) {
-        fc[k] -= fmean;
-        ss += fc[k] * fc[k];
+    for (int k = 0; k < m; ++k) {
+        double *c = values + (long)k * lanes;
+        *c -= fmean;
+        ss += *c * *c;
     }
     if (ss <= 1e-10 * m)
         return NO_TEXTURE;
     double *H = w->H, *JS = w->JS, *JF = w->JF;
-    if (n == 6)
-        sums_affine(J, fc, m, H, JS, JF);
+    if (fast_path(pb))
+        sums_affine(J, pb->half, H, JS, JF);
     else
-        sums_generic(J, fc, m, n, H, JS, JF);
+        sums_generic(J, lanes, m, n, H, JS, JF);
     if (!cholesky(H, n))
         return NO_TEXTURE;
+    *fmean_ = fmean;
     *norm = sqrt(ss);
     return OK;
 }
 
-int reference_status(const Problem *pb, Work *w, double x0, double y0)
+/* reference_side from a row of reference_data: the rows rebuilt, the sums and the factor copied. */
+static int cached_side(const Problem *pb, Work *w, double x0, double y0, const double *row, double *norm)
 {
-    double norm;
-    return prepare_reference(pb, w, x0, y0, &norm);
+    const int n = pb->nparams, lanes = w->lanes, m = (2 * pb->half + 1) * (2 * pb->half + 1);
+    const int st = (int)row[REF_STATUS];
+    if (st != OK || subset_rows(pb, w, x0, y0) != OK)
+        return st;
+    const double fmean = row[REF_MEAN];
+    double *values = w->J + w->value;
+    for (int k = 0; k < m; ++k)
+        values[(long)k * lanes] -= fmean;
+    memcpy(w->JS, row + REF_HEAD, sizeof(double) * (size_t)n);
+    memcpy(w->JF, row + REF_HEAD + n, sizeof(double) * (size_t)n);
+    memcpy(w->H, row + REF_HEAD + 2 * n, sizeof(double) * (size_t)(n * n));
+    *norm = row[REF_NORM];
+    return OK;
 }
 
-/* One pass over the warped subset in the deformed image: sums of g, g^2, fc g and SJg = sum J g.
- * Returns 0 if the warped subset leaves the image. Any shape function, any order. */
-static int pass_generic(const Problem *pb, Work *w, const double *p, double x0, double y0,
-                        double *sg_, double *sgg_, double *sfg_)
+int reference_data(const Problem *pb, Work *w, double x0, double y0, double *row)
 {
-    const int n = pb->nparams, nb = n / 2, half = pb->half, side = 2 * half + 1;
+    const int n = pb->nparams;
+    double fmean = NAN, norm = NAN;
+    const int st = reference_side(pb, w, x0, y0, &fmean, &norm);
+    row[REF_STATUS] = st;
+    row[REF_X] = x0;
+    row[REF_Y] = y0;
+    row[REF_MEAN] = fmean;
+    row[REF_NORM] = norm;
+    for (int a = 0; a < n; ++a) {
+        row[REF_HEAD + a] = st == OK ? w->JS[a] : NAN;
+        row[REF_HEAD + n + a] = st == OK ? w->JF[a] : NAN;
+    }
+    for (int a = 0; a < n * n; ++a)
+        row[REF_HEAD + 2 * n + a] = st == OK ? w->H[a] : NAN;
+    return st;
+}
+
+int reference_status(const Problem *pb, Work *w, double x0, double y0)
+{
+    double fmean, norm;
+    return reference_side(pb, w, x0, y0, &fmean, &norm);
+}
+
+/* One pass over the warped subset in the deformed image: sums of g, g^2, fc g and SJg = sum J g (the
+ * lanes of the rows: SJg[n] = sum fc g, SJg[n + 1] = sum g). Returns 0 if the warped subset leaves the
+ * image. Any shape function, any order. */
+static int pass_generic(const Problem *pb, Work *w, const double *p, double x0, double y0, double *sgg_)
+{
+    const int n = pb->nparams, nb = n / 2, half = pb->half, side = 2 * half + 1, lanes = w->lanes;
     const double width = pb->dfm.width, height = pb->dfm.height;
-    double *SJg = w->SJg;
-    for (int a = 0; a < n; ++a)
-        SJg[a] = 0.0;
-    double sg = 0.0, sgg = 0.0, sfg = 0.0;
-    int k = 0;
+    v4d acc[4] = {{0.0}};
+    double sgg = 0.0;
+    const double *Jk = w->J;
     for (int j = 0; j < side; ++j) {
         const double dy = j - half;
-        for (int i = 0; i < side; ++i, ++k) {
+        for (int i = 0; i < side; ++i, Jk += lanes) {
             const double dx = i - half;
             const double xw = x0 + dx + displacement(p, nb, dx, dy);
             const double yw = y0 + dy + displacement(p + nb, nb, dx, dy);
             if (!(-0.5 <= xw && xw <= width - 0.5 && -0.5 <= yw && yw <= height - 0.5))
                 return 0;
             const double g = sample_any(&pb->dfm, xw, yw);
-            sg += g;
             sgg += g * g;
-            sfg += w->fc[k] * g;
-            const double *Jk = w->J + (long)k * n;
-            for (int a = 0; a < n; ++a)
-                SJg[a] += Jk[a] * g;
+            for (int a = 0; a < lanes / 4; ++a)
+                acc[a] += load4d(Jk + 4 * a) * g;
         }
     }
-    *sg_ = sg;
+    memcpy(w->SJg, acc, sizeof(double) * (size_t)lanes);
     *sgg_ = sgg;
-    *sfg_ = sfg;
     return 1;
 }
 
-/* pass_generic for affine warps and bicubic interpolation (the common, fast case). */
-static int pass_affine_cubic(const Problem *pb, Work *w, const double *p, double x0, double y0,
-                             double *sg_, double *sgg_, double *sfg_)
+/* pass_generic for affine warps and bicubic interpolation (the common, fast case), from the rows (gx,
+ * gy, fc, 1): per pixel q g and q g dx summed in two vectors, per row of the subset their sum and its
+ * dy-weighted sum; the interpolation's factor 1/36 applied to the sums at the end. */
+static int pass_affine_cubic(const Problem *pb, Work *w, const double *p, double x0, double y0, double *sgg_)
 {
     const int half = pb->half, side = 2 * half + 1;
     const double width = pb->dfm.width, height = pb->dfm.height;
@@ -336,59 +405,66 @@ static int pass_affine_cubic(const Problem *pb, Work *w, const double *p, double
     }
     const float *c = pb->dfm.c;
     const long stride = pb->dfm.stride;
-    const double *J = w->J, *fc = w->fc;
-    double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0, s4 = 0.0, s5 = 0.0, sg = 0.0, sgg = 0.0, sfg = 0.0;
-    int k = 0;
+    const double *Q = w->J;
+    v4d all = {0.0}, by_dx = {0.0}, by_dy = {0.0};
+    double sgg = 0.0;
     for (int j = 0; j < side; ++j) {
         const double dy = j - half;
         const double xr = x0 + p[0] + a12 * dy - a11 * half, yr = y0 + p[3] + a22 * dy - a21 * half;
-        for (int i = 0; i < side; ++i, ++k) {
-            const double g = sample_cubic(c, stride, xr + a11 * i, yr + a21 * i);
-            const double *Jk = J + 6L * k;
-            sg += g;
-            sgg += g * g;
-            sfg += fc[k] * g;
-            s0 += Jk[0] * g;
-            s1 += Jk[1] * g;
-            s2 += Jk[2] * g;
-            s3 += Jk[3] * g;
-            s4 += Jk[4] * g;
-            s5 += Jk[5] * g;
+        v4d row = {0.0};
+        double dx = -half;
+        for (int i = 0; i < side; i += 4) {   /* four samples at a time, then one by one */
+            v4d g4 = {0.0};
+            const int count = side - i < 4 ? side - i : 4;
+            if (count < 4 || !sample_cubic36_row4(c, stride, xr, yr, a11, a21, i, &g4))
+                for (int q = 0; q < count; ++q)
+                    g4[q] = sample_cubic36(c, stride, xr + a11 * (i + q), yr + a21 * (i + q));
+            for (int q = 0; q < count; ++q, Q += 4, dx += 1.0) {
+                const double g = g4[q];
+                const v4d qg = load4d(Q) * g;
+                sgg += g * g;
+                row += qg;
+                by_dx += qg * dx;
+            }
         }
+        all += row;
+        by_dy += row * dy;
     }
-    double *SJg = w->SJg;
-    SJg[0] = s0;
-    SJg[1] = s1;
-    SJg[2] = s2;
-    SJg[3] = s3;
-    SJg[4] = s4;
-    SJg[5] = s5;
-    *sg_ = sg;
-    *sgg_ = sgg;
-    *sfg_ = sfg;
+    const double s = 1.0 / 36.0;
+    double *SJg = w->SJg;   /* J = (gx, gx dx, gx dy, gy, gy dx, gy dy), then fc, 1 */
+    SJg[0] = all[0] * s;
+    SJg[1] = by_dx[0] * s;
+    SJg[2] = by_dy[0] * s;
+    SJg[3] = all[1] * s;
+    SJg[4] = by_dx[1] * s;
+    SJg[5] = by_dy[1] * s;
+    SJg[6] = all[2] * s;
+    SJg[7] = all[3] * s;
+    *sgg_ = sgg * (s * s);
     return 1;
 }
 
-int solve_point(const Problem *pb, Work *w, double x0, double y0, double *p, double *zncc, int *iters)
+int solve_point(const Problem *pb, Work *w, double x0, double y0, const double *cached, double *p, double *zncc,
+                int *iters)
 {
     const int n = pb->nparams, nb = n / 2, half = pb->half, side = 2 * half + 1, m = side * side;
-    double df;
+    double df, fmean;
     *zncc = NAN;
     *iters = 0;
-    const int st = prepare_reference(pb, w, x0, y0, &df);
+    const int st = cached ? cached_side(pb, w, x0, y0, cached, &df) : reference_side(pb, w, x0, y0, &fmean, &df);
     if (st != OK)
         return st;
     const double h2 = 0.5 * half * half, hh = (double)half * half;
-    const int fast = nb == 3 && pb->ref.order == 3;
+    const int fast = fast_path(pb);
     for (int it = 1; it <= pb->max_iter; ++it) {
-        double sg, sgg, sfg;
+        double sgg;
         *iters = it;
-        const int inside = fast ? pass_affine_cubic(pb, w, p, x0, y0, &sg, &sgg, &sfg)
-                                : pass_generic(pb, w, p, x0, y0, &sg, &sgg, &sfg);
+        const int inside = fast ? pass_affine_cubic(pb, w, p, x0, y0, &sgg) : pass_generic(pb, w, p, x0, y0, &sgg);
         if (!inside) {
             *zncc = NAN;
             return OUTSIDE;
         }
+        const double sfg = w->SJg[n], sg = w->SJg[n + 1];
         const double gmean = sg / m, vg = sgg - sg * gmean;
         if (!(vg > 1e-10 * m)) {
             *zncc = NAN;

@@ -106,6 +106,8 @@ static int problem(Buffers *bs, Problem *pb, PyObject *ref, PyObject *refpix, Py
                      nparams, max_iter);
         return -1;
     }
+    pb->cache = NULL;
+    pb->rows = NULL;
     pb->half = half;
     pb->nparams = nparams;
     pb->max_iter = max_iter;
@@ -130,6 +132,31 @@ static int points(Buffers *bs, Points *pts, PyObject *xs, PyObject *ys, PyObject
         return -1;
     *count = n[0];
     *nparams = pshape[1];
+    return 0;
+}
+
+/* The optional reference data of a problem's `count` points (`reference_data`): cache None, or (M,
+ * reference_width) float64 with rows None (M = count, row k for point k) or (count,) int64 row indices. */
+static int cache(Buffers *bs, Problem *pb, PyObject *data, PyObject *rows, Py_ssize_t count)
+{
+    if (data == Py_None)
+        return 0;
+    const Py_ssize_t shape[2] = {rows == Py_None ? count : ANY, reference_width(pb->nparams)};
+    Py_ssize_t found[2];
+    if (!(pb->cache = array(bs, data, 'd', 2, shape, found, 0, "cache")))
+        return -1;
+    if (rows == Py_None)
+        return 0;
+    const Py_ssize_t one[1] = {count};
+    if (!(pb->rows = array(bs, rows, 'q', 1, one, NULL, 0, "rows")))
+        return -1;
+    for (Py_ssize_t k = 0; k < count; ++k) {
+        if (pb->rows[k] < 0 || pb->rows[k] >= found[0]) {
+            PyErr_Format(PyExc_ValueError, "rows: index %lld outside the cache's %zd rows", (long long)pb->rows[k],
+                         found[0]);
+            return -1;
+        }
+    }
     return 0;
 }
 
@@ -273,11 +300,11 @@ static PyObject *py_shift_warp(PyObject *self, PyObject *args)
 
 static PyObject *py_solve_points(PyObject *self, PyObject *args)
 {
-    PyObject *ref, *refpix, *dfm, *xs, *ys, *P, *fit, *zncc, *iters, *status;
+    PyObject *ref, *refpix, *dfm, *xs, *ys, *P, *fit, *zncc, *iters, *status, *data, *rows;
     int order, width, height, half, max_iter;
     double tol, min_zncc;
-    if (!PyArg_ParseTuple(args, "OOOiiiOOiOOiddOOO", &ref, &refpix, &dfm, &order, &width, &height, &xs, &ys, &half,
-                          &P, &fit, &max_iter, &tol, &min_zncc, &zncc, &iters, &status))
+    if (!PyArg_ParseTuple(args, "OOOiiiOOiOOiddOOOOO", &ref, &refpix, &dfm, &order, &width, &height, &xs, &ys, &half,
+                          &P, &fit, &max_iter, &tol, &min_zncc, &zncc, &iters, &status, &data, &rows))
         return NULL;
     Buffers bs = {.n = 0};
     Points pts;
@@ -286,7 +313,7 @@ static PyObject *py_solve_points(PyObject *self, PyObject *args)
     int rc = -1;
     if (points(&bs, &pts, xs, ys, P, zncc, iters, status, &count, &nparams) == 0 &&
         problem(&bs, &pb, ref, refpix, dfm, order, width, height, half, (int)nparams, fit, max_iter, tol,
-                min_zncc) == 0) {
+                min_zncc) == 0 && cache(&bs, &pb, data, rows, count) == 0) {
         Py_BEGIN_ALLOW_THREADS
         rc = solve_many(&pb, &pts, NULL, count);
         Py_END_ALLOW_THREADS
@@ -296,16 +323,17 @@ static PyObject *py_solve_points(PyObject *self, PyObject *args)
 
 static PyObject *py_reference_status(PyObject *self, PyObject *args)
 {
-    PyObject *ref, *refpix, *xs, *ys, *status;
+    PyObject *ref, *refpix, *xs, *ys, *status, *data = Py_None;
     int order, width, height, half, nparams;
-    if (!PyArg_ParseTuple(args, "OOiiiOOiiO", &ref, &refpix, &order, &width, &height, &xs, &ys, &half, &nparams,
-                          &status))
+    if (!PyArg_ParseTuple(args, "OOiiiOOiiO|O", &ref, &refpix, &order, &width, &height, &xs, &ys, &half, &nparams,
+                          &status, &data))
         return NULL;
     Buffers bs = {.n = 0};
     Problem pb;
     Py_ssize_t n[1];
     const double *x, *y = NULL;
     int8_t *st = NULL;
+    double *rows = NULL;
     int rc = -1;
     if ((x = array(&bs, xs, 'd', 1, NULL, n, 0, "xs"))) {
         const Py_ssize_t one[1] = {n[0]};
@@ -314,21 +342,24 @@ static PyObject *py_reference_status(PyObject *self, PyObject *args)
     }
     /* the reference side needs neither a deformed image (the reference stands in) nor a composition fit */
     if (st && problem(&bs, &pb, ref, refpix, ref, order, width, height, half, nparams, NULL, 1, 0.0, 0.0) == 0) {
-        Py_BEGIN_ALLOW_THREADS
-        rc = status_many(&pb, x, y, n[0], st);
-        Py_END_ALLOW_THREADS
+        const Py_ssize_t two[2] = {n[0], reference_width(nparams)};
+        if (data == Py_None || (rows = array(&bs, data, 'd', 2, two, NULL, 1, "data"))) {
+            Py_BEGIN_ALLOW_THREADS
+            rc = status_many(&pb, x, y, n[0], st, rows);
+            Py_END_ALLOW_THREADS
+        }
     }
     return finish(&bs, rc);
 }
 
 static PyObject *py_propagate(PyObject *self, PyObject *args)
 {
-    PyObject *ref, *refpix, *dfm, *xs, *ys, *P, *fit, *zncc, *iters, *status, *done;
+    PyObject *ref, *refpix, *dfm, *xs, *ys, *P, *fit, *zncc, *iters, *status, *done, *data;
     int order, width, height, half, max_iter;
     long nx, stride;
     double tol, min_zncc;
-    if (!PyArg_ParseTuple(args, "OOOiiiOOlliOOiddOOOO", &ref, &refpix, &dfm, &order, &width, &height, &xs, &ys, &nx,
-                          &stride, &half, &P, &fit, &max_iter, &tol, &min_zncc, &zncc, &iters, &status, &done))
+    if (!PyArg_ParseTuple(args, "OOOiiiOOlliOOiddOOOOO", &ref, &refpix, &dfm, &order, &width, &height, &xs, &ys, &nx,
+                          &stride, &half, &P, &fit, &max_iter, &tol, &min_zncc, &zncc, &iters, &status, &done, &data))
         return NULL;
     Buffers bs = {.n = 0};
     Points pts;
@@ -338,7 +369,7 @@ static PyObject *py_propagate(PyObject *self, PyObject *args)
     long solved = -2;
     if (points(&bs, &pts, xs, ys, P, zncc, iters, status, &count, &nparams) == 0 &&
         problem(&bs, &pb, ref, refpix, dfm, order, width, height, half, (int)nparams, fit, max_iter, tol,
-                min_zncc) == 0) {
+                min_zncc) == 0 && cache(&bs, &pb, data, Py_None, count) == 0) {
         const Py_ssize_t one[1] = {count};
         dn = array(&bs, done, 'b', 1, one, NULL, 1, "done");
         if (dn && (nx < 1 || count % nx != 0 || stride < 1))
@@ -397,7 +428,8 @@ static PyMethodDef methods[] = {
      "gradient(coef, order, width, height, x, y, gx, gy): gradients, NaN outside."},
     {"shift_warp", py_shift_warp, METH_VARARGS, "shift_warp(p, ox, oy, out): a warp moved by (ox, oy) pixels."},
     {"solve_points", py_solve_points, METH_VARARGS, "IC-GN of every point (see stereodic.dic.icgn)."},
-    {"reference_status", py_reference_status, METH_VARARGS, "Reference-side status of every point."},
+    {"reference_status", py_reference_status, METH_VARARGS,
+     "Reference-side status of every point, and optionally its reference data (see stereodic.dic.icgn)."},
     {"propagate", py_propagate, METH_VARARGS, "Reliability-guided propagation (see stereodic.dic.propagation)."},
     {"guesses_from_lattice", py_guesses_from_lattice, METH_VARARGS, "Guesses from the solved lattice."},
     {NULL, NULL, 0, NULL},

@@ -20,7 +20,7 @@ int solve_many(const Problem *pb, Points *pts, const int64_t *idx, long count)
     #pragma omp parallel
     {
         Work w;
-        const int ok = work_alloc(&w, pb->half, n) == 0;
+        const int ok = work_alloc(&w, pb) == 0;
         if (!ok) {
             #pragma omp atomic write
             failed = 1;
@@ -30,8 +30,15 @@ int solve_many(const Problem *pb, Points *pts, const int64_t *idx, long count)
             if (!ok)
                 continue;
             const long k = idx ? (long)idx[t] : t;
+            const double x0 = pts->xs[k], y0 = pts->ys[k];
+            const double *row = NULL;
+            if (pb->cache) {   /* a row kept for another position is not this point's */
+                row = pb->cache + (pb->rows ? pb->rows[k] : k) * reference_width(n);
+                if (row[REF_X] != x0 || row[REF_Y] != y0)
+                    row = NULL;
+            }
             int it;
-            pts->status[k] = (int8_t)solve_point(pb, &w, pts->xs[k], pts->ys[k], pts->P + k * n, pts->zncc + k, &it);
+            pts->status[k] = (int8_t)solve_point(pb, &w, x0, y0, row, pts->P + k * n, pts->zncc + k, &it);
             pts->iters[k] = it;
         }
         if (ok)
@@ -40,13 +47,15 @@ int solve_many(const Problem *pb, Points *pts, const int64_t *idx, long count)
     return failed ? -1 : 0;
 }
 
-int status_many(const Problem *pb, const double *xs, const double *ys, long count, int8_t *status)
+/* status_many, or with `rows` (count, reference_width) the reference data of every point. */
+int status_many(const Problem *pb, const double *xs, const double *ys, long count, int8_t *status, double *rows)
 {
+    const long width = reference_width(pb->nparams);
     int failed = 0;
     #pragma omp parallel
     {
         Work w;
-        const int ok = work_alloc(&w, pb->half, pb->nparams) == 0;
+        const int ok = work_alloc(&w, pb) == 0;
         if (!ok) {
             #pragma omp atomic write
             failed = 1;
@@ -54,7 +63,8 @@ int status_many(const Problem *pb, const double *xs, const double *ys, long coun
         #pragma omp for schedule(dynamic, 16)
         for (long k = 0; k < count; ++k)
             if (ok)
-                status[k] = (int8_t)reference_status(pb, &w, xs[k], ys[k]);
+                status[k] = (int8_t)(rows ? reference_data(pb, &w, xs[k], ys[k], rows + k * width)
+                                          : reference_status(pb, &w, xs[k], ys[k]));
         if (ok)
             work_free(&w);
     }

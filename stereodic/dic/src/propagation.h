@@ -14,12 +14,14 @@ typedef struct {
     int8_t *status;
 } Points;
 
-/* Solve points idx[0..count) (all points 0..count-1 if idx is NULL) in parallel from the warps in P.
+/* Solve points idx[0..count) (all points 0..count-1 if idx is NULL) in parallel from the warps in P,
+ * each from its row of pb->cache where that row is kept for its position.
  * Returns 0, or -1 if out of memory. */
 int solve_many(const Problem *pb, Points *pts, const int64_t *idx, long count);
 
-/* Reference status of points 0..count-1 into status. Returns 0, or -1 if out of memory. */
-int status_many(const Problem *pb, const double *xs, const double *ys, long count, int8_t *status);
+/* Reference status of points 0..count-1 into status, and with `rows` (count, reference_width) their
+ * reference data (reference_data; NULL: none). Returns 0, or -1 if out of memory. */
+int status_many(const Problem *pb, const double *xs, const double *ys, long count, int8_t *status, double *rows);
 
 /* Propagation over an (npts / nx) x nx grid, `stride` grid points at a time; done: 0 pending, 1 solved
  * or not a point. Returns the number of points solved, or -1 if out of memory. */
