@@ -50,6 +50,7 @@ SPELLINGS = {  # argparse dest -> its option strings, wherever a command has it
     "height": ("--height",),
     "noise": ("--noise", "--no-noise"),
     "supersample": ("--supersample",),
+    "scheduler": ("--scheduler",),
 }
 SYNONYMS = {  # second spellings of those meanings, refused by the test
     "--out": "output", "--outdir": "output", "--output-dir": "output", "--out-dir": "output", "-O": "output",
@@ -237,6 +238,15 @@ def add_grid_options(p: argparse.ArgumentParser, image: str) -> None:
               help=f"image of the {image}'s size: points where it is non-zero")
     p.add_argument("--seed", action="append", default=[], metavar="X,Y",
                    help=f"start point of the propagation in the {image} (repeatable; default: automatic)")
+
+
+def add_scheduler_option(p: argparse.ArgumentParser, tasks: str) -> None:
+    """--scheduler ADDRESS|local[:N]: run the `tasks` (what they are: "states", "scans") on a Dask
+    cluster (stereodic.cluster; docs/cluster.md)."""
+    p.add_argument("--scheduler", metavar="ADDRESS|local[:N]",
+                   help=f"run the {tasks} on a Dask cluster: the address of a running `dask scheduler` "
+                        f"(tcp://HOST:8786; images and outputs on storage every worker sees), or local[:N] for N "
+                        f"worker processes on this machine (default: one per core); default: in this process")
 
 
 def open_devices(stack, stage_url: str | None, display_spec: str | None, camera_specs: list[str],

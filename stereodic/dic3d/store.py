@@ -134,11 +134,30 @@ class RunStore:
 
     def write_state(self, state: StereoState, carry: StereoCarry) -> None:
         """Save a finished state and the carry after it, then record it done."""
+        self.write_result(state, carry)
+        self.record_done(state.state)
+
+    def write_result(self, state: StereoState, carry: StereoCarry) -> None:
+        """Save a finished state and the carry after it (where the run is solved: a Dask worker too)."""
         write_npz(self.state_path(state.state), **state_arrays(state))
         write_npz(self.states_dir / "carry.npz", **carry.to_arrays())
-        self.manifest["done"] = state.state + 1
+
+    def record_done(self, k: int) -> None:
+        """Record states 0 to k done in the manifest (after `write_result` of state k)."""
+        self.manifest["done"] = k + 1
         self.manifest.pop("outputs", None)
         write_json(self.manifest_path, self.manifest)
+
+    def attach(self) -> "RunStore":
+        """The run already in the folder, to read and add states to without opening it again (a Dask
+        worker's view of a run that the client opened); InputError naming the manifest if there is
+        none."""
+        manifest = self._read_manifest()
+        if manifest is None:
+            raise InputError(self.manifest_path, "is missing: the run folder must be on storage that every "
+                                                 "worker sees")
+        self.manifest = manifest
+        return self
 
     def read_state(self, k: int) -> StereoState:
         with np.load(self.state_path(k)) as z:
