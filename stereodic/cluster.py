@@ -66,18 +66,10 @@ def connect(spec: str) -> Iterator:
     """A `distributed.Client` of the cluster `spec` names (module docstring); the local cluster it
     started, if any, is shut down on leaving."""
     address, workers = parse(spec)
-    import logging
-
-    import dask
-    from distributed import Client, LocalCluster
+    from distributed import Client
     with contextlib.ExitStack() as stack:
         if address is None:
-            threads = str(os.environ.get("OMP_NUM_THREADS") or os.cpu_count() or 1)
-            stack.enter_context(dask.config.set({"distributed.nanny.pre-spawn-environ.OMP_NUM_THREADS": threads}))
-            local = stack.enter_context(LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                                     host="127.0.0.1", dashboard_address=None,
-                                                     silence_logs=logging.ERROR))
-            client = stack.enter_context(Client(local))
+            client = stack.enter_context(Client(stack.enter_context(local_cluster(workers))))
         else:
             try:
                 client = stack.enter_context(Client(address, timeout=CONNECT_TIMEOUT_S))
@@ -90,6 +82,20 @@ def connect(spec: str) -> Iterator:
                 raise InputError("--scheduler", f"the Dask scheduler at {address} has no worker "
                                                 f"(none joined within {WORKER_TIMEOUT_S:g} s)") from None
         yield client
+
+
+@contextlib.contextmanager
+def local_cluster(workers: int) -> Iterator:
+    """A `distributed.LocalCluster` of `workers` processes on the loopback interface (module docstring)."""
+    import logging
+
+    import dask
+    from distributed import LocalCluster
+    omp = str(os.environ.get("OMP_NUM_THREADS") or os.cpu_count() or 1)
+    with dask.config.set({"distributed.nanny.pre-spawn-environ.OMP_NUM_THREADS": omp}):
+        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                          dashboard_address=None, silence_logs=logging.ERROR) as cluster:
+            yield cluster
 
 
 def threads(client) -> int:

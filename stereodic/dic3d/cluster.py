@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import collections
 import hashlib
+import os
 import pickle
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,7 +51,8 @@ SOLVE, PREPARE, FILES = 2, 1, 0   # task priorities: the chain first, then what 
 class RunSpec:
     """What a task needs to find the run's data on a worker: the rig file (and its SHA-256), the run
     folder, the reference pair's image files, the grid, seeds and settings, `describe` (a state's
-    summary line, a module-level function: pickled by name) and `token` (names the per-worker copy)."""
+    summary line, a module-level function: pickled by name) and `token` (names the per-worker copy).
+Paths are absolute: a worker's working folder is not the client's."""
 
     rig: str
     rig_sha256: str
@@ -65,7 +67,8 @@ class RunSpec:
     @classmethod
     def make(cls, rig: str, rig_sha256: str, folder: str, data: DicStates, grid: Grid, seeds, settings,
              describe) -> "RunSpec":
-        spec = cls(str(rig), rig_sha256, str(folder), (str(data.left[0]), str(data.right[0])), grid,
+        spec = cls(os.path.abspath(rig), rig_sha256, os.path.abspath(folder),
+                   (os.path.abspath(data.left[0]), os.path.abspath(data.right[0])), grid,
                    tuple(tuple(s) for s in seeds), settings, describe)
         token = hashlib.sha1(pickle.dumps((spec.rig_sha256, spec.folder, spec.reference, grid.xs, grid.ys,
                                            grid.active, spec.seeds, settings))).hexdigest()[:16]
@@ -160,7 +163,8 @@ class _Chain:
     def _pair(self, j: int):
         if j not in self.pairs:
             self.pairs[j] = submit(self.client, f"dic-prepare-{self.spec.token}-{j}", prepare_task, self.spec,
-                                   str(self.data.left[j]), str(self.data.right[j]), priority=PREPARE)
+                                   os.path.abspath(self.data.left[j]), os.path.abspath(self.data.right[j]),
+                                   priority=PREPARE)
         return self.pairs[j]
 
     def solve(self, k: int) -> str:
