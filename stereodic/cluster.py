@@ -11,8 +11,7 @@ data, task submission, and a task's failure turned into the command's one-line e
   worker process from shared storage and kept there, so that a task carries only file names and
   numbers (never the data itself), whichever worker it lands on, and a worker that replaces a dead one
   builds its own copy.
-- `submit(client, name, fn, *args)`: a task named `name` (Dask groups the timing of tasks by the name's
-  first words: "dic-solve", "scan"), run through `call`, which turns an error of the task's input on the
+- `submit(client, name, fn, *args)`: a task named `name` (`run_id`), run through `call`, which turns an error of the task's input on the
   worker (an `InputError`, or an `OSError` such as an image the worker cannot read) into an `InputError`
   naming the file and the worker.
 - `result(future)`: the task's result; a task whose workers kept dying (Dask retries a task elsewhere
@@ -172,9 +171,16 @@ def counting() -> Iterator[Traffic]:
         _traffic.remove(t)
 
 
+def run_id() -> str:
+    """8 hex digits that make a run's task names its own on a shared scheduler (Dask's statistics group
+    the tasks by the words before it: "dic-solve-12-3fa4b2c1" is a "dic-solve")."""
+    import uuid
+    return uuid.uuid4().hex[:8]
+
+
 def submit(client, name: str, fn: Callable, *args, priority: int = 0):
-    """The task fn(*args) on the cluster (through `call`), keyed `name` (unique within the run); futures
-    among `args` are its dependencies."""
+    """The task fn(*args) on the cluster (through `call`), keyed `name` (unique: ending in a `run_id`);
+    futures among `args` are its dependencies."""
     for t in _traffic:
         import cloudpickle
         from distributed import Future

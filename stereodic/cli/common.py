@@ -87,8 +87,9 @@ def _declare(p: argparse.ArgumentParser, option: PathOption) -> None:
 
 def add_input(p: argparse.ArgumentParser, *flags: str, kind: str = "file", what: str = "", **kwargs):
     """Add a path argument (positional: one name; option: its flags) that the command reads; kind is
-    'file', 'dir', 'dataset' or 'pattern' (files, each named or given as a shell-style pattern that the
-    program expands: `calib.image_files.expand`); `what` names its content in messages ("image", "PRVM",
+    'file', 'dir', 'dataset' (a folder holding capture.json or the manifest itself; a shell-style pattern
+    names several: `calib.image_files.expand_datasets`) or 'pattern' (files, each named or given as a
+    shell-style pattern that the program expands: `calib.image_files.expand`); `what` names its content in messages ("image", "PRVM",
     "rig"). Returns the argparse action."""
     assert kind in INPUT_KINDS, kind
     action = p.add_argument(*flags, **kwargs)
@@ -174,6 +175,9 @@ def check_paths(args: argparse.Namespace) -> None:
                 from calib.image_files import expand
                 values = [p for v in values for p in expand(v)]
                 option = PathOption(option.dest, option.name, False, "file", option.what)
+            elif option.kind == "dataset":
+                from calib.image_files import expand_datasets
+                values = [p for v in values for p in expand_datasets(v)]
             for value in values:
                 _check_input(value, option)
                 inputs.add(value.resolve())

@@ -109,7 +109,7 @@ def _run_record(args, rig_path, data, settings):
     import os
 
     from calib import __version__
-    from stereodic.dic3d.store import file_sha256, fingerprint
+    from calib.batch import file_sha256, fingerprint
     grid_args = {"subset": args.subset, "step": args.step, "roi": args.roi,
                  "mask": file_sha256(args.mask) if args.mask else None, "seeds": args.seed}
     record = {"software": __version__, "stereo": dataclasses.asdict(settings), "grid": grid_args}

@@ -36,8 +36,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+from calib.batch import fingerprint
 from calib.progress import note, progress
-from stereodic.cluster import ClusterFault, per_worker, result, submit, threads
+from stereodic.cluster import ClusterFault, per_worker, result, run_id, submit, threads
 from stereodic.dic.grid import Grid
 from stereodic.dic3d.dataset import DicStates
 from stereodic.dic3d.run import prepare_pair, write_state_files
@@ -70,7 +71,8 @@ Paths are absolute: a worker's working folder is not the client's."""
         spec = cls(os.path.abspath(rig), rig_sha256, os.path.abspath(folder),
                    (os.path.abspath(data.left[0]), os.path.abspath(data.right[0])), grid,
                    tuple(tuple(s) for s in seeds), settings, describe)
-        token = hashlib.sha1(pickle.dumps((spec.rig_sha256, spec.folder, spec.reference, grid.xs, grid.ys,
+        ref = [fingerprint(p) for p in spec.reference]    # a long-lived worker may have seen other images there
+        token = hashlib.sha1(pickle.dumps((spec.rig_sha256, spec.folder, spec.reference, ref, grid.xs, grid.ys,
                                            grid.active, spec.seeds, settings))).hexdigest()[:16]
         return cls(**{**spec.__dict__, "token": token})
 
@@ -157,12 +159,13 @@ class _Chain:
 
     def __init__(self, client, store: RunStore, data: DicStates, spec: RunSpec):
         self.client, self.store, self.data, self.spec = client, store, data, spec
+        self.run = run_id()
         self.window = max(2, threads(client))
         self.pairs: dict[int, object] = {}
 
     def _pair(self, j: int):
         if j not in self.pairs:
-            self.pairs[j] = submit(self.client, f"dic-prepare-{self.spec.token}-{j}", prepare_task, self.spec,
+            self.pairs[j] = submit(self.client, f"dic-prepare-{j}-{self.run}", prepare_task, self.spec,
                                    os.path.abspath(self.data.left[j]), os.path.abspath(self.data.right[j]),
                                    priority=PREPARE)
         return self.pairs[j]
@@ -172,7 +175,7 @@ class _Chain:
         for j in range(max(1, k), min(len(self.data), k + 1 + self.window)):
             self._pair(j)
         pair, previous = (None, None) if k == 0 else (self._pair(k), self._pair(k - 1) if k > 1 else None)
-        job = submit(self.client, f"dic-solve-{self.spec.token}-{k}", solve_task, self.spec, k, pair, previous,
+        job = submit(self.client, f"dic-solve-{k}-{self.run}", solve_task, self.spec, k, pair, previous,
                      priority=SOLVE)
         line = result(job)
         self.pairs.pop(k - 1, None)
@@ -186,6 +189,7 @@ class _Files:
     def __init__(self, client, spec: RunSpec, vtk: bool, plot_every: int, states):
         self.client, self.spec, self.vtk, self.plot_every = client, spec, vtk, plot_every
         self.queue = collections.deque(states)
+        self.run = run_id()
         self.running: list = []
 
     def feed(self, slots: int) -> None:
@@ -195,7 +199,7 @@ class _Files:
             self.running.remove(f)
         while self.queue and len(self.running) < slots:
             k = self.queue.popleft()
-            self.running.append(submit(self.client, f"dic-files-{self.spec.token}-{k}", files_task, self.spec, k,
+            self.running.append(submit(self.client, f"dic-files-{k}-{self.run}", files_task, self.spec, k,
                                        self.vtk, self.plot_every, priority=FILES))
 
     def finish(self) -> None:

@@ -16,7 +16,6 @@ again, to the same bytes). A run whose settings or inputs differ from the folder
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from pathlib import Path
@@ -31,25 +30,6 @@ from stereodic.dic3d.stereo import StereoCarry, StereoState
 
 FORMAT = "stereodic.dic-run/1"
 MANIFEST = "run.json"
-FINGERPRINT_BYTES = 16384
-
-
-def fingerprint(path: str | os.PathLike) -> str:
-    """'<size>:<SHA-1 of up to 16 KiB from the middle of the file>': cheap, and different for two
-    captures of a speckle (its noise alone differs)."""
-    path = Path(path)
-    size = path.stat().st_size
-    with open(path, "rb") as f:
-        f.seek(max(0, size // 2 - FINGERPRINT_BYTES // 2))
-        return f"{size}:{hashlib.sha1(f.read(FINGERPRINT_BYTES)).hexdigest()}"
-
-
-def file_sha256(path: str | os.PathLike) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _first_difference(old, new, where: str = "") -> str | None:
