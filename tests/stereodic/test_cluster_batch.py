@@ -59,3 +59,31 @@ def test_a_scan_batch_run_again_does_only_what_is_not_done(scans, scanned_in_pro
     assert _files(tmp_path) == _files(scanned_in_process)
     assert main(args + ["--no-evm"]) == 0                         # other settings: all done again
     assert sum(ln.startswith("wrote ") for ln in capsys.readouterr().out.splitlines()) == 4
+
+
+@pytest.fixture(scope="module")
+def stereo_capture(tmp_path_factory):
+    """A two-camera calibration dataset, 160 x 128, 2 stage positions."""
+    from scanners.sim.stereo import simulate_stereo
+    return simulate_stereo(tmp_path_factory.mktemp("stereo_cal") / "cal", "brown", "freeform", 160, 128,
+                           lens_options={"pixel_mm": 0.0053 * 1280 / 160}, supersample=8)
+
+
+def test_calibrating_cameras_on_the_cluster_writes_what_one_calibration_writes(stereo_capture, dask_cluster,
+                                                                                tmp_path, capsys):
+    single = tmp_path / "single"
+    for cam in ("cam0", "cam1"):
+        assert main(["calibrate", str(stereo_capture), "--camera", cam, "-o", str(single / f"{cam}.npz")]) == 0
+    capsys.readouterr()
+    batch = tmp_path / "batch"
+    args = ["calibrate", str(stereo_capture), "--camera", "cam0", "--camera", "cam1", "-o", str(batch)]
+    assert main(args + ["--scheduler", dask_cluster.scheduler_address]) == 0
+    assert sorted(ln.split(":")[0] for ln in capsys.readouterr().out.splitlines() if ln.startswith("wrote ")) == [
+        f"wrote {batch / 'cam0.npz'}", f"wrote {batch / 'cam1.npz'}"]
+    assert _files(batch) == _files(single)
+    (batch / "cam1.npz").unlink()
+    assert main(args) == 0                                        # in-process, the rest only
+    out = capsys.readouterr().out
+    assert [ln.split(":")[0] for ln in out.splitlines() if ln.startswith("wrote ")] == [f"wrote {batch / 'cam1.npz'}"]
+    assert "1 of 2 cameras were done already" in out
+    assert _files(batch) == _files(single)
