@@ -149,12 +149,14 @@ def _worker_address() -> str:
 
 
 class Traffic:
-    """Bytes of the tasks' arguments as pickled for the wire, and task count, while `counting` (for
-    `stereodic bench`; data that Dask moves between workers is counted by the workers themselves)."""
+    """While `counting` (for `stereodic bench`): tasks submitted, bytes of their arguments and of the
+    results the client takes, as pickled for the wire (data that Dask moves between workers is counted
+    by the workers themselves: `transfer_outgoing_bytes_total`)."""
 
     def __init__(self):
         self.tasks = 0
         self.bytes = 0
+        self.results = 0
 
 
 _traffic: list[Traffic] = []
@@ -195,7 +197,11 @@ def result(future):
     from distributed import KilledWorker
     from distributed.comm import CommClosedError
     try:
-        return future.result()
+        value = future.result()
+        for t in _traffic:
+            import cloudpickle
+            t.results += len(cloudpickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL))
+        return value
     except KilledWorker as exc:
         raise ClusterFault(f"task {future.key} was running on workers that died, again and again: "
                            f"{exc}; the results so far are kept, the same command resumes") from None
