@@ -10,7 +10,8 @@ beside the chain is run beside it, as separate tasks:
 - dic-solve k: `solve_state(run, k, pair k, carry, pair k - 1)` where the worker writes its state file
   and the carry after it into the run folder (`RunStore.write_result`), and returns the state's
   summary line; its carry is the one dic-solve k - 1 left in the run folder, exactly what a resumed
-  in-process run reads. The client submits dic-solve k when dic-solve k - 1 has finished and records
+  in-process run reads (a state that a task of an earlier, stopped client went on to solve is taken as
+  it is: it is what this task would write). The client submits dic-solve k when dic-solve k - 1 has finished and records
   it done in the manifest: a Dask dependency between the solves instead would keep the chain's
   lineage, and a worker lost late in a long run would make Dask solve the whole chain again;
 - dic-files k: state k's VTK file and PNG maps from its state file (`run.write_state_files`), queued
@@ -34,7 +35,7 @@ import os
 import pickle
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 from calib.batch import fingerprint
 from calib.progress import note, progress
@@ -117,9 +118,12 @@ def solve_task(spec: RunSpec, k: int, pair: PreparedPair | None, previous: Prepa
         state, carry = solve_state(run, 0, pair0)
     else:
         carry = store.read_carry()
+        if carry.state >= k and store.state_path(k).is_file():   # solved already, by a task of an earlier client
+            return spec.describe(store.read_state(k))
         if carry.state != k - 1:
             raise ClusterFault(f"{store.states_dir / 'carry.npz'} holds the carry of state {carry.state}, state "
-                               f"{k} needs that of state {k - 1}: has another run written to this folder?")
+                               f"{k} needs that of state {k - 1} (a task of an earlier run of this folder finished "
+                               f"late?); the states done are kept, the same command resumes")
         state, carry = solve_state(_referenced(spec), k, pair, carry,
                                    _reference(spec)[1] if previous is None else previous)
     store.write_result(state, carry)
@@ -143,13 +147,14 @@ def run_states_on(client, store: RunStore, data: DicStates, spec: RunSpec, *, vt
     n = len(data)
     chain = _Chain(client, store, data, spec)
     if store.done == 0:
-        chain.solve(0)
+        for _ in chain.states(0, 1):
+            pass
     state0 = store.read_state(0)
     note(spec.describe(state0))
     files = _Files(client, spec, vtk, plot_every, range(n) if vtk or plot_every else ())
-    for k in progress(range(store.done, n), "dic", total=n, initial=store.done, unit="state"):
+    for line in progress(chain.states(store.done, n), "dic", total=n, initial=store.done, unit="state"):
         files.feed(threads(client) - 1)              # one thread kept for the chain
-        note(chain.solve(k))
+        note(line)
     files.finish()
     return state0
 
@@ -170,17 +175,25 @@ class _Chain:
                                    priority=PREPARE)
         return self.pairs[j]
 
-    def solve(self, k: int) -> str:
-        """Solve state k (the states before it done), record it done; its summary line."""
-        for j in range(max(1, k), min(len(self.data), k + 1 + self.window)):
-            self._pair(j)
+    def _solve(self, k: int):
+        """Submit state k's solve (the states before it done), and the pairs to come."""
         pair, previous = (None, None) if k == 0 else (self._pair(k), self._pair(k - 1) if k > 1 else None)
         job = submit(self.client, f"dic-solve-{k}-{self.run}", solve_task, self.spec, k, pair, previous,
                      priority=SOLVE)
-        line = result(job)
-        self.pairs.pop(k - 1, None)
-        self.store.record_done(k)
-        return line
+        for j in range(max(1, k + 1), min(len(self.data), k + 1 + self.window)):
+            self._pair(j)
+        return job
+
+    def states(self, start: int, stop: int) -> Iterator[str]:
+        """Solve states start to stop - 1 (those before done), recording each done; their summary lines.
+        The next solve is submitted as soon as one finishes, before anything else is done."""
+        job = self._solve(start) if start < stop else None
+        for k in range(start, stop):
+            line = result(job)
+            job = self._solve(k + 1) if k + 1 < stop else None
+            self.pairs.pop(k - 1, None)
+            self.store.record_done(k)
+            yield line
 
 
 class _Files:

@@ -78,16 +78,17 @@ def test_a_worker_killed_during_a_task_loses_nothing(dic_sim, dask_cluster, in_p
 
 
 def _interrupt_after(monkeypatch, k: int):
-    """Stop the client (KeyboardInterrupt) right after it records state k done."""
-    from stereodic.dic3d.store import RunStore
-    real = RunStore.record_done
+    """Stop the client (KeyboardInterrupt) when state k's solve has finished, before it submits the next."""
+    import stereodic.dic3d.cluster as on_cluster
+    real = on_cluster.result
 
-    def record(self, j):
-        real(self, j)
-        if j == k:
+    def result(future):
+        value = real(future)
+        if str(future.key).startswith(f"dic-solve-{k}-"):
             raise KeyboardInterrupt
+        return value
 
-    monkeypatch.setattr(RunStore, "record_done", record)
+    monkeypatch.setattr(on_cluster, "result", result)
 
 
 @pytest.mark.parametrize("second", ["cluster", "in-process"])
@@ -96,7 +97,7 @@ def test_an_interrupted_cluster_run_resumes_to_the_same_bytes(dic_sim, dask_clus
     args = _args(dic_sim, tmp_path / "out", "--scheduler", dask_cluster.scheduler_address)
     _interrupt_after(monkeypatch, 1)
     assert main(args) == 130
-    assert json.loads((tmp_path / "out" / "run.json").read_text())["done"] == 2
+    assert json.loads((tmp_path / "out" / "run.json").read_text())["done"] == 1   # state 1 solved, not recorded
     monkeypatch.undo()
     capsys.readouterr()
     assert main(args if second == "cluster" else args[:-4] + args[-2:]) == 0
