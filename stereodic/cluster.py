@@ -93,7 +93,9 @@ def local_cluster(workers: int) -> Iterator:
     omp = str(os.environ.get("OMP_NUM_THREADS") or os.cpu_count() or 1)
     with dask.config.set({"distributed.nanny.pre-spawn-environ.OMP_NUM_THREADS": omp}):
         with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                          dashboard_address=None, silence_logs=logging.ERROR) as cluster:
+                          dashboard_address=None, silence_logs=logging.ERROR,
+                          # no dashboard; its HTTP server (health routes) on a free port, not 8787
+                          scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}) as cluster:
             yield cluster
 
 

@@ -31,18 +31,27 @@ def _args(dic_sim, out, *extra):
     return ["dic", str(dic_sim / "rig.npz"), str(dic_sim), *OPTS, *extra, "-o", str(out)]
 
 
+class _InProcess(dict):
+    """The in-process runs, each made when first asked for: "direct", "incremental"."""
+
+    def __init__(self, dic_sim, factory):
+        super().__init__()
+        self.dic_sim, self.factory = dic_sim, factory
+
+    def __missing__(self, name):
+        out = self.factory.mktemp(name) / "out"
+        assert main(_args(self.dic_sim, out, *(["--incremental"] if name == "incremental" else []))) == 0
+        self[name] = out
+        return out
+
+
 @pytest.fixture(scope="module")
 def in_process(dic_sim, tmp_path_factory):
-    """The in-process runs, direct and incremental."""
-    runs = {}
-    for name, extra in (("direct", []), ("incremental", ["--incremental"])):
-        out = tmp_path_factory.mktemp(name) / "out"
-        assert main(_args(dic_sim, out, *extra)) == 0
-        runs[name] = out
-    return runs
+    return _InProcess(dic_sim, tmp_path_factory)
 
 
-@pytest.mark.parametrize("name,extra", [("direct", []), ("incremental", ["--incremental"])])
+@pytest.mark.parametrize("name,extra", [("direct", []),
+                                        pytest.param("incremental", ["--incremental"], marks=pytest.mark.slow)])
 def test_the_cluster_run_writes_the_same_bytes(dic_sim, dask_cluster, in_process, tmp_path, capsys, name, extra):
     capsys.readouterr()
     assert main(_args(dic_sim, tmp_path / "out", *extra, "--scheduler", dask_cluster.scheduler_address)) == 0
@@ -91,7 +100,7 @@ def _interrupt_after(monkeypatch, k: int):
     monkeypatch.setattr(on_cluster, "result", result)
 
 
-@pytest.mark.parametrize("second", ["cluster", "in-process"])
+@pytest.mark.parametrize("second", ["cluster", pytest.param("in-process", marks=pytest.mark.slow)])
 def test_an_interrupted_cluster_run_resumes_to_the_same_bytes(dic_sim, dask_cluster, in_process, tmp_path,
                                                               monkeypatch, capsys, second):
     args = _args(dic_sim, tmp_path / "out", "--scheduler", dask_cluster.scheduler_address)
@@ -147,11 +156,14 @@ def test_an_image_a_worker_cannot_read_is_one_line_and_keeps_the_states_done(dic
     assert (out / "states" / "state000001.npz").is_file()
 
 
-@pytest.mark.parametrize("extra", [[], ["--incremental"]], ids=["direct", "incremental"])
-def test_dic2d_on_the_cluster_writes_the_same_bytes(dic_sim, dask_cluster, tmp_path, extra):
-    """The left camera's images as a 2-D sequence: the reference, then two deformed images."""
+@pytest.mark.parametrize("extra,scheduler", [([], "local:2"), pytest.param(["--incremental"], None,
+                                                                           marks=pytest.mark.slow)],
+                         ids=["direct", "incremental"])
+def test_dic2d_on_the_cluster_writes_the_same_bytes(dic_sim, dask_cluster, tmp_path, extra, scheduler):
+    """The left camera's images as a 2-D sequence: the reference, then two deformed images; once on a
+    cluster that the command starts itself (local:2)."""
     images = [str(dic_sim / f"s00{k}" / "cam0.png") for k in range(3)]
-    for name, more in (("here", []), ("cluster", ["--scheduler", dask_cluster.scheduler_address])):
+    for name, more in (("here", []), ("cluster", ["--scheduler", scheduler or dask_cluster.scheduler_address])):
         assert main(["dic2d", *images, "--step", "8", "--strain-window", "5", *extra, *more, "-o",
                      str(tmp_path / name / "d.csv"), "--npz", str(tmp_path / name / "d.npz")]) == 0
     assert _differing(tmp_path / "here", tmp_path / "cluster") == []
