@@ -16,3 +16,6 @@ class InputError(ValueError):
         self.where = None if where is None else os.fspath(where)
         self.problem = problem
         super().__init__(problem if self.where is None else f"{self.where}: {problem}")
+
+    def __reduce__(self):  # pickled as (where, problem): it crosses processes (a Dask worker -> the client)
+        return type(self), (self.where, self.problem)

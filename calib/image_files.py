@@ -30,3 +30,18 @@ def expand(pattern: str | os.PathLike) -> list[Path]:
     if not files:
         raise InputError(pattern, "the pattern matches no file")
     return sorted(files, key=natural_key)
+
+
+def expand_datasets(pattern: str | os.PathLike) -> list[Path]:
+    """The capture datasets a shell-style pattern names: folders holding capture.json, or capture.json
+    files, in natural order; a name without wildcards is itself. InputError naming the pattern when it
+    matches no dataset."""
+    text = os.path.expanduser(os.fspath(pattern))
+    if not glob.has_magic(text):
+        return [Path(text)]
+    found = [Path(p) for p in glob.glob(text, recursive=True)
+             if (os.path.isdir(p) and os.path.isfile(os.path.join(p, "capture.json")))
+             or (os.path.isfile(p) and os.path.basename(p) == "capture.json")]
+    if not found:
+        raise InputError(pattern, "the pattern matches no dataset (a folder holding capture.json)")
+    return sorted(found, key=natural_key)

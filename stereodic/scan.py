@@ -270,15 +270,22 @@ def scan_state(rig: Rig, capture: Capture, state: int, cameras: tuple[str, str] 
                     "real": tuple(real)}
 
 
-def scan_to_files(rig: Rig, dataset: str | os.PathLike, out: str | os.PathLike, states=None,
-                  cameras: tuple[str, str] | None = None, mesh: str | os.PathLike | None = None,
-                  corrected: bool = True, neighbours: int = 20, std_ratio: float = 3.0,
-                  smooth_px: float = SMOOTH_PX) -> list[tuple[Path, int, str]]:
-    """Scan every state of `dataset` (or those listed) into PLY clouds: `out` for a single state, else
-    `<out stem>_s<state>.ply` per state; with `mesh`, also a Poisson mesh per state named the same way.
-    Returns [(file, count, what is counted: "points" or, for a mesh, "vertices")]."""
-    from calib.progress import progress
-    from stereodic.cloud import make_cloud, poisson_mesh, write_cloud, write_mesh
+@dataclass(frozen=True)
+class ScanJob:
+    """One scan of a batch: state `state` of the dataset `dataset` into the PLY file `cloud` (and a
+    Poisson mesh into `mesh`, unless None)."""
+
+    dataset: str
+    state: int
+    cloud: Path
+    mesh: Path | None = None
+
+
+def plan_scans(rig: Rig, dataset: str | os.PathLike, out: str | os.PathLike, states=None,
+               cameras: tuple[str, str] | None = None, mesh: str | os.PathLike | None = None) -> list[ScanJob]:
+    """The scans of every state of `dataset` (or those listed), checked: `out` for a single state, else
+    `<out stem>_s<state>.ply` per state, and the meshes named the same way from `mesh`. InputError
+    naming the manifest for a dataset without the rig's cameras' states, or without a state listed."""
     capture = load_capture(dataset)
     cameras = cameras or (rig.left.name, rig.right.name)
     all_states = capture.states(cameras[0]) if cameras[0] in capture.cameras else []
@@ -291,20 +298,45 @@ def scan_to_files(rig: Rig, dataset: str | os.PathLike, out: str | os.PathLike, 
     check_camera_sizes(rig, capture.cameras, cameras, capture.manifest_path)
     for s in states:  # every state's frames checked before the first is scanned
         check_scan_dataset(capture, cameras, s)
-    out = Path(out)
+
+    def name(path, s):
+        path = Path(path)
+        return path if len(states) == 1 else path.with_name(f"{path.stem}_s{s:03d}{path.suffix or '.ply'}")
+
+    return [ScanJob(os.fspath(dataset), s, name(out, s), None if mesh is None else name(mesh, s)) for s in states]
+
+
+def scan_job(rig: Rig, job: ScanJob, cameras: tuple[str, str] | None = None, corrected: bool = True,
+             neighbours: int = 20, std_ratio: float = 3.0, smooth_px: float = SMOOTH_PX,
+             capture: Capture | None = None) -> list[tuple[Path, int, str]]:
+    """One scan (`scan_state`) into its cloud (statistical outliers removed, normals towards the rig) and
+    mesh files; `capture`: the job's dataset already loaded. Returns [(file, count, what is counted:
+    "points" or, for a mesh, "vertices")]."""
+    from stereodic.cloud import make_cloud, poisson_mesh, write_cloud, write_mesh
+    capture = capture or load_capture(job.dataset)
     viewpoint = (rig.left.centre + rig.right.centre) / 2
+    result, _ = scan_state(rig, capture, job.state, cameras, corrected, smooth_px=smooth_px)
+    cloud, _ = make_cloud(result.points, {"quality": result.quality, "gap_mm": result.gap_mm}, viewpoint,
+                          neighbours, std_ratio)
+    write_cloud(job.cloud, cloud)
+    written = [(job.cloud, len(cloud.point.positions), "points")]
+    if job.mesh is not None:
+        surface = poisson_mesh(cloud)
+        write_mesh(job.mesh, surface)
+        written.append((job.mesh, len(surface.vertices), "vertices"))
+    return written
+
+
+def scan_to_files(rig: Rig, dataset: str | os.PathLike, out: str | os.PathLike, states=None,
+                  cameras: tuple[str, str] | None = None, mesh: str | os.PathLike | None = None,
+                  corrected: bool = True, neighbours: int = 20, std_ratio: float = 3.0,
+                  smooth_px: float = SMOOTH_PX) -> list[tuple[Path, int, str]]:
+    """Scan every state of `dataset` (or those listed) into PLY clouds (`plan_scans`, `scan_job`).
+    Returns [(file, count, what is counted: "points" or, for a mesh, "vertices")]."""
+    from calib.progress import progress
+    jobs = plan_scans(rig, dataset, out, states, cameras, mesh)
+    capture = load_capture(dataset)
     written = []
-    for s in progress(states, "scanning", total=len(states)):
-        result, _ = scan_state(rig, capture, s, cameras, corrected, smooth_px=smooth_px)
-        cloud, _ = make_cloud(result.points, {"quality": result.quality, "gap_mm": result.gap_mm}, viewpoint,
-                              neighbours, std_ratio)
-        name = out if len(states) == 1 else out.with_name(f"{out.stem}_s{s:03d}{out.suffix or '.ply'}")
-        write_cloud(name, cloud)
-        written.append((name, len(cloud.point.positions), "points"))
-        if mesh is not None:
-            m = Path(mesh)
-            m = m if len(states) == 1 else m.with_name(f"{m.stem}_s{s:03d}{m.suffix or '.ply'}")
-            surface = poisson_mesh(cloud)
-            write_mesh(m, surface)
-            written.append((m, len(surface.vertices), "vertices"))
+    for job in progress(jobs, "scanning", total=len(jobs)):
+        written += scan_job(rig, job, cameras, corrected, neighbours, std_ratio, smooth_px, capture)
     return written

@@ -7,7 +7,8 @@ happen inside the run functions, and only those the command uses, so that `stere
 command's own start-up stay fast (tests/stereodic/test_startup.py lists what may be imported).
 
 Exit status: 0 success; 2 bad usage or bad input (one line naming the file and the problem); 1 an
-internal error (with its traceback) or a hardware fault.
+internal error (with its traceback), a hardware fault or a cluster fault (`stereodic.cluster.ClusterFault`:
+one line).
 """
 
 from __future__ import annotations
@@ -55,8 +56,12 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except Exception as exc:  # an internal error: show where, for the bug report
         from scanners.errors import HardwareError
+        from stereodic.cluster import ClusterFault
         if isinstance(exc, HardwareError):
             print(f"stereodic: hardware fault: {exc}", file=sys.stderr)
+            return 1
+        if isinstance(exc, ClusterFault):
+            print(f"stereodic: cluster fault: {exc}", file=sys.stderr)
             return 1
         traceback.print_exc()
         print(f"stereodic: internal error: {exc}", file=sys.stderr)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 
-from stereodic.cli.common import add_input, add_output, wrote
+from stereodic.cli.common import add_input, add_output, add_scheduler_option, wrote
 
 
 def register(sub):
@@ -14,9 +14,11 @@ def register(sub):
                                    "3 or more poses of a hand-held display) into its Pixel Ray Vector Matrix "
                                    "(.npz, stereodic.prvm/1). With a hand-held display the poses are estimated "
                                    "together with the rays and the WCS is the display's frame at pose 0.")
-    add_input(p, "dataset", kind="dataset", metavar="DATASET",
-              help="folder holding capture.json (or the manifest itself)")
-    p.add_argument("--camera", help="camera to calibrate (default: the dataset's only camera)")
+    add_input(p, "dataset", kind="dataset", metavar="DATASET", nargs="+",
+              help="folder holding capture.json (or the manifest itself); several, or a quoted shell-style "
+                   "pattern, for a batch (stereodic.cli.calibrate_batch)")
+    p.add_argument("--camera", action="append",
+                   help="camera to calibrate (default: the dataset's only camera); repeat it for several")
     p.add_argument("--no-regularise", action="store_true",
                    help="keep each pixel's own ray (no spatial regularisation)")
     p.add_argument("--window", type=int, default=None, metavar="PX",
@@ -36,7 +38,10 @@ def register(sub):
     p.add_argument("--position", type=float, default=None, metavar="Z_MM",
                    help="with --reduced: the stage position to use, or the pose of a hand-held capture "
                         "(default the first)")
-    add_output(p, metavar="OUT.npz", help="the PRVM file (stereodic.prvm/1), or with --reduced the undistortion map")
+    add_output(p, kind="any", metavar="OUT.npz|DIR",
+               help="the PRVM file (stereodic.prvm/1), or with --reduced the undistortion map; a folder for "
+                    "several cameras: DIR/<camera>.npz, or DIR/<dataset folder>_<camera>.npz for several datasets")
+    add_scheduler_option(p, "cameras (each one a task)")
     p.set_defaults(func=run)
 
 
@@ -54,9 +59,11 @@ def _smoother(args):
 
 
 def run(args) -> int:
-    import numpy as np
-
     from calib.capture import load_capture
+    from stereodic.cli import calibrate_batch
+    if calibrate_batch.is_batch(args):
+        return calibrate_batch.run(args, _smoother(args))
+    args.dataset, args.camera = args.dataset[0], args.camera[0] if args.camera else None
     smoother = _smoother(args)
     if args.reduced:
         return _reduced(args, load_capture(args.dataset, min_positions=1), smoother)
@@ -70,16 +77,12 @@ def run(args) -> int:
     for note in cal.notes:
         print(f"stereodic calibrate: warning: {note}", file=sys.stderr)
     cal.prvm.save(args.output)
-    v = cal.prvm.valid
-    unc = cal.prvm.extra["uncertainty_mm"][..., 0][v]
-    where = f"{len(cal.positions)} display poses" if capture.posed else f"{len(cal.positions)} stage positions"
-    wrote(args.output, f"{cal.prvm.meta['camera']}, {v.shape[1]}x{v.shape[0]}, {v.mean():.1%} of pixels "
-                       f"calibrated from {where}; median 1-sigma ray uncertainty "
-                       f"{1000 * float(np.median(unc)):.2f} um")
+    wrote(args.output, summary(cal))
     for line in pose_lines(cal.prvm.meta):
         print(line)
     if args.report:
-        _report(args.report, cal)
+        for p in report(args.report, cal):
+            wrote(p)
     return 0
 
 
@@ -110,7 +113,18 @@ def pose_lines(meta: dict) -> list[str]:
     return out
 
 
-def _report(out_dir, cal) -> None:
+def summary(cal) -> str:
+    """The `wrote` line's summary of a calibration."""
+    import numpy as np
+    v = cal.prvm.valid
+    unc = cal.prvm.extra["uncertainty_mm"][..., 0][v]
+    where = "display poses" if cal.prvm.meta.get("poses") is not None else "stage positions"
+    return (f"{cal.prvm.meta['camera']}, {v.shape[1]}x{v.shape[0]}, {v.mean():.1%} of pixels calibrated from "
+            f"{len(cal.positions)} {where}; median 1-sigma ray uncertainty {1000 * float(np.median(unc)):.2f} um")
+
+
+def report(out_dir, cal) -> list:
+    """The pictures and the measured display response in `out_dir`; the files written."""
     from pathlib import Path
 
     from calib.atomic import write_json
@@ -125,8 +139,7 @@ def _report(out_dir, cal) -> None:
         path = Path(out_dir) / "display_response.json"
         write_json(path, cal.intensity.response.to_json())
         paths.append(path)
-    for p in paths:
-        wrote(p)
+    return paths
 
 
 def _reduced(args, capture, smoother) -> int:

@@ -52,6 +52,7 @@ SPELLINGS = {  # argparse dest -> its option strings, wherever a command has it
     "height": ("--height",),
     "noise": ("--noise", "--no-noise"),
     "supersample": ("--supersample",),
+    "scheduler": ("--scheduler",),
 }
 SYNONYMS = {  # second spellings of those meanings, refused by the test
     "--out": "output", "--outdir": "output", "--output-dir": "output", "--out-dir": "output", "-O": "output",
@@ -88,9 +89,11 @@ def _declare(p: argparse.ArgumentParser, option: PathOption) -> None:
 
 def add_input(p: argparse.ArgumentParser, *flags: str, kind: str = "file", what: str = "", **kwargs):
     """Add a path argument (positional: one name; option: its flags) that the command reads; kind is
-    'file', 'dir', 'any' (a file or a folder: the command tells which), 'dataset' or 'pattern' (files,
-    each named or given as a shell-style pattern that the program expands: `calib.image_files.expand`);
-    `what` names its content in messages ("image", "PRVM", "rig"). Returns the argparse action."""
+    'file', 'dir', 'any' (a file or a folder: the command tells which), 'dataset' (a folder holding
+    capture.json or the manifest itself; a shell-style pattern names several:
+    `calib.image_files.expand_datasets`) or 'pattern' (files, each named or given as a shell-style
+    pattern that the program expands: `calib.image_files.expand`); `what` names its content in messages
+    ("image", "PRVM", "rig"). Returns the argparse action."""
     assert kind in INPUT_KINDS, kind
     action = p.add_argument(*flags, **kwargs)
     name = "/".join(action.option_strings) if action.option_strings else (action.metavar or action.dest)
@@ -178,6 +181,9 @@ def check_paths(args: argparse.Namespace) -> None:
                 from calib.image_files import expand
                 values = [p for v in values for p in expand(v)]
                 option = PathOption(option.dest, option.name, False, "file", option.what)
+            elif option.kind == "dataset":
+                from calib.image_files import expand_datasets
+                values = [p for v in values for p in expand_datasets(v)]
             for value in values:
                 _check_input(value, option)
                 inputs.add(value.resolve())
@@ -264,6 +270,15 @@ def add_grid_options(p: argparse.ArgumentParser, image: str) -> None:
               help=f"image of the {image}'s size: points where it is non-zero")
     p.add_argument("--seed", action="append", default=[], metavar="X,Y",
                    help=f"start point of the propagation in the {image} (repeatable; default: automatic)")
+
+
+def add_scheduler_option(p: argparse.ArgumentParser, tasks: str) -> None:
+    """--scheduler ADDRESS|local[:N]: run the `tasks` (what they are: "states", "scans") on a Dask
+    cluster (stereodic.cluster; docs/cluster.md)."""
+    p.add_argument("--scheduler", metavar="ADDRESS|local[:N]",
+                   help=f"run the {tasks} on a Dask cluster: the address of a running `dask scheduler` "
+                        f"(tcp://HOST:8786; images and outputs on storage every worker sees), or local[:N] for N "
+                        f"worker processes on this machine (default: one per core); default: in this process")
 
 
 def open_devices(stack, stage_url: str | None, display_spec: str | None, camera_specs: list[str],

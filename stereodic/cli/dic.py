@@ -10,7 +10,7 @@ Z, displacements and strains per state).
 
 from __future__ import annotations
 
-from stereodic.cli.common import add_grid_options, add_input, add_output, dic_grid, parse_ints
+from stereodic.cli.common import add_grid_options, add_input, add_output, add_scheduler_option, dic_grid, parse_ints
 
 
 def register(sub):
@@ -59,6 +59,7 @@ def register(sub):
     p.add_argument("--no-plot", action="store_true", help="skip the PNG maps")
     p.add_argument("--plot-every", type=int, default=1, metavar="N",
                    help="PNG maps of every N-th state only (default 1: all)")
+    add_scheduler_option(p, "states (a chain: one state after the other) and their maps")
     p.set_defaults(func=run)
 
 
@@ -108,7 +109,7 @@ def _run_record(args, rig_path, data, settings):
     import os
 
     from calib import __version__
-    from stereodic.dic3d.store import file_sha256, fingerprint
+    from calib.batch import file_sha256, fingerprint
     grid_args = {"subset": args.subset, "step": args.step, "roi": args.roi,
                  "mask": file_sha256(args.mask) if args.mask else None, "seeds": args.seed}
     record = {"software": __version__, "stereo": dataclasses.asdict(settings), "grid": grid_args}
@@ -165,7 +166,20 @@ def run(args) -> int:
     if done:
         print(f"{out}: resuming a run with {done} of {n} states done")
     active = int(grid.active.sum())
-    state0 = run_states(store, data, rig, grid, seeds, settings, report=lambda st: note(_summary(st, active)))
+    plot_every = outputs["plot_every"]
+    labels = [data.label(k) for k in range(n)]
+    if args.scheduler:
+        import functools
+
+        from stereodic.cluster import connect
+        from stereodic.dic3d.cluster import RunSpec, run_states_on
+        spec = RunSpec.make(args.rig, inputs["rig"], out, data, grid, seeds, settings,
+                            functools.partial(_summary, n=active))
+        with connect(args.scheduler) as client:
+            state0 = run_states_on(client, store, data, spec, vtk=not args.no_vtk, plot_every=plot_every,
+                                   labels=labels)
+    else:
+        state0 = run_states(store, data, rig, grid, seeds, settings, report=lambda st: note(_summary(st, active)))
     c0 = state0.left.ok & state0.right.ok         # matched, whether or not the rays meet
     X, Y = (a.reshape(grid.shape) for a in grid.points())
     report = epipolar.check(rig, X[c0], Y[c0], (X + state0.right.u)[c0], (Y + state0.right.v)[c0],
@@ -176,15 +190,14 @@ def run(args) -> int:
             print(f"stereodic dic: warning: the rig's epipolar error (median {report.median:+.3f} px, p95 "
                   f"{report.p95:.3f} px) is larger than its calibration allows (p95 {report.expected_p95:.3f} px): "
                   f"has a camera moved since the calibration?", file=sys.stderr)
-    labels = [data.label(k) for k in range(n)]
     info = {"rig": str(args.rig), "dataset": data.source, "world_from_rig": rig.world_from_rig.tolist(),
             "state_labels": labels}
     dice = None
     if args.columns == "dice":
         from stereodic.dice_columns import StereoDiceWriter
         dice = StereoDiceWriter(out, grid, data, settings, args.step)
-    write_outputs(store, grid, out, settings, info, vtk=not args.no_vtk, plot_every=outputs["plot_every"],
-                  dice=dice, csv=args.columns != "dice", labels=labels)
+    write_outputs(store, grid, out, settings, info, vtk=not args.no_vtk, plot_every=plot_every,
+                  dice=dice, csv=args.columns != "dice", state_files=not args.scheduler, labels=labels)
     store.record_outputs(outputs)
     states = f"{active} points x {n} states"
     if args.columns == "dice":

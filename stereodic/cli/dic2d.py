@@ -12,7 +12,7 @@ strain_valid is 0. Results are written image by image: memory holds one image's 
 
 from __future__ import annotations
 
-from stereodic.cli.common import add_grid_options, add_input, add_output
+from stereodic.cli.common import add_grid_options, add_input, add_output, add_scheduler_option
 
 
 def register(sub):
@@ -48,6 +48,7 @@ def register(sub):
                    help="dice: DICe's solution files OUT_<k>.csv (its column names and layout) instead of OUT.csv")
     add_output(p, "--npz", metavar="OUT.npz", help="also write the fields as arrays (n_images, ny, nx)")
     add_output(p, "--plot", kind="dir", metavar="DIR", help="write PNG maps of u, v, zncc (and strains) per image")
+    add_scheduler_option(p, "deformed images (a chain: one image after the other)")
     p.set_defaults(func=run)
 
 
@@ -65,15 +66,26 @@ def _check_args(args) -> None:
         raise InputError("--prefilter", f"must be >= 0, got {args.prefilter}")
 
 
+def read_checked(path, shape: tuple[int, int], reference: str):
+    """A deformed image; InputError naming it unless it has the reference's `shape` (rows, columns)."""
+    from calib.errors import InputError
+    from calib.imageio import read_gray
+    img = read_gray(path)
+    if img.shape != shape:
+        raise InputError(path, f"image is {img.shape[1]}x{img.shape[0]} but the reference {reference} is "
+                               f"{shape[1]}x{shape[0]}")
+    return img
+
+
 def run(args) -> int:
     import contextlib
+    import functools
     import tempfile
     from pathlib import Path
 
     import numpy as np
 
     from calib.atomic import write_npz as save_npz
-    from calib.errors import InputError
     from calib.image_files import expand
     from calib.imageio import check_size, read_gray
     from calib.numbers import fixed
@@ -98,19 +110,22 @@ def run(args) -> int:
                            prefilter_sigma=args.prefilter, min_zncc=args.min_zncc, search_radius=args.search)
     out = Path(args.output)
 
-    def images():
-        for path in defs:
-            img = read_gray(path)
-            if img.shape != ref.shape:
-                raise InputError(path, f"image is {img.shape[1]}x{img.shape[0]} but the reference is "
-                                       f"{width}x{height}")
-            yield img
-
+    read = functools.partial(read_checked, shape=ref.shape, reference=str(args.ref))
     has_strain = bool(args.strain_window)
     act = grid.active.ravel()
-    fields = correlate_sequence(ref, images(), grid, settings, seeds, args.incremental, switch_zncc=args.switch_zncc)
+    cluster = contextlib.nullcontext()
+    if args.scheduler:
+        from stereodic.cluster import connect
+        from stereodic.dic.cluster import correlate_sequence_on
+        cluster = connect(args.scheduler)
     writer = CsvWriter(out, has_strain) if args.columns == "stereodic" else contextlib.nullcontext()
-    with tempfile.TemporaryDirectory(prefix=".dic2d-", dir=out.parent) as tmp, writer as csv:
+    with cluster as client, tempfile.TemporaryDirectory(prefix=".dic2d-", dir=out.parent) as tmp, writer as csv:
+        if client is None:
+            fields = correlate_sequence(ref, (read(p) for p in defs), grid, settings, seeds, args.incremental,
+                                        switch_zncc=args.switch_zncc)
+        else:
+            fields = correlate_sequence_on(client, args.ref, [str(p) for p in defs], read, grid, settings, seeds,
+                                           args.incremental, args.switch_zncc)
         for k, f in enumerate(progress(fields, "dic2d", total=len(defs), unit="image")):
             m = None
             if has_strain:

@@ -1,4 +1,4 @@
-"""`stereodic scan RIG.npz DATASET -o CLOUD.ply`: structured-light scan to a point cloud (stereodic.scan).
+"""`stereodic scan RIG.npz DATASET... -o CLOUD.ply|DIR`: structured-light scan to a point cloud (stereodic.scan).
 
 DATASET is a capture of kind "scan" (fringes projected along the projector's columns, several periods
 and steps, a top-level `projector` block with the panel's width_px); RIG.npz is the rectified pair of
@@ -6,14 +6,21 @@ the two cameras (`stereodic rig`). Each state of the dataset is one scan: the ab
 both cameras is mapped into the rectified virtual images, matched along rows, triangulated with the
 EVM-corrected rays, cleaned of statistical outliers and written as a binary float32 PLY with normals and
 the per-point scalars `quality` (fringe modulation, fraction of full scale) and `gap_mm` (ray gap).
-A dataset with several states gives one file per state, CLOUD_s<state>.ply. See docs/scanner.md.
+A dataset with several states gives one file per state, CLOUD_s<state>.ply. Several datasets (or a
+quoted pattern naming them) are a batch into the folder -o DIR: DIR/<dataset folder name>.ply (or
+_s<state>.ply per state). A batch of several scans records each one done (CLOUD.batch.json, or
+DIR/scan.batch.json: calib.batch), so that the same command after a stop does only the rest; with
+--scheduler each scan is a task on a Dask cluster (stereodic.batch). See docs/scanner.md and
+docs/cluster.md.
 """
 
 from __future__ import annotations
 
 import argparse
 
-from stereodic.cli.common import add_input, add_output, wrote
+from stereodic.cli.common import add_input, add_output, add_scheduler_option, wrote
+
+RECORD = "scan.batch.json"
 
 
 def _pair(text: str) -> tuple[str, str]:
@@ -27,13 +34,16 @@ def register(sub):
     p = sub.add_parser("scan", help="structured-light scan to a point cloud",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_input(p, "rig", what="rig", metavar="RIG.npz", help="the rectified stereo rig (stereodic rig)")
-    add_input(p, "dataset", kind="dataset", metavar="DATASET", help="scan dataset folder or its capture.json")
-    add_output(p, metavar="CLOUD.ply", help="output point cloud (CLOUD_s<state>.ply per state if several)")
+    add_input(p, "dataset", kind="dataset", metavar="DATASET", nargs="+",
+              help="scan dataset folder or its capture.json; several, or a quoted shell-style pattern, for a batch")
+    add_output(p, kind="any", metavar="CLOUD.ply|DIR",
+               help="output point cloud (CLOUD_s<state>.ply per state if several); a folder for several datasets")
     p.add_argument("--state", type=int, action="append", metavar="N",
                    help="scan only this state (repeatable; default all)")
     p.add_argument("--cameras", type=_pair, metavar="LEFT,RIGHT",
                    help="dataset camera names of the rig's left and right camera (default: the rig's names)")
-    add_output(p, "--mesh", metavar="MESH.ply", help="also write a Poisson surface mesh")
+    add_output(p, "--mesh", kind="any", metavar="MESH.ply|DIR",
+               help="also write a Poisson surface mesh (named like the clouds; a folder for several datasets)")
     p.add_argument("--no-evm", action="store_true",
                    help="triangulate with the pinhole rays (no EVM correction), for comparison")
     p.add_argument("--smooth", type=float, default=None, metavar="PX",
@@ -42,16 +52,98 @@ def register(sub):
                    help="statistical outlier removal: neighbours (default 20; 0 disables)")
     p.add_argument("--outlier-std", type=float, default=3.0,
                    help="statistical outlier removal: std ratio (default 3)")
+    add_scheduler_option(p, "scans (each one a task)")
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
-    from stereodic.scan import SMOOTH_PX, scan_to_files
+def _batch_folder(path, option: str):
+    """`path` as the folder of a batch's outputs, created; InputError naming `option` if it is a file."""
+    from pathlib import Path
+
+    from calib.errors import InputError
+    if Path(path).is_file() or Path(path).suffix.lower() == ".ply":
+        raise InputError(path, f"several datasets make several clouds: {option} must name a folder")
+    Path(path).mkdir(parents=True, exist_ok=True)        # writable: checked before the work (check_paths)
+    return Path(path)
+
+
+def _jobs(args, rig, datasets):
+    """The scans: per dataset its states (`plan_scans`), named as the module docstring says."""
+
+    from calib.errors import InputError
+    from stereodic.scan import plan_scans
+    if len(datasets) == 1:
+        return plan_scans(rig, datasets[0], args.output, args.state, args.cameras, args.mesh)
+    out = _batch_folder(args.output, "-o/--output")
+    mesh = None if args.mesh is None else _batch_folder(args.mesh, "--mesh")
+    jobs, seen = [], {}
+    for ds in datasets:
+        name = (ds.parent if ds.name == "capture.json" else ds).resolve().name
+        if name in seen:
+            raise InputError(ds, f"has the folder name of {seen[name]}: their clouds would have the same name")
+        seen[name] = ds
+        jobs += plan_scans(rig, ds, out / f"{name}.ply", args.state, args.cameras,
+                           None if mesh is None else mesh / f"{name}.ply")
+    return jobs
+
+
+def _inputs(job, cameras) -> dict:
+    """The files a scan reads, fingerprinted (calib.batch)."""
+    from calib.batch import file_sha256, fingerprint
+    from calib.capture import load_capture
+    cap = load_capture(job.dataset)
+    frames = [f for cam in cameras for f in cap.select(cam, state=job.state)]
+    return {"capture": file_sha256(cap.manifest_path), "frames": [fingerprint(cap.path(f)) for f in frames]}
+
+
+def scan_task(rig_path: str, rig_sha256: str, job, options: dict):
+    """One scan where it runs (in this process or on a worker: the rig loaded once per process)."""
+    from stereodic.batch import Done
+    from stereodic.cluster import per_worker
     from stereodic.rig import load_rig
+    from stereodic.scan import scan_job
+    rig = per_worker(f"rig:{rig_path}:{rig_sha256}", lambda: load_rig(rig_path))
+    return Done([(path, f"{count} {what}") for path, count, what in scan_job(rig, job, **options)])
+
+
+def run(args) -> int:
+    import dataclasses
+    import os
+    from pathlib import Path
+
+    from calib import __version__
+    from calib.batch import BatchRecord, file_sha256
+    from calib.image_files import expand_datasets
+    from stereodic.batch import Task, run_batch
+    from stereodic.rig import load_rig
+    from stereodic.scan import SMOOTH_PX
     rig = load_rig(args.rig)
-    written = scan_to_files(rig, args.dataset, args.output, args.state, args.cameras, args.mesh,
-                            corrected=not args.no_evm, neighbours=args.outlier_neighbours,
-                            std_ratio=args.outlier_std, smooth_px=SMOOTH_PX if args.smooth is None else args.smooth)
-    for path, count, what in written:
-        wrote(path, f"{count} {what}")
+    datasets = [d for v in args.dataset for d in expand_datasets(v)]
+    jobs = _jobs(args, rig, datasets)
+    cameras = args.cameras or (rig.left.name, rig.right.name)
+    options = {"cameras": cameras, "corrected": not args.no_evm, "neighbours": args.outlier_neighbours,
+               "std_ratio": args.outlier_std, "smooth_px": SMOOTH_PX if args.smooth is None else args.smooth}
+    rig_sha = file_sha256(args.rig)
+    record = None
+    if len(jobs) > 1:
+        out = Path(args.output)
+        path = out / RECORD if len(datasets) > 1 else out.with_name(f"{out.stem}.batch.json")
+        record = BatchRecord(path, {"software": __version__, "rig": rig_sha, "mesh": args.mesh is not None,
+                                    **options})
+    given = {}                                  # absolute paths for the workers, the user's in the `wrote` lines
+    for j in jobs:
+        given.update({os.path.abspath(p): p for p in (j.cloud, j.mesh) if p is not None})
+    absolute = lambda p: None if p is None else Path(os.path.abspath(p))  # noqa: E731
+    tasks = [Task(f"{os.path.abspath(j.dataset)}#state{j.state}", _inputs(j, cameras) if record else {},
+                  (os.path.abspath(args.rig), rig_sha,
+                   dataclasses.replace(j, dataset=os.path.abspath(j.dataset), cloud=absolute(j.cloud),
+                                       mesh=absolute(j.mesh)), options)) for j in jobs]
+    count = 0
+    for _, done in run_batch(scan_task, tasks, record, scheduler=args.scheduler, desc="scanning", unit="scan"):
+        count += 1
+        for path, summary in done.outputs:
+            wrote(given.get(os.fspath(path), path), summary)
+    if count < len(tasks):
+        print(f"{record.path}: {len(tasks) - count} of {len(tasks)} scans were done already with these settings "
+              f"and inputs (their files are kept)")
     return 0

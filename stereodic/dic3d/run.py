@@ -16,7 +16,7 @@ from typing import Callable
 
 from calib.progress import progress
 from stereodic.dic.grid import Grid
-from stereodic.dic.maps import surface_axes
+from stereodic.dic.maps import MapAxes, surface_axes
 from stereodic.dic.sequence import prefetch
 from stereodic.dic3d.dataset import DicStates
 from stereodic.dic3d.output import plot_state, write_csv, write_npz
@@ -26,7 +26,8 @@ from stereodic.dic3d.vtk import write_collection, write_state
 from stereodic.rig import Rig
 
 
-def _prepare(data: DicStates, rig: Rig, settings: StereoSettings, k: int) -> PreparedPair:
+def prepare_pair(data: DicStates, rig: Rig, settings: StereoSettings, k: int) -> PreparedPair:
+    """State k's pair read, rectified and prepared (B-splines) for `solve_state`."""
     return PreparedPair.prepare(*data.rectified_pair(rig, k), settings.dic)
 
 
@@ -36,7 +37,7 @@ def run_states(store: RunStore, data: DicStates, rig: Rig, grid: Grid, seeds, se
     with each state solved (state 0 also when it is read back). Returns state 0."""
     n = len(data)
     done = store.done
-    pair0 = _prepare(data, rig, settings, 0)
+    pair0 = prepare_pair(data, rig, settings, 0)
     run = StereoRun.prepare(rig, grid, settings, seeds, pair0)
     if done == 0:
         state0, carry = solve_state(run, 0, pair0)
@@ -47,9 +48,9 @@ def run_states(store: RunStore, data: DicStates, rig: Rig, grid: Grid, seeds, se
         state0, carry = store.read_state(0), store.read_carry()
         report(state0)
     run = run.with_reference(state0)
-    previous = pair0 if done == 1 else _prepare(data, rig, settings, done - 1)
+    previous = pair0 if done == 1 else prepare_pair(data, rig, settings, done - 1)
     todo = range(done, n)
-    pairs = prefetch(todo, lambda k: _prepare(data, rig, settings, k))
+    pairs = prefetch(todo, lambda k: prepare_pair(data, rig, settings, k))
     for k, pair in progress(pairs, "dic", total=n, initial=done, unit="state"):
         state, carry = solve_state(run, k, pair, carry, previous)
         store.write_state(state, carry)
@@ -58,28 +59,40 @@ def run_states(store: RunStore, data: DicStates, rig: Rig, grid: Grid, seeds, se
     return state0
 
 
+def write_state_files(folder: str | Path, st: StereoState, *, vtk: bool, plot_every: int, axes: MapAxes | None,
+                      label: str) -> None:
+    """One state's own outputs: folder/vtk/state{k:03d}.vtp (with `vtk`) and its PNG maps in folder/maps/
+    (when it is a `plot_every`-th state; 0 = none) on `axes` (`stereodic.dic.maps.surface_axes` of state
+    0's points), titled `label` (its load case)."""
+    folder = Path(folder)
+    if vtk:
+        write_state(folder / "vtk", st)
+    if plot_every and st.state % plot_every == 0:
+        plot_state(folder / "maps", st, axes, label)
+
+
 def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: StereoSettings, info: dict, *,
                   vtk: bool = True, plot_every: int = 0, dice: Callable[[StereoState], None] | None = None,
-                  csv: bool = True, labels: list[str] | None = None) -> None:
+                  csv: bool = True, state_files: bool = True, labels: list[str] | None = None) -> None:
     """The combined outputs from the store's state files (module docstring): folder/dic.csv (unless
     `dice` writes DICe's files instead, or not `csv`), folder/dic.npz, folder/vtk/ (with `vtk`),
     folder/maps/ (every `plot_every`-th state, 0 = none; titled by `labels`, one per state, default
-    "state k")."""
+    "state k"). Not `state_files`: each state's VTK file and maps were written already
+    (`write_state_files`, by a cluster's tasks); the rest is written here."""
     folder = Path(folder)
     n = store.manifest["states"]
     has_strain = bool(settings.strain_window)
     write_npz(folder / "dic.npz", grid, store.values, n, has_strain, settings, info)
     if csv:
         write_csv(folder / "dic.csv", grid, store.states())
-    if vtk or plot_every or dice is not None:
+    if (state_files and (vtk or plot_every)) or dice is not None:
         axes = None
         for st in progress(store.states(), "writing", total=n, unit="state"):
-            if vtk:
-                write_state(folder / "vtk", st)
-            if axes is None:  # state 0: the reference surface gives every map its mm axes
-                axes = surface_axes(grid.xs, grid.ys, st.points)
-            if plot_every and st.state % plot_every == 0:
-                plot_state(folder / "maps", st, axes, labels[st.state] if labels else f"state {st.state}")
+            if state_files:
+                if axes is None:  # state 0: the reference surface gives every map its mm axes
+                    axes = surface_axes(grid.xs, grid.ys, st.points)
+                write_state_files(folder, st, vtk=vtk, plot_every=plot_every, axes=axes,
+                                  label=labels[st.state] if labels else f"state {st.state}")
             if dice is not None:
                 dice(st)
     if vtk:

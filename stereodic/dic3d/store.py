@@ -16,7 +16,6 @@ again, to the same bytes). A run whose settings or inputs differ from the folder
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from pathlib import Path
@@ -31,25 +30,6 @@ from stereodic.dic3d.stereo import StereoCarry, StereoState
 
 FORMAT = "stereodic.dic-run/1"
 MANIFEST = "run.json"
-FINGERPRINT_BYTES = 16384
-
-
-def fingerprint(path: str | os.PathLike) -> str:
-    """'<size>:<SHA-1 of up to 16 KiB from the middle of the file>': cheap, and different for two
-    captures of a speckle (its noise alone differs)."""
-    path = Path(path)
-    size = path.stat().st_size
-    with open(path, "rb") as f:
-        f.seek(max(0, size // 2 - FINGERPRINT_BYTES // 2))
-        return f"{size}:{hashlib.sha1(f.read(FINGERPRINT_BYTES)).hexdigest()}"
-
-
-def file_sha256(path: str | os.PathLike) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _first_difference(old, new, where: str = "") -> str | None:
@@ -134,11 +114,30 @@ class RunStore:
 
     def write_state(self, state: StereoState, carry: StereoCarry) -> None:
         """Save a finished state and the carry after it, then record it done."""
+        self.write_result(state, carry)
+        self.record_done(state.state)
+
+    def write_result(self, state: StereoState, carry: StereoCarry) -> None:
+        """Save a finished state and the carry after it (where the run is solved: a Dask worker too)."""
         write_npz(self.state_path(state.state), **state_arrays(state))
         write_npz(self.states_dir / "carry.npz", **carry.to_arrays())
-        self.manifest["done"] = state.state + 1
+
+    def record_done(self, k: int) -> None:
+        """Record states 0 to k done in the manifest (after `write_result` of state k)."""
+        self.manifest["done"] = k + 1
         self.manifest.pop("outputs", None)
         write_json(self.manifest_path, self.manifest)
+
+    def attach(self) -> "RunStore":
+        """The run already in the folder, to read and add states to without opening it again (a Dask
+        worker's view of a run that the client opened); InputError naming the manifest if there is
+        none."""
+        manifest = self._read_manifest()
+        if manifest is None:
+            raise InputError(self.manifest_path, "is missing: the run folder must be on storage that every "
+                                                 "worker sees")
+        self.manifest = manifest
+        return self
 
     def read_state(self, k: int) -> StereoState:
         with np.load(self.state_path(k)) as z:

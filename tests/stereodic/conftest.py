@@ -15,3 +15,12 @@ def dic_sim(tmp_path_factory):
               DicState("tension", stretch=(1.01, 0.997))]
     simulate_dic_with_rig(root, states, width=240, height=192, supersample=2)
     return root
+
+
+@pytest.fixture(scope="session")
+def dask_cluster():
+    """A Dask cluster of 2 worker processes on loopback (`stereodic.cluster.local_cluster`, as
+    `--scheduler local:2` starts it), for the runs that name its address with --scheduler."""
+    from stereodic.cluster import local_cluster
+    with local_cluster(2) as cluster:
+        yield cluster

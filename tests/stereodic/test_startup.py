@@ -1,7 +1,7 @@
 """The start-up budget, guarded by what a command imports (not by time: `stereodic bench startup` has the
 times). `--help` loads no library at all; a 2D DIC run loads numpy, OpenCV and Pillow but neither numba
 nor scipy (its kernels are compiled ahead of time: stereodic/dic/src), nor matplotlib, Open3D or tqdm
-(no bar without a terminal)."""
+(no bar without a terminal), nor Dask (only with --scheduler)."""
 
 import json
 import subprocess
@@ -13,8 +13,9 @@ import pytest
 from calib.imageio import write_gray
 from stereodic.cli import COMMANDS
 
-HEAVY = ["numpy", "numba", "scipy", "cv2", "matplotlib", "open3d", "PIL", "tqdm", "skimage", "pygame"]
-NOT_FOR_DIC2D = ["numba", "scipy", "matplotlib", "open3d", "tqdm", "skimage", "pygame"]
+HEAVY = ["numpy", "numba", "scipy", "cv2", "matplotlib", "open3d", "PIL", "tqdm", "skimage", "pygame", "dask",
+         "distributed"]
+NOT_FOR_DIC2D = ["numba", "scipy", "matplotlib", "open3d", "tqdm", "skimage", "pygame", "dask", "distributed"]
 
 
 def _imported(argv: list[str]) -> set[str]:
