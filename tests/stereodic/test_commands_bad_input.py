@@ -427,7 +427,7 @@ def _inputs_files(paths) -> dict[Path, Path]:
 
 def test_every_command_is_in_the_table():
     commands = {name for name, _ in _parsers(build_parser())}
-    assert commands == set(COMMANDS), (f"add a row to tests/stereodic/test_bad_input.py's COMMANDS for "
+    assert commands == set(COMMANDS), (f"add a row to tests/stereodic/test_commands_bad_input.py's COMMANDS for "
                                        f"{sorted(commands - set(COMMANDS))}; remove {sorted(set(COMMANDS) - commands)}")
 
 
