@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 
-from stereodic.cli.common import add_input, add_output, add_scheduler_option, wrote
+from stereodic.cli.common import add_input, add_output, add_scheduler_option, check_file_output, wrote
 
 
 def register(sub):
@@ -64,6 +64,7 @@ def run(args) -> int:
     if calibrate_batch.is_batch(args):
         return calibrate_batch.run(args, _smoother(args))
     args.dataset, args.camera = args.dataset[0], args.camera[0] if args.camera else None
+    check_file_output(args.output, "-o/--output")
     smoother = _smoother(args)
     if args.reduced:
         return _reduced(args, load_capture(args.dataset, min_positions=1), smoother)

@@ -46,6 +46,7 @@ def _plan(args) -> list[tuple[str, str, str, str | None]]:
     from calib.capture import load_capture
     from calib.errors import InputError
     from calib.image_files import expand_datasets
+    from stereodic.cli.common import check_file_output
     datasets = [d for v in args.dataset for d in expand_datasets(v)]
     items = []
     for ds in datasets:
@@ -60,6 +61,7 @@ def _plan(args) -> list[tuple[str, str, str, str | None]]:
                                    "folder name?)")
     if len(items) == 1:
         (ds, cam, _), = items
+        check_file_output(args.output, "-o/--output")
         return [(ds, cam, os.path.abspath(args.output), args.report and os.path.abspath(args.report))]
     out = Path(args.output)
     if out.is_file() or out.suffix.lower() == ".npz":

@@ -193,6 +193,13 @@ def check_paths(args: argparse.Namespace) -> None:
                 _check_output(Path(value), option, inputs)
 
 
+def check_file_output(path: str | os.PathLike, name: str) -> None:
+    """`check_paths`'s checks of a file output, for an output declared 'any' once the command knows that
+    it names a file (one camera, one dataset): InputError naming it if it is a directory or cannot be
+    written."""
+    _check_output(Path(path), PathOption(name, name, True, "file", ""), set())
+
+
 def new_folders(args: argparse.Namespace) -> list[Path]:
     """The folders that writing the declared outputs of `args` may create: each output folder and each
     missing parent, up to the nearest that exists (deepest first)."""

@@ -73,6 +73,10 @@ def _jobs(args, rig, datasets):
     from calib.errors import InputError
     from stereodic.scan import plan_scans
     if len(datasets) == 1:
+        from stereodic.cli.common import check_file_output
+        check_file_output(args.output, "-o/--output")
+        if args.mesh is not None:
+            check_file_output(args.mesh, "--mesh")
         return plan_scans(rig, datasets[0], args.output, args.state, args.cameras, args.mesh)
     out = _batch_folder(args.output, "-o/--output")
     mesh = None if args.mesh is None else _batch_folder(args.mesh, "--mesh")
