@@ -21,8 +21,8 @@ import numpy as np
 from calib.capture import Capture, Frame
 from calib.errors import InputError
 from calib.intensity import IntensityMatrix, fit_intensity
-from calib.phase import (DARK, LOW_MODULATION, NO_DATA, SATURATED, UNWRAP, FringeSums, WaveformCorrection,
-                         unwrap_temporal)
+from calib.phase import (DARK, EDGE, LOW_MODULATION, NO_DATA, SATURATED, UNWRAP, FringeSums,
+                         WaveformCorrection, correct_phase, unwrap_temporal)
 
 AXES = ("x", "y")
 # a pixel is dark when its brightest fringe frame stays below this fraction of full scale
@@ -32,6 +32,11 @@ MODULATION_FRACTION = 0.2
 # the largest robust spread (in periods) of the disagreement between successive periods that still
 # makes a wrong fringe order (a disagreement beyond 0.75 period) a 7-sigma event
 MAX_MISMATCH_SIGMA = 0.1
+# the display's edge (`display_edge`): the modulation's profile is measured out to this distance (camera
+# pixels) from the pixels that do not see the display, its far half being the reference; a fall below
+# the reference by more than EDGE_FALL (or 3 times the reference bins' own spread) marks the edge
+EDGE_PROFILE_PX = 16
+EDGE_FALL = 0.02
 
 
 @dataclass
@@ -42,7 +47,9 @@ class DecodedPosition:
     amplitude B and mean A of the shortest period (decoding units: relative luminance with an intensity
     matrix, camera values without); quality: (H, W) uint8 flag bits of `calib.phase` (0 = good);
     steps: frames per set of the shortest period, per axis; period_px: the shortest period, per axis;
-    mismatch_sigma: per axis, the measured spread of the period-to-period disagreement.
+    mismatch_sigma: per axis, the measured spread of the period-to-period disagreement; clipped: (pixels
+    with clipped samples in some fringe set, each solved from its unclipped samples; pixels flagged
+    SATURATED, too few left in some set).
     """
 
     z_mm: float
@@ -53,6 +60,7 @@ class DecodedPosition:
     steps: tuple[int, int]
     period_px: tuple[float, float]
     mismatch_sigma: dict = field(default_factory=dict)
+    clipped: tuple[int, int] = (0, 0)
 
     @property
     def valid(self) -> np.ndarray:
@@ -136,6 +144,7 @@ def decode_position(capture: Capture, camera: str, z_mm: float, im: IntensityMat
     display = capture.display
     extent = {"x": display.width_px, "y": display.height_px}
     coords, mods, means, steps, shortest, mismatch = [], [], [], [], [], {}
+    clip_any = np.zeros((h, w), bool)
     quality = np.zeros((h, w), np.uint8)
     if im is not None:
         quality[~np.isfinite(im.gain)] |= DARK
@@ -157,22 +166,23 @@ def decode_position(capture: Capture, camera: str, z_mm: float, im: IntensityMat
         phases, last = [], None
         for period in periods:
             frames = sets[axis][period]
-            sums = FringeSums((h, w), squares=len(frames) > 3)
-            full = None
+            sums = None
             for _ in frames:
                 f, raw = next(stream)
                 first_file = first_file or capture.path(f)
-                full = capture.max_value(camera, raw)
+                if sums is None:
+                    full = capture.max_value(camera, raw)
+                    sums = FringeSums((h, w), squares=len(frames) > 3, full_scale=full)
                 sums.add(raw, f.pattern.shift_rad)
                 if progress is not None:
                     progress()
             lit = (sums.raw_max >= DARK_FRACTION * full) & (sums.raw_max < full)
             res = sums.solve(full, DARK_FRACTION * full, 0.0, None if im is None else (im.offset, im.gain))
             if im is not None:
-                res.phase = _waveform_correction(capture, frames, im)(res.phase)
-            ref = res.modulation[lit & np.isfinite(res.modulation)][::97]   # a sample suffices
-            min_mod = MODULATION_FRACTION * float(np.percentile(ref, 90)) if ref.size else np.inf
-            res.quality[~(res.modulation >= min_mod)] |= LOW_MODULATION
+                correct_phase(res, _waveform_correction(capture, frames, im))
+            res.quality[~(res.modulation >= _modulation_floor(res.modulation, lit))] |= LOW_MODULATION
+            if res.clipped is not None:
+                clip_any |= np.bitwise_or.reduce(res.clipped, axis=0) != 0
             quality |= res.quality
             phases.append(res.phase)
             last = res                    # periods run longest first: the last is the shortest
@@ -201,10 +211,83 @@ def decode_position(capture: Capture, camera: str, z_mm: float, im: IntensityMat
         shortest.append(periods[-1])
     coord = np.stack(coords)
     quality[~np.isfinite(coord).all(axis=0)] |= NO_DATA
+    mod = np.stack(mods)
+    # the edge shows in the camera's own modulation: the IM's per-pixel gain, measured on flats seen
+    # through the same mix of display and bezel, would cancel it
+    raw_mod = mod if im is None else mod * im.gain
+    quality[display_edge(coord, raw_mod, quality, (display.width_px, display.height_px))] |= EDGE
     if not (quality == 0).any():
         _raise_unusable(capture, camera, z_mm, quality, first_file)
-    return DecodedPosition(float(z_mm), coord, np.stack(mods), np.stack(means), quality, tuple(steps),
-                           tuple(shortest), mismatch)
+    lost = (quality & SATURATED) != 0
+    clipped = (int(np.count_nonzero(clip_any & ~lost)), int(np.count_nonzero(clip_any & lost)))
+    return DecodedPosition(float(z_mm), coord, mod, np.stack(means), quality, tuple(steps), tuple(shortest),
+                           mismatch, clipped)
+
+
+def display_edge(coord: np.ndarray, modulation: np.ndarray, quality: np.ndarray,
+                 extent: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool: the decoded pixels at the display's edge, whose view (its blur and area) takes in
+    part of the bezel, which biases the decoded point towards the display's inside.
+
+    coord: (2, H, W) decoded display (c, r); modulation: (2, H, W) B of each axis in camera values (not
+    normalised per pixel); quality: the flags so far; extent: the display's (width_px, height_px). The bezel is where pixels see no fringe (DARK,
+    LOW_MODULATION, NO_DATA; not SATURATED, which sees the display). How far its influence reaches is
+    measured, not assumed: the median modulation of the good pixels at each whole distance d (camera
+    pixels) from the bezel, over a line fitted to the medians at EDGE_PROFILE_PX / 2 .. EDGE_PROFILE_PX
+    (vignetting), falls below 1 near the edge; the reach is the largest d where it is below
+    1 - max(EDGE_FALL, 3 x the spread of those reference bins about their line). A good pixel is at the edge when it is within the reach of the bezel and its
+    decoded point within reach + 2 camera pixels (in display pixels) of the display's border, so that
+    bezel-like spots inside the display (dust, hot pixels) leave their neighbours alone. With too few
+    pixels near the border to measure (fewer than 30 per distance), the pixels next to the bezel are
+    the edge."""
+    good = quality == 0
+    bezel = (quality & (DARK | LOW_MODULATION | NO_DATA)) != 0
+    edge = np.zeros(quality.shape, bool)
+    if not bezel.any() or not good.any():
+        return edge
+    dist = cv2.distanceTransform((~bezel).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    cand = np.nonzero(good & (dist <= EDGE_PROFILE_PX))
+    if not cand[0].size:
+        return edge
+    c, r = coord[0][cand], coord[1][cand]
+    border = np.minimum(np.minimum(c + 0.5, extent[0] - 0.5 - c), np.minimum(r + 0.5, extent[1] - 0.5 - r))
+    sample = good[::4, ::4]
+    scale = np.concatenate([np.hypot(*np.gradient(a[::4, ::4]))[sample] for a in coord]) / 4
+    scale = float(np.percentile(scale[np.isfinite(scale)], 95)) if np.isfinite(scale).any() else 1.0
+    near = border < (EDGE_PROFILE_PX + 2) * scale
+    b = (modulation[0][cand][near] + modulation[1][cand][near]) / 2
+    d = np.rint(dist[cand][near]).astype(int)
+    medians = np.full(EDGE_PROFILE_PX + 1, np.nan)
+    for k in range(1, EDGE_PROFILE_PX + 1):
+        at = b[d == k]
+        if at.size >= 30:
+            medians[k] = np.median(at)
+    half = EDGE_PROFILE_PX // 2
+    far = np.arange(half, EDGE_PROFILE_PX + 1)
+    far = far[np.isfinite(medians[far])]
+    reach = 1
+    if far.size >= 3 and np.isfinite(medians[1:half]).all():
+        line = np.polynomial.Polynomial.fit(far, medians[far], 1)
+        spread = float(np.std(medians[far] / line(far) - 1))
+        ratio = medians[1:half] / line(np.arange(1, half))
+        low = np.flatnonzero(ratio < 1 - max(EDGE_FALL, 3 * spread))
+        reach = int(low.max()) + 1 if low.size else 0
+    hit = (dist[cand] <= reach) & (border < (reach + 2) * scale)
+    edge[cand[0][hit], cand[1][hit]] = True
+    return edge
+
+
+def _modulation_floor(modulation: np.ndarray, lit: np.ndarray) -> float:
+    """The least modulation of a usable pixel: MODULATION_FRACTION of the well-lit pixels' (the 90th
+    percentile of those lit, unsaturated and with a finite modulation, taken again among those above a
+    fifth of the first estimate, so that pixels seeing the bezel or room light do not lower it however
+    many they are). A sample of the pixels suffices."""
+    ref = modulation[lit & np.isfinite(modulation)][::97]
+    if not ref.size:
+        return np.inf
+    top = float(np.percentile(ref, 90))
+    ref = ref[ref > 0.2 * top]
+    return MODULATION_FRACTION * float(np.percentile(ref, 90))
 
 
 def _raise_unusable(capture: Capture, camera: str, z_mm: float, quality: np.ndarray, where) -> None:

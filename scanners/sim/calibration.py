@@ -25,7 +25,7 @@ from calib.imageio import write_gray
 from calib.progress import progress
 from scanners.sim.camera import SimCamera
 from scanners.sim.display import SimDisplay
-from scanners.sim.lenses import Lens, make_lens
+from scanners.sim.lenses import DEFAULT_TARGET_MM, Lens, make_lens
 from scanners.sim.pose import DisplayPose
 from scanners.sim.screens import fringe_shifts, screen_image
 from scanners.sim.sensor import Sensor
@@ -36,7 +36,7 @@ CHESS_SQUARES = (9, 7)          # columns, rows: 8 x 6 inner corners
 
 
 def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown", width: int = 1280,
-                         height: int = 1024, seed: int = 0, periods=(60, 360, 1920), steps: int = 3,
+                         height: int = 1024, seed: int = 0, periods=(60, 360, 1920), steps=3,
                          z_positions=(0.0, 50.0), flat_levels=DEFAULT_FLATS, noise: bool = True,
                          bit_depth: int = 8, supersample: int = 3,
                          cover_glass: CoverGlass | tuple[float, float] | None = None, low: int = 20,
@@ -44,29 +44,43 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
                          stage_tilt_deg: float = 0.0, stage_lateral_um: float = 0.0,
                          stage_axis=(0.0, 0.0, 1.0), exposure_fraction: float = 0.87,
                          display: SimDisplay | None = None, lens_options: dict | None = None,
-                         camera: str = "cam0", sensor_seed: int | None = None) -> Capture:
+                         camera: str = "cam0", sensor_seed: int | None = None, ambient: float = 0.0,
+                         ambient_variation: float = 0.0, hot_pixels: float = 0.0, overexposure: float = 0.0,
+                         unseen: float = 0.0) -> Capture:
     """Write a simulated calibration dataset to `out_dir` and return it (as load_capture reads it).
 
     lens: a family of scanners.sim.lenses (with `lens_options` passed to make_lens) or a Lens;
-    periods: fringe periods in display pixels; steps: phase shifts per period (>= 3); z_positions:
-    nominal stage positions (mm, >= 1 of them); flat_levels: grey levels of the flat frames;
-    cover_glass: (thickness_mm, refractive_index) or a CoverGlass; low/high: fringe (and chessboard)
-    levels; chessboard: add chessboards (squares CHESS_SQUARES) at 5 placements per position, inside
-    the field at that position;
+    periods: fringe periods in display pixels; steps: phase shifts per period (>= 3), one number or one
+    per period; z_positions: nominal stage positions (mm, >= 1 of them); flat_levels: grey levels of
+    the flat frames; cover_glass: (thickness_mm, refractive_index) or a CoverGlass; low/high: fringe
+    (and chessboard) levels; chessboard: add chessboards (squares CHESS_SQUARES) at 5 placements per
+    position, inside the field at that position;
     stage_error_um, stage_tilt_deg, stage_lateral_um: RMS stage errors per position: along the axis,
     tilt about each of the display's x and y axes (about the display's centre), and across the axis
     (`scanners.sim.stage.SimStage`); exposure_fraction: brightest fringe pixel / full scale;
-    sensor_seed: seed of the camera's gain map and noise (default `seed`; cameras of one rig share the
-    stage's seed but each has its own sensor).
-    Raises InputError naming the argument for bad arguments or a display that does not cover the field.
+    sensor_seed: seed of the camera's gain map, hot pixels and noise (default `seed`; cameras of one
+    rig share the stage's seed but each has its own sensor).
+    A real bench's flaws (all off by default; docs/simulator.md): `display` (a SimDisplay: bow, pitch
+    error, viewing-angle falloff and gamma, bezel); ambient, ambient_variation: room light on the
+    sensor (`SimCamera`); hot_pixels: their fraction (`Sensor`); overexposure: the fraction of the
+    pixels seeing the display that exceed full scale at a flat of level `high` (instead of
+    `exposure_fraction`); unseen: the fraction of the image rows beyond the display's lower edge at
+    the last stage position (a lens family only: the camera and its aim are moved along the display's
+    rows until they are).
+    Raises InputError naming the argument for bad arguments or a camera that does not see the display.
     """
     periods = _check_list("--periods", periods, positive=True)
     z_nominal = _check_list("--positions", z_positions)
     flats = [int(v) for v in _check_list("flat_levels", flat_levels, allow_empty=True)]
     if len(set(z_nominal)) != len(z_nominal):
         raise InputError("--positions", f"stage positions must be distinct, got {z_nominal}")
-    if int(steps) != steps or steps < 3:
-        raise InputError("--steps", f"need a whole number >= 3 of phase steps, got {steps}")
+    steps = _check_list("--steps", [steps] * len(periods) if np.isscalar(steps) else steps)
+    if len(steps) != len(periods) or any(int(n) != n or n < 3 for n in steps):
+        raise InputError("--steps", f"need a whole number >= 3 of phase steps (one, or one per period), "
+                                    f"got {steps}")
+    if not (0 <= overexposure < 1 and 0 <= unseen < 1 and 0 <= hot_pixels < 1):
+        raise InputError("flaws", f"overexposure, unseen and hot_pixels are fractions in [0, 1), got "
+                                  f"{overexposure}, {unseen}, {hot_pixels}")
     if not 0 <= low < high <= 255 or any(not 0 <= v <= 255 for v in flats):
         raise InputError("--low/--high", f"levels must satisfy 0 <= low < high <= 255 and flats within "
                                          f"0..255, got low={low}, high={high}, flats={flats}")
@@ -84,14 +98,19 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
         display = dataclasses.replace(display, cover_glass=cover_glass)
     if isinstance(lens, str):
         lens = make_lens(lens, width, height, seed, **(lens_options or {}))
+        if unseen > 0:
+            lens = _shifted_for_unseen(lens, display, seed, unseen, z_nominal[-1], stage_axis, lens_options)
+    elif unseen > 0:
+        raise InputError("unseen", "needs a lens family (the camera is moved), not a Lens")
     try:
         stage = SimStage(tuple(z_nominal), stage_error_um, tuple(stage_axis), seed, stage_tilt_deg,
                          stage_lateral_um, pivot_mm=tuple(np.array(display.size_mm) / 2))
     except ValueError as exc:
         raise InputError("stage", str(exc)) from None
-    cam = SimCamera(lens, Sensor(bit_depth=bit_depth), supersample,
-                    seed=seed if sensor_seed is None else sensor_seed)
-    cam.set_exposure(display, high, stage.poses[0], exposure_fraction)
+    cam = SimCamera(lens, Sensor(bit_depth=bit_depth, hot_pixels=hot_pixels), supersample,
+                    seed=seed if sensor_seed is None else sensor_seed, ambient=ambient,
+                    ambient_variation=ambient_variation)
+    cam.set_exposure(display, high, stage.poses[0], exposure_fraction, clipped=overexposure)
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -102,7 +121,8 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
         image = screen_image(f.pattern, display.width_px, display.height_px)
         write_gray(out / f.file, cam.render(image, display, stage.true_pose(f.z_mm), noise))
 
-    _truth(cam, display, stage, seed, noise, camera).save(out / "truth.npz")
+    _truth(cam, display, stage, seed, noise, camera, ambient, ambient_variation, overexposure).save(
+        out / "truth.npz")
     cap = Capture(out, "calibration", {camera: (lens.width, lens.height)}, frames, display.record(),
                   stage.axis, {"simulated": {"lens": lens.family, "seed": seed, "noise": noise,
                                              "supersample": cam.supersample, "truth": "truth.npz"}},
@@ -121,6 +141,21 @@ def _check_list(name: str, values, positive: bool = False, allow_empty: bool = F
     return [int(v) if v == int(v) else v for v in vals]
 
 
+def _shifted_for_unseen(lens: Lens, display: SimDisplay, seed: int, unseen: float, z_last: float, axis,
+                        lens_options: dict | None) -> Lens:
+    """The same lens family and seed moved (camera and aim together, along the display's rows) so that
+    the last `unseen` fraction of its image rows lies beyond the display's lower edge at stage position
+    z_last (nominal, an ideal stage), judged along the middle column."""
+    v = np.arange(lens.height, dtype=np.float64)
+    o, d = lens.rays(np.full_like(v, (lens.width - 1) / 2), v)
+    r = display.hit(o, d, DisplayPose.staged(z_last, axis))[1]
+    row = min(int(round((1 - unseen) * lens.height)), lens.height - 1)
+    shift = (display.height_px - 0.5 - r[row]) * display.true_pitch_mm[1] * np.sign(r[-1] - r[0])
+    options = dict(lens_options or {})
+    target = np.asarray(options.get("target_mm", DEFAULT_TARGET_MM), float) + [0.0, shift, 0.0]
+    return make_lens(lens.family, lens.width, lens.height, seed, **{**options, "target_mm": tuple(target)})
+
+
 def _frames(camera, z_nominal, flats, periods, steps, low, high, boards) -> list[Frame]:
     frames = []
     for i, z in enumerate(z_nominal):
@@ -129,8 +164,8 @@ def _frames(camera, z_nominal, flats, periods, steps, low, high, boards) -> list
             frames.append(Frame(camera, f"{folder}/{camera}_flat_{level}.png", Pattern("flat", {"level": level}),
                                 z_mm=z))
         for axis in ("x", "y"):
-            for p in periods:
-                for k, shift in enumerate(fringe_shifts(int(steps))):
+            for p, n in zip(periods, steps):
+                for k, shift in enumerate(fringe_shifts(int(n))):
                     frames.append(Frame(camera, f"{folder}/{camera}_{axis}_P{p:g}_s{k}.png",
                                         Pattern("fringe", {"axis": axis, "period_px": p, "shift_rad": shift,
                                                            "low": low, "high": high}), z_mm=z))
@@ -148,6 +183,8 @@ def _chess_placements(cam: SimCamera, display: SimDisplay, pose: DisplayPose) ->
     needs)."""
     cr = cam.view(display, pose).display_cr
     lo, hi = np.percentile(cr.reshape(-1, 2), [2, 98], axis=0)
+    lo = np.maximum(lo, 0.0)                            # and on the display, if it does not fill the field
+    hi = np.minimum(hi, [display.width_px - 1.0, display.height_px - 1.0])
     outline = np.concatenate([cr[0], cr[1:, -1], cr[-1, -2::-1], cr[-2:0:-1, 0]]).astype(np.float32)
     field = hi - lo
     size = int(0.65 * min(field[0] / CHESS_SQUARES[0], field[1] / CHESS_SQUARES[1]))
@@ -181,10 +218,12 @@ def _inside(outline: np.ndarray, board: dict, margin: float) -> bool:
                for c, r in ((c0, r0), (c0 + w, r0), (c0, r0 + h), (c0 + w, r0 + h)))
 
 
-def _truth(cam: SimCamera, display: SimDisplay, stage: SimStage, seed: int, noise: bool, camera: str):
+def _truth(cam: SimCamera, display: SimDisplay, stage: SimStage, seed: int, noise: bool, camera: str,
+           ambient: float, ambient_variation: float, overexposure: float):
     """The true PRVM with the rig's other truths: stage positions, the display's true poses, gain and
-    vignetting maps, and the display coordinates (c, r) each pixel centre's ray reaches at each true
-    pose."""
+    vignetting maps (and the hot pixels' and ambient light's, if any), and the display coordinates
+    (c, r) each pixel centre's ray reaches at each true pose (outside 0..width-1, 0..height-1 by more
+    than half a pixel: the ray misses the display's pixel area)."""
     lens = cam.lens
     o, d = lens.rays(*lens.pixel_grid())
     display_cr = np.stack([np.stack(display.hit(o, d, pose), axis=-1) for pose in stage.poses])
@@ -201,12 +240,17 @@ def _truth(cam: SimCamera, display: SimDisplay, stage: SimStage, seed: int, nois
                "lateral_um": stage.lateral_um, "true_tilt_deg": stage.tilts_deg.tolist(),
                "true_lateral_mm": stage.lateral_mm.tolist()},
         display={"fill_factor": list(display.fill_factor), "stripes": display.stripes,
-                 "black_level": display.black_level, "gamma": display.gamma},
+                 "black_level": display.black_level, "gamma": display.gamma, **display.flaws()},
         sensor={**cam.sensor.__dict__, "exposure_e": cam.exposure_e, "supersample": cam.supersample,
-                "diffraction_sigma_px": cam.sigma_px})
+                "diffraction_sigma_px": cam.sigma_px, "ambient": ambient, "ambient_variation": ambient_variation,
+                "overexposure": overexposure})
     prvm.extra = {"stage_nominal_z_mm": np.array(stage.nominal_mm, float),
                   "stage_true_z_mm": np.array(stage.true_mm, float),
                   "display_rotation": np.array([p.R for p in stage.poses]),
                   "display_translation_mm": np.array([p.t for p in stage.poses]), "gain": cam.gain,
                   "vignetting": cam.vignetting, "display_cr": display_cr.astype(np.float32)}
+    if cam.hot_e is not None:
+        prvm.extra["hot_pixels_e"] = cam.hot_e
+    if cam.ambient is not None:
+        prvm.extra["ambient"] = cam.ambient
     return prvm
