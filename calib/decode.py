@@ -33,10 +33,10 @@ MODULATION_FRACTION = 0.2
 # makes a wrong fringe order (a disagreement beyond 0.75 period) a 7-sigma event
 MAX_MISMATCH_SIGMA = 0.1
 # the display's edge (`display_edge`): the modulation's profile is measured out to this distance (camera
-# pixels) from the pixels that do not see the display, its far half being the reference; a fall below
-# the reference by more than EDGE_FALL (or 3 times the reference bins' own spread) marks the edge
+# pixels) from the bezel; a shortfall from its plateau beyond EDGE_FALL (or the profile's ripple) marks
+# the edge
 EDGE_PROFILE_PX = 16
-EDGE_FALL = 0.02
+EDGE_FALL = 0.05
 
 
 @dataclass
@@ -145,6 +145,7 @@ def decode_position(capture: Capture, camera: str, z_mm: float, im: IntensityMat
     extent = {"x": display.width_px, "y": display.height_px}
     coords, mods, means, steps, shortest, mismatch = [], [], [], [], [], {}
     clip_any = np.zeros((h, w), bool)
+    raw_mods = []
     quality = np.zeros((h, w), np.uint8)
     if im is not None:
         quality[~np.isfinite(im.gain)] |= DARK
@@ -177,7 +178,8 @@ def decode_position(capture: Capture, camera: str, z_mm: float, im: IntensityMat
                 if progress is not None:
                     progress()
             lit = (sums.raw_max >= DARK_FRACTION * full) & (sums.raw_max < full)
-            res = sums.solve(full, DARK_FRACTION * full, 0.0, None if im is None else (im.offset, im.gain))
+            res = sums.solve(full, DARK_FRACTION * full, 0.0, None if im is None else (im.offset, im.gain),
+                             raw_modulation=period == periods[-1])
             if im is not None:
                 correct_phase(res, _waveform_correction(capture, frames, im))
             res.quality[~(res.modulation >= _modulation_floor(res.modulation, lit))] |= LOW_MODULATION
@@ -206,22 +208,22 @@ def decode_position(capture: Capture, camera: str, z_mm: float, im: IntensityMat
         quality[~un.consistent] |= UNWRAP
         coords.append(un.coord)
         mods.append(last.modulation)
+        raw_mods.append(last.raw_modulation)
         means.append(last.offset)
         steps.append(last.frames)
         shortest.append(periods[-1])
     coord = np.stack(coords)
     quality[~np.isfinite(coord).all(axis=0)] |= NO_DATA
-    mod = np.stack(mods)
     # the edge shows in the camera's own modulation: the IM's per-pixel gain, measured on flats seen
     # through the same mix of display and bezel, would cancel it
-    raw_mod = mod if im is None else mod * im.gain
-    quality[display_edge(coord, raw_mod, quality, (display.width_px, display.height_px))] |= EDGE
+    quality[display_edge(coord, np.stack(raw_mods), quality, (display.width_px, display.height_px))] |= EDGE
+    del raw_mods
     if not (quality == 0).any():
         _raise_unusable(capture, camera, z_mm, quality, first_file)
     lost = (quality & SATURATED) != 0
     clipped = (int(np.count_nonzero(clip_any & ~lost)), int(np.count_nonzero(clip_any & lost)))
-    return DecodedPosition(float(z_mm), coord, mod, np.stack(means), quality, tuple(steps), tuple(shortest),
-                           mismatch, clipped)
+    return DecodedPosition(float(z_mm), coord, np.stack(mods), np.stack(means), quality, tuple(steps),
+                           tuple(shortest), mismatch, clipped)
 
 
 def display_edge(coord: np.ndarray, modulation: np.ndarray, quality: np.ndarray,
@@ -230,23 +232,25 @@ def display_edge(coord: np.ndarray, modulation: np.ndarray, quality: np.ndarray,
     part of the bezel, which biases the decoded point towards the display's inside.
 
     coord: (2, H, W) decoded display (c, r); modulation: (2, H, W) B of each axis in camera values (not
-    normalised per pixel); quality: the flags so far; extent: the display's (width_px, height_px). The bezel is where pixels see no fringe (DARK,
-    LOW_MODULATION, NO_DATA; not SATURATED, which sees the display). How far its influence reaches is
-    measured, not assumed: the median modulation of the good pixels at each whole distance d (camera
-    pixels) from the bezel, over a line fitted to the medians at EDGE_PROFILE_PX / 2 .. EDGE_PROFILE_PX
-    (vignetting), falls below 1 near the edge; the reach is the largest d where it is below
-    1 - max(EDGE_FALL, 3 x the spread of those reference bins about their line). A good pixel is at the edge when it is within the reach of the bezel and its
-    decoded point within reach + 2 camera pixels (in display pixels) of the display's border, so that
-    bezel-like spots inside the display (dust, hot pixels) leave their neighbours alone. With too few
-    pixels near the border to measure (fewer than 30 per distance), the pixels next to the bezel are
-    the edge."""
+    normalised per pixel; NaN taken as 0); quality: the flags so far; extent: the display's
+    (width_px, height_px). The bezel is where pixels see no usable fringe (DARK, LOW_MODULATION, NO_DATA,
+    UNWRAP; not SATURATED, which sees the display). The good pixels next to it straddle the edge (a sampled image
+    cannot place an edge finer than a pixel) and are the edge; how much farther the bezel's influence
+    reaches is measured: the median modulation of the good pixels at each whole distance d (camera
+    pixels) from the bezel against its plateau, the median over d = EDGE_PROFILE_PX / 2 ..
+    EDGE_PROFILE_PX, whose lowest bin (the display grid's aliasing ripples the profile) sets the
+    tolerance; the edge extends over the run of distances from the bezel where the modulation falls
+    short of the plateau by more than that or EDGE_FALL. Only pixels whose decoded point lies
+    within EDGE_PROFILE_PX + 2 camera pixels (in display pixels) of the display's border are
+    considered, so that bezel-like spots inside the display (dust, hot pixels) leave their neighbours
+    alone."""
     good = quality == 0
-    bezel = (quality & (DARK | LOW_MODULATION | NO_DATA)) != 0
+    bezel = ((quality & (DARK | LOW_MODULATION | NO_DATA | UNWRAP)) != 0) & ((quality & SATURATED) == 0)
     edge = np.zeros(quality.shape, bool)
     if not bezel.any() or not good.any():
         return edge
-    dist = cv2.distanceTransform((~bezel).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    cand = np.nonzero(good & (dist <= EDGE_PROFILE_PX))
+    din = cv2.distanceTransform((~bezel).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    cand = np.nonzero(good & (din <= EDGE_PROFILE_PX))
     if not cand[0].size:
         return edge
     c, r = coord[0][cand], coord[1][cand]
@@ -255,25 +259,21 @@ def display_edge(coord: np.ndarray, modulation: np.ndarray, quality: np.ndarray,
     scale = np.concatenate([np.hypot(*np.gradient(a[::4, ::4]))[sample] for a in coord]) / 4
     scale = float(np.percentile(scale[np.isfinite(scale)], 95)) if np.isfinite(scale).any() else 1.0
     near = border < (EDGE_PROFILE_PX + 2) * scale
-    b = (modulation[0][cand][near] + modulation[1][cand][near]) / 2
-    d = np.rint(dist[cand][near]).astype(int)
-    medians = np.full(EDGE_PROFILE_PX + 1, np.nan)
-    for k in range(1, EDGE_PROFILE_PX + 1):
-        at = b[d == k]
-        if at.size >= 30:
-            medians[k] = np.median(at)
+    rows, cols = cand[0][near], cand[1][near]
+    d = np.rint(din[rows, cols]).astype(int)
+    b = np.nan_to_num((modulation[0][rows, cols] + modulation[1][rows, cols]) / 2)
+    medians = np.array([np.median(b[d == k]) if np.count_nonzero(d == k) >= 30 else np.nan
+                        for k in range(EDGE_PROFILE_PX + 1)])
     half = EDGE_PROFILE_PX // 2
-    far = np.arange(half, EDGE_PROFILE_PX + 1)
-    far = far[np.isfinite(medians[far])]
+    ref = medians[half:][np.isfinite(medians[half:])]
     reach = 1
-    if far.size >= 3 and np.isfinite(medians[1:half]).all():
-        line = np.polynomial.Polynomial.fit(far, medians[far], 1)
-        spread = float(np.std(medians[far] / line(far) - 1))
-        ratio = medians[1:half] / line(np.arange(1, half))
-        low = np.flatnonzero(ratio < 1 - max(EDGE_FALL, 3 * spread))
-        reach = int(low.max()) + 1 if low.size else 0
-    hit = (dist[cand] <= reach) & (border < (reach + 2) * scale)
-    edge[cand[0][hit], cand[1][hit]] = True
+    if ref.size >= 3:
+        plateau = float(np.median(ref))
+        low = plateau - max(EDGE_FALL * plateau, plateau - float(ref.min()))
+        while reach + 1 < half and medians[reach + 1] < low:      # the run of short bins from the bezel
+            reach += 1
+    hit = d <= reach
+    edge[rows[hit], cols[hit]] = True
     return edge
 
 

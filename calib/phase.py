@@ -45,7 +45,8 @@ class WrappedPhase:
     modulation: B, in the units of the frames given (float32); noise: per-pixel sigma_I estimated from the
     fit residual (float32; NaN when the pixel's fit has no redundancy, e.g. 3 frames); quality: flag
     bits; clipped: (K, H, W) uint64 per-pixel bit masks of the frames left out as clipped (bit j of
-    word k: frame 64 k + j), or None where clipping was not tracked."""
+    word k: frame 64 k + j), or None where clipping was not tracked; raw_modulation: B in the raw
+    frames' units, before any linearisation (float32; None unless asked for)."""
 
     phase: np.ndarray
     offset: np.ndarray
@@ -54,6 +55,7 @@ class WrappedPhase:
     quality: np.ndarray
     frames: int
     clipped: np.ndarray | None = None
+    raw_modulation: np.ndarray | None = None
 
 
 class FringeSums:
@@ -113,15 +115,16 @@ class FringeSums:
         self.frames += 1
 
     def solve(self, full_scale: float, dark_level: float, min_modulation: float,
-              linearise: tuple[np.ndarray, np.ndarray] | None = None) -> WrappedPhase:
+              linearise: tuple[np.ndarray, np.ndarray] | None = None, raw_modulation: bool = False) -> WrappedPhase:
         """The wrapped phase and its quality.
 
         full_scale: the raw saturation value (with clipping tracked, the one given to the constructor;
         without, a frame reaching it marks the pixel SATURATED); dark_level: raw values whose brightest
         frame stays below it are DARK; min_modulation: B below it (decoding units) is LOW_MODULATION;
         linearise: (offset, gain) (H, W) of y = (I - offset) / gain, the decoding domain of offset,
-        modulation and noise (the phase does not depend on it; NaN where the gain is NaN). Raises
-        ValueError if the shifts do not determine the phase.
+        modulation and noise (the phase does not depend on it; NaN where the gain is NaN);
+        raw_modulation: also return B in the raw frames' units (defined where the gain is NaN too).
+        Raises ValueError if the shifts do not determine the phase.
         """
         if np.linalg.matrix_rank(self.normal) < 3:
             raise ValueError("the phase shifts of this fringe set do not determine the phase "
@@ -137,16 +140,20 @@ class FringeSums:
         squares = len(self.sums) == 4
         dof = self.frames - 3 if squares else 0
         shifts = np.asarray(self.shifts)
+        raw_mod = np.empty(self.shape, np.float32) if raw_modulation else None
         _solve(self.sums.reshape(len(self.sums), -1), inv, dof, squares, self.normal, np.cos(shifts),
                np.sin(shifts), self.clip.reshape(len(self.clip), -1) if track else _NO_MASK,
                self.high.reshape(len(self.high), -1) if track else _NO_MASK,
                np.float32(full_scale), np.float32(dark_level), np.float32(min_modulation),
                self.raw_max.reshape(-1).astype(np.float32), lin_offset, lin_gain,
-               *(o.reshape(-1) for o in (phase, offset, modulation, noise, quality)))
-        return WrappedPhase(phase, offset, modulation, noise, quality, self.frames, self.clip if track else None)
+               *(o.reshape(-1) for o in (phase, offset, modulation, noise, quality)),
+               _EMPTY if raw_mod is None else raw_mod.reshape(-1))
+        return WrappedPhase(phase, offset, modulation, noise, quality, self.frames, self.clip if track else None,
+                            raw_mod)
 
 
 _EMPTY = np.zeros(0, np.float32)
+_NO_INDEX = np.zeros(0, np.int64)
 _NO_MASK = np.zeros((0, 0), np.uint64)
 
 
@@ -279,12 +286,14 @@ def _fit_unclipped(s0, s1, s2, s3, squares, normal, cos, sin, clip, high, i, ful
 
 @numba.njit(cache=True, parallel=True)
 def _solve(sums, inv, dof, squares, normal, cos, sin, clip, high, full, dark, min_mod, raw_max, lin_offset,
-           lin_gain, phase, offset, modulation, noise, quality):  # pragma: no cover - compiled
-    """`_pixel` of every pixel of the accumulated sums (`_fit_unclipped` where samples were clipped)."""
+           lin_gain, phase, offset, modulation, noise, quality, raw_mod):  # pragma: no cover - compiled
+    """`_pixel` of every pixel of the accumulated sums (`_fit_unclipped` where samples were clipped);
+    raw_mod (if not empty) gets the modulation before the linearisation."""
     linearise = lin_offset.size > 0
     track = clip.shape[0] > 0
     zero, one = np.float32(0), np.float32(1)
     inf = np.float32(np.inf)
+    want_raw = raw_mod.size > 0
     for i in numba.prange(offset.size):
         s3 = sums[3, i] if squares else zero
         o, g = (lin_offset[i], lin_gain[i]) if linearise else (zero, one)
@@ -299,6 +308,8 @@ def _solve(sums, inv, dof, squares, normal, cos, sin, clip, high, full, dark, mi
         else:
             a, b, c, sd = _fit(sums[0, i], sums[1, i], sums[2, i], s3, inv, dof)
             ok = True
+        if want_raw:
+            raw_mod[i] = np.sqrt(b * b + c * c)
         phase[i], offset[i], modulation[i], noise[i], quality[i] = _pixel(
             a, b, c, sd, o, g, raw_max[i], inf if track else full, dark, min_mod)
         if not ok:
@@ -389,18 +400,25 @@ def correct_phase(wrapped: WrappedPhase, correction: WaveformCorrection, unclipp
     out = raw.copy() if unclipped_done else correction(raw)
     if wrapped.clipped is not None:
         solved = (np.bitwise_or.reduce(wrapped.clipped, axis=0) != 0) & ((wrapped.quality & SATURATED) == 0)
-        if solved.any():
-            rows, cols = np.nonzero(solved)
-            masks = wrapped.clipped[:, rows, cols].T                    # (pixels, words)
+        idx = np.flatnonzero(solved)
+        if idx.size:
+            masks = wrapped.clipped.reshape(len(wrapped.clipped), -1)[:, idx].T      # (pixels, words)
             kinds, which = np.unique(masks, axis=0, return_inverse=True)
+            which = which.ravel()
             k = np.arange(wrapped.frames)
+            tables = np.empty((len(kinds), correction._table.size), np.float32)
+            usable = np.ones(len(kinds), bool)
             for j, mask in enumerate(kinds):
                 keep = (mask[k // 64] >> (k % 64).astype(np.uint64)) & np.uint64(1) == 0
-                sel = which.ravel() == j
                 try:
-                    out[rows[sel], cols[sel]] = correction.subset(keep)(raw[rows[sel], cols[sel]])
+                    tables[j] = correction.subset(keep)._table
                 except ValueError:
-                    wrapped.quality[rows[sel], cols[sel]] |= SATURATED
+                    usable[j] = False
+                    tables[j] = correction._table
+            fixed = np.empty(idx.size, np.float32)
+            _correct(np.ascontiguousarray(raw.reshape(-1)[idx]), tables, which, correction._scale, fixed)
+            out.reshape(-1)[idx] = fixed
+            wrapped.quality.reshape(-1)[idx[~usable[which]]] |= SATURATED
     wrapped.phase = out
 
 
@@ -451,14 +469,16 @@ class WaveformCorrection:
         """The true phase (radians, (-pi, pi]) of decoded phases (float32)."""
         phase = np.asarray(phase, np.float32)
         out = np.empty_like(phase)
-        _correct(_flat(phase), self._table, self._scale, out.reshape(-1))
+        _correct(_flat(phase), self._table[None], _NO_INDEX, self._scale, out.reshape(-1))
         return out
 
 
 @numba.njit(cache=True, parallel=True)
-def _correct(phase, table, scale, out):  # pragma: no cover - compiled
+def _correct(phase, tables, which, scale, out):  # pragma: no cover - compiled
+    """out = `_undistort` of each phase with the table tables[which[i]] (which empty: tables[0])."""
+    one = which.size == 0
     for i in numba.prange(phase.size):
-        out[i] = _undistort(phase[i], table, scale)
+        out[i] = _undistort(phase[i], tables[0] if one else tables[which[i]], scale)
 
 
 @numba.njit(cache=True, inline="always")
