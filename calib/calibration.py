@@ -124,7 +124,7 @@ def _coverage_notes(camera: str, quality: np.ndarray, valid: np.ndarray) -> list
     rows, cols = np.nonzero(masked)
     reasons = ", ".join(f"{name} {np.mean(quality & flag > 0):.1%}" for flag, name in QUALITY_NAMES.items()
                         if (quality & flag).any())
-    edge = masked[0].any() or masked[-1].any() or masked[:, 0].any() or masked[:, -1].any()
+    edge = max(masked[0].mean(), masked[-1].mean(), masked[:, 0].mean(), masked[:, -1].mean()) > 0.1
     hint = (" - does the display cover the camera's whole field of view at every stage position?"
             if edge else "")
     return [f"camera {camera!r}: {masked.mean():.1%} of the pixels are not calibrated (columns "

@@ -8,17 +8,16 @@ import pytest
 from calib.calibration import calibrate_camera
 from calib.capture import load_capture
 from calib.errors import InputError
-from calib.evaluate import ErrorStats, ray_error_px
+from calib.evaluate import ErrorStats, positions_seen, ray_error_px
 from calib.prvm_file import PRVM, load_prvm
 
 sim = pytest.importorskip("scanners.sim.calibration")
 
 
 def seen_count(truth) -> np.ndarray:
-    """(H, W) how many stage positions' displays each pixel centre's TRUE ray lands on (pixel area)."""
-    cr = truth.extra["display_cr"]
-    inside = (cr[..., 0] >= -0.5) & (cr[..., 0] <= 1919.5) & (cr[..., 1] >= -0.5) & (cr[..., 1] <= 1079.5)
-    return inside.sum(axis=0)
+    """(H, W) how many stage positions' displays (the default 1920 x 1080) each pixel centre's TRUE ray
+    lands on."""
+    return positions_seen(truth, 1920, 1080)
 
 
 @pytest.mark.slow
