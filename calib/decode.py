@@ -240,7 +240,7 @@ def display_edge(coord: np.ndarray, modulation: np.ndarray, quality: np.ndarray,
     pixels) from the bezel against its plateau, the median over d = EDGE_PROFILE_PX / 2 ..
     EDGE_PROFILE_PX, whose lowest bin (the display grid's aliasing ripples the profile) sets the
     tolerance; the edge extends over the run of distances from the bezel where the modulation falls
-    short of the plateau by more than that or EDGE_FALL. Only pixels whose decoded point lies
+    short of the plateau by more than that or EDGE_FALL and still rises. Only pixels whose decoded point lies
     within EDGE_PROFILE_PX + 2 camera pixels (in display pixels) of the display's border are
     considered, so that bezel-like spots inside the display (dust, hot pixels) leave their neighbours
     alone."""
@@ -270,7 +270,9 @@ def display_edge(coord: np.ndarray, modulation: np.ndarray, quality: np.ndarray,
     if ref.size >= 3:
         plateau = float(np.median(ref))
         low = plateau - max(EDGE_FALL * plateau, plateau - float(ref.min()))
-        while reach + 1 < half and medians[reach + 1] < low:      # the run of short bins from the bezel
+        # the run of short bins from the bezel, while the modulation still rises (the edge's shortfall
+        # shrinks with the distance; the ripple's comes and goes)
+        while reach + 1 < half and medians[reach + 1] < low and medians[reach + 1] > medians[reach]:
             reach += 1
     hit = d <= reach
     edge[rows[hit], cols[hit]] = True

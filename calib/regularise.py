@@ -23,13 +23,18 @@ the fit interpolated between the two neighbouring windows of the ladder, so the 
 A global polynomial (`_base`) is removed first and the local fits smooth the remainder: of degree 3,
 or up to 6 where that models the field to within its noise (a Brown-Conrady lens's r^4 terms; not a
 free-form lens's bumps), so that what is left for the local fits is small and the large windows fit it
-without bias up to the border. Masked
-pixels are filled with the remainder's nearest valid value; windows less than `coverage` valid are not
-used beyond the smallest. At the image border a window becomes one-sided and `edge_span` times longer
-(the off-centre evaluation of a polynomial is noisier), and the larger windows fit a line there
-(`Adaptive.edge_order`), which the base has made enough; the smallest keeps the cubic, for a local
-bump near the border. Window sums come from running sums (numba), so a window costs the same whatever
-its size.
+without bias up to the border. Small holes in the valid pixels are filled with the remainder's nearest
+valid value; windows less than `coverage` valid (among their pixels inside the data) are not used
+beyond the smallest. At the border of the data - the image's, or where a larger invalid area begins,
+such as the band a display that does not fill the view leaves - a window becomes one-sided and
+`edge_span` times longer (the off-centre evaluation of a polynomial is noisier), and the larger windows
+fit a line there (`Adaptive.edge_order`), which the base has made enough; the smallest keeps the cubic,
+for a local bump near the border. Window sums come from running sums (numba), so a window costs the
+same whatever its size.
+
+Where the ladder starts is measured (`finest_scale`): the finest scale of the structure the fields of
+two stage planes share (the lens's), told from the noise and the display's own errors, which differ
+between the planes.
 """
 
 from __future__ import annotations
