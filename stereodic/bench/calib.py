@@ -165,9 +165,7 @@ def real_bench(lens: str, width: int, height: int, root: str, name: str, flaws) 
 def _real_bench_figures(width: int, height: int, root: str, ideal: dict) -> list[Figure]:
     """The real bench's figures: each lens with every flaw (`REAL_BENCH`), the Brown-Conrady lens with
     each flaw alone (and a 10-bit sensor), against the ideal bench (`ideal`: lens -> its `_stats`)."""
-    import dataclasses
-
-    from scanners.sim.flaws import REAL_BENCH, each_flaw
+    from scanners.sim.flaws import REAL_BENCH, Flaws, each_flaw
     figs = []
     for lens in LENSES:
         r = real_bench(lens, width, height, root, "real bench", REAL_BENCH)
@@ -176,8 +174,7 @@ def _real_bench_figures(width: int, height: int, root: str, ideal: dict) -> list
                                "px", "ideal bench", ideal[lens][where].rms))
         figs.append(Figure(f"calib/{lens}", "real bench: share calibrated of the pixels seeing the display twice",
                            r["coverage"], "", "ideal bench", ideal[lens]["plane"].valid))
-    rows = each_flaw(REAL_BENCH) + [("bit depth 10", dataclasses.replace(type(REAL_BENCH)(), bit_depth=10)),
-                                    ("all together", REAL_BENCH)]
+    rows = each_flaw(REAL_BENCH) + [("bit depth 10", Flaws(bit_depth=10)), ("all together", REAL_BENCH)]
     for name, flaws in rows:
         r = real_bench("brown", width, height, root, name, flaws)
         for where in ("plane", "volume"):
