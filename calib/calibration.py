@@ -1,11 +1,17 @@
 """The calibration pipeline of one camera: capture -> decoded display points -> per-pixel rays (PRVM).
 
 1. Intensity matrix from the flat frames (at the first stage position, or the nearest one with flats).
-2. Each stage position decoded to display pixels (`calib.decode`), then to WCS points
-   (`Capture.display_to_wcs`: pitch, stage position and stage axis).
-3. A weighted least-squares line per pixel through its points (2 or more positions); with a cover glass
+2. Each stage position decoded to display pixels (`calib.decode`; a Bayer camera channel by channel,
+   `calib.bayer`), then to WCS points (`Capture.display_to_wcs`: pitch, stage position and stage axis).
+3. With 3 or more positions, the display's pose at each is refined from the data (`calib.stage_poses`:
+   tilt, and the z and lateral errors off the nominal travel) and used where it lowers the residual
+   significantly.
+4. A weighted least-squares line per pixel through its points (2 or more positions); with a cover glass
    the points are corrected for refraction using the fitted direction, and the lines refitted.
-4. The ray field regularised (`calib.regularise`), and the per-pixel uncertainty estimated.
+5. The ray field regularised (`calib.regularise`; a Bayer camera's each colour's photosites as their
+   own field), and the per-pixel uncertainty estimated.
+
+A stage-free capture (frames with `pose`) takes `calib.handheld` instead: the poses and rays together.
 """
 
 from __future__ import annotations
@@ -21,11 +27,9 @@ from calib.errors import InputError
 from calib.intensity import IntensityMatrix
 from calib.phase import QUALITY_NAMES
 from calib.progress import progress
-from calib.prvm import Lines, fit_lines, glass_offset
+from calib.prvm import GLASS_ITERATIONS, Lines, fit_lines, fit_posed_lines, glass_offset
 from calib.prvm_file import PRVM
 from calib.regularise import Adaptive, Smoother, deepest_half, finest_scale, smooth_fields
-
-GLASS_ITERATIONS = 4
 AUTO = Adaptive(half_window=-1)          # marker: choose the windows from the data (`auto_smoother`)
 # warn when more than this fraction of the pixels could not be calibrated
 MASKED_WARNING = 0.001
@@ -39,9 +43,12 @@ class Calibration:
     """Result of `calibrate_camera`.
 
     prvm: the rays to save (regularised unless regularisation was turned off); raw: the unregularised
-    lines; lines: the final lines; positions: the decoded stage positions; quality: (H, W) uint8, the
-    OR of the flags of every position at which the pixel's point was dropped; intensity: the IM of the
-    first position (None without flats); notes: warnings for the user (masked areas, missing flats).
+    lines; lines: the final lines; positions: the decoded stage positions (or poses); quality: (H, W)
+    uint8, the OR of the flags of every position at which the pixel's point was dropped; intensity: the
+    IM of the first position (None without flats; a Bayer camera's: `calib.bayer.BayerIntensity`);
+    notes: warnings for the user (masked areas, missing flats, poses left out); poses: the estimated
+    display poses (`calib.handheld.PoseReport`, or the stage's, `calib.stage_poses.StageFit`; None when
+    the nominal stage positions were used without refinement).
     """
 
     prvm: PRVM
@@ -51,6 +58,7 @@ class Calibration:
     quality: np.ndarray
     intensity: IntensityMatrix | None
     notes: list[str] = field(default_factory=list)
+    poses: object | None = None
 
 
 def default_camera(capture: Capture, camera: str | None) -> str:
@@ -66,8 +74,12 @@ def default_camera(capture: Capture, camera: str | None) -> str:
 
 
 def decode_all(capture: Capture, camera: str) -> tuple[list[DecodedPosition], IntensityMatrix | None, list[str]]:
-    """Decode every stage position of `camera`; returns (positions, IM of the first position, notes)."""
-    zs = capture.z_positions(camera)
+    """Decode every stage position (or pose) of `camera`; returns (positions, IM of the first position,
+    notes)."""
+    if camera in capture.bayer:
+        from calib.bayer import decode_bayer
+        return decode_bayer(capture, camera)
+    zs = capture.positions(camera)
     notes = []
     n_frames = len(capture.select(camera, type="fringe"))
     bar = progress(range(n_frames), desc=f"decoding {camera}", total=n_frames)
@@ -80,7 +92,7 @@ def decode_all(capture: Capture, camera: str) -> tuple[list[DecodedPosition], In
     if im is None:
         notes.append("no flat frames: the display's response is not compensated (a display gamma "
                      "then leaves a periodic phase error); capture flats at several levels")
-    flat_zs = {f.z_mm for f in capture.select(camera, type="flat")}
+    flat_zs = {f.pose if capture.posed else f.z_mm for f in capture.select(camera, type="flat")}
     positions = []
     for z in zs:
         im_z = im
@@ -90,22 +102,35 @@ def decode_all(capture: Capture, camera: str) -> tuple[list[DecodedPosition], In
     return positions, im, notes
 
 
+def point_weights(position: DecodedPosition) -> np.ndarray:
+    """(H, W) float32 weight of each pixel's decoded point: its inverse variance in display pixels^2
+    (0 where not decoded). The sigma of a coordinate ~ period / (B sqrt(N)), on the same scale at
+    every position of a pixel."""
+    p = position
+    var = sum((per / (np.maximum(m, 1e-6) * np.sqrt(n))) ** 2 for per, m, n in zip(p.period_px, p.modulation, p.steps))
+    return np.where(p.valid, 1.0 / var, 0.0).astype(np.float32)
+
+
 def _points(capture: Capture, positions: list[DecodedPosition]) -> tuple[np.ndarray, np.ndarray]:
-    """(M, H, W, 2) WCS x, y of the decoded points and (M, H, W) weights (inverse relative variance)."""
+    """(M, H, W, 2) WCS x, y of the decoded points and (M, H, W) weights (`point_weights`)."""
     h, w = positions[0].valid.shape
     pts = np.empty((len(positions), h, w, 2))
     wts = np.empty((len(positions), h, w), np.float32)
     for i, p in enumerate(positions):
         pts[i] = capture.display_to_wcs(p.coord[0], p.coord[1], p.z_mm)[..., :2]
-        # sigma of a coordinate ~ period / (B sqrt(N)); the same scale for every position of a pixel
-        var = sum((per / (np.maximum(m, 1e-6) * np.sqrt(n))) ** 2
-                  for per, m, n in zip(p.period_px, p.modulation, p.steps))
-        wts[i] = np.where(p.valid, 1.0 / var, 0.0)
+        wts[i] = point_weights(p)
     return pts, wts
 
 
-def fit_rays(capture: Capture, positions: list[DecodedPosition], z_ref: float = 0.0) -> Lines:
-    """Least-squares lines through the decoded points, corrected for the cover glass if declared."""
+def fit_rays(capture: Capture, positions: list[DecodedPosition], z_ref: float = 0.0, poses=None) -> Lines:
+    """Least-squares lines through the decoded points, corrected for the cover glass if declared.
+
+    poses: the displays' estimated poses in the WCS (rotation (M, 3, 3), translation (M, 3)), for
+    points off the nominal stage positions (`calib.stage_poses`); None: the nominal positions."""
+    if poses is not None:
+        return fit_posed_lines([p.coord for p in positions], [point_weights(p) for p in positions], poses[0],
+                               poses[1], capture.display.pitch_mm, glass=capture.display.cover_glass,
+                               z_ref=z_ref).lines
     z = np.array([p.z_mm for p in positions])
     points, weights = _points(capture, positions)
     lines = fit_lines(z, points, weights, z_ref)
@@ -170,8 +195,8 @@ def _regularisation_meta(smoother: Smoother | Adaptive | None, mean_window_px: f
             "threshold_sigma": smoother.threshold, "mean_window_px": mean_window_px}
 
 
-def _smooth_plane(raw: Lines, z_mm: float, smoother: Smoother | Adaptive,
-                  regularised: bool) -> tuple[np.ndarray | None, np.ndarray, float]:
+def smooth_plane(raw: Lines, z_mm: float, smoother: Smoother | Adaptive,
+                 regularised: bool) -> tuple[np.ndarray | None, np.ndarray, float]:
     """Smooth the points x, y (WCS mm) where the raw lines cross the plane z = z_mm.
 
     regularised: whether the smoothed points are the result (else the raw points stay, and only their
@@ -186,57 +211,49 @@ def _smooth_plane(raw: Lines, z_mm: float, smoother: Smoother | Adaptive,
     return reg.fields.transpose(1, 2, 0) if regularised else None, sigma, float(np.nanmean(reg.window))
 
 
-def calibrate_camera(capture: Capture, camera: str | None = None, smoother: Smoother | Adaptive | None = AUTO,
-                     z_ref: float = 0.0) -> Calibration:
-    """Calibrate one camera of a calibration dataset.
-
-    smoother: the regularisation (AUTO: `auto_smoother`; a `Smoother`: one fixed window; None: rays are
-    left unregularised, but the noise is still estimated with the automatic smoother for the
-    uncertainty). z_ref: the plane (WCS z, mm) of the rays' origins.
-    """
-    camera = default_camera(capture, camera)
-    if capture.kind != "calibration":
-        raise InputError(capture.manifest_path, f"dataset kind is {capture.kind!r}, expected 'calibration'")
-    zs = capture.z_positions(camera)
-    if len(zs) < 2:
-        raise InputError(capture.manifest_path, f"camera {camera!r} has frames at {len(zs)} stage position(s); "
-                                                "a ray needs at least 2 (or use --reduced)")
-    positions, im, notes = decode_all(capture, camera)
-    raw = fit_rays(capture, positions, z_ref)
-    quality = np.zeros(raw.valid.shape, np.uint8)
-    for p in positions:
-        quality |= np.where(p.valid, 0, p.quality).astype(np.uint8)
-    if not raw.valid.any():
-        raise InputError(capture.manifest_path, f"camera {camera!r}: no pixel was decoded at 2 or more "
-                                                "stage positions")
-    notes += _coverage_notes(camera, quality, raw.valid) + _clipping_notes(camera, positions)
-
-    z_a, z_b = zs[0], zs[-1]
+def regularise_lines(capture: Capture, camera: str, raw: Lines, positions: list[DecodedPosition],
+                     smoother: Smoother | Adaptive | None, z_a: float, z_b: float,
+                     z_ref: float) -> tuple[Lines, np.ndarray, dict | None]:
+    """The regularised lines (the points where `raw` crosses the planes z = z_a and z = z_b smoothed;
+    a Bayer camera's colours each on their own, `calib.bayer.smooth_planes`), their (H, W, 2) float32
+    1-sigma uncertainty on those planes, and `meta.regularisation`. smoother: as `calibrate_camera`'s
+    (None: raw lines, the noise still estimated)."""
     used = auto_smoother(positions) if smoother is None or smoother == AUTO else smoother
-    smoother = None if smoother is None else used
+    regularised = smoother is not None
+    if camera in capture.bayer:
+        from calib.bayer import smooth_planes
+        smooth = smooth_planes(capture.bayer[camera], positions, smoother)
+    else:
+        def smooth(lines, z):
+            return smooth_plane(lines, z, used, regularised)
     try:
-        xy_a, sigma_a, window_a = _smooth_plane(raw, z_a, used, regularised=smoother is not None)
-        xy_b, sigma_b, window_b = _smooth_plane(raw, z_b, used, regularised=smoother is not None)
+        xy_a, sigma_a, window_a = smooth(raw, z_a)
+        xy_b, sigma_b, window_b = smooth(raw, z_b)
     except ValueError as exc:
         raise InputError(capture.manifest_path, f"camera {camera!r}: {exc}") from None
     sigma = np.stack([sigma_a, sigma_b], axis=2)
-    if smoother is not None:
-        lines = Lines.through(z_a, xy_a, z_b, xy_b, raw.valid, raw.residual_mm, raw.used, z_ref)
-    else:
-        lines = raw
-    del xy_a, xy_b, sigma_a, sigma_b           # 5 MP: 210 MB less beside the PRVM arrays below
+    lines = Lines.through(z_a, xy_a, z_b, xy_b, raw.valid, raw.residual_mm, raw.used, z_ref) if regularised else raw
+    return lines, sigma, _regularisation_meta(None if not regularised else used, (window_a + window_b) / 2)
 
-    meta = {"camera": camera, "dataset": os.fspath(capture.root), "reference_z_mm": z_ref,
-            "z_positions_mm": zs, "stage_axis": list(capture.stage_axis),
+
+def ray_meta(capture: Capture, camera: str, positions: list[DecodedPosition], im, regularisation: dict | None,
+             z_a: float, z_b: float, z_ref: float, notes: list[str]) -> dict:
+    """The PRVM meta every calibration writes (stage-specific or pose-specific keys are added to it)."""
+    return {"camera": camera, "dataset": os.fspath(capture.root), "reference_z_mm": z_ref,
             "periods_px": {a: sorted({float(f.pattern.period_px) for f in capture.select(camera, type="fringe",
                                                                                           axis=a)}) for a in "xy"},
             "steps": [list(p.steps) for p in positions][0],
-            "regularisation": _regularisation_meta(smoother, (window_a + window_b) / 2),
+            "regularisation": regularisation,
             "cover_glass": None if capture.display.cover_glass is None else vars(capture.display.cover_glass),
             "intensity_matrix": im is not None,
             "clipped_pixels": [list(p.clipped) for p in positions],
+            **({"bayer": capture.bayer[camera]} if camera in capture.bayer else {}),
             "uncertainty_z_mm": [z_a, z_b],
             "notes": notes}
+
+
+def ray_prvm(raw: Lines, lines: Lines, sigma: np.ndarray, quality: np.ndarray, im, meta: dict) -> PRVM:
+    """The PRVM of final `lines` (`raw`: the unregularised fit, for its residual and counts)."""
     extra = {"quality": quality, "uncertainty_mm": sigma.astype(np.float32, copy=False),
              "used_positions": raw.used.astype(np.uint8)}
     if im is not None:
@@ -244,4 +261,54 @@ def calibrate_camera(capture: Capture, camera: str | None = None, smoother: Smoo
     prvm = PRVM(lines.origin(), lines.direction(), raw.valid.copy(), raw.residual_mm, meta, extra)
     prvm.origin[~prvm.valid] = np.nan
     prvm.direction[~prvm.valid] = np.nan
-    return Calibration(prvm, raw, lines, positions, quality, im, notes)
+    return prvm
+
+
+def dropped_quality(positions: list[DecodedPosition]) -> np.ndarray:
+    """(H, W) uint8: the OR of the flags of every position at which the pixel's point was dropped."""
+    quality = np.zeros(positions[0].valid.shape, np.uint8)
+    for p in positions:
+        quality |= np.where(p.valid, 0, p.quality).astype(np.uint8)
+    return quality
+
+
+def calibrate_camera(capture: Capture, camera: str | None = None, smoother: Smoother | Adaptive | None = AUTO,
+                     z_ref: float = 0.0, *, refine: bool = True) -> Calibration:
+    """Calibrate one camera of a calibration dataset.
+
+    smoother: the regularisation (AUTO: `auto_smoother`; a `Smoother`: one fixed window; None: rays are
+    left unregularised, but the noise is still estimated with the automatic smoother for the
+    uncertainty). z_ref: the plane (WCS z, mm) of the rays' origins. refine: with 3 or more stage
+    positions, estimate the display's pose at each (`calib.stage_poses`) and use it where it lowers the
+    residual significantly. A stage-free capture (poses) is calibrated by `calib.handheld`.
+    """
+    camera = default_camera(capture, camera)
+    if capture.kind != "calibration":
+        raise InputError(capture.manifest_path, f"dataset kind is {capture.kind!r}, expected 'calibration'")
+    if capture.posed:
+        from calib.handheld import calibrate_handheld
+        return calibrate_handheld(capture, camera, smoother, z_ref)
+    zs = capture.z_positions(camera)
+    if len(zs) < 2:
+        raise InputError(capture.manifest_path, f"camera {camera!r} has frames at {len(zs)} stage position(s); "
+                                                "a ray needs at least 2 (or use --reduced)")
+    positions, im, notes = decode_all(capture, camera)
+    stage = None
+    if refine and len(zs) >= 3:
+        from calib.stage_poses import estimate_stage
+        stage = estimate_stage(capture, positions)
+    raw = fit_rays(capture, positions, z_ref, None if stage is None or not stage.used else stage.poses)
+    quality = dropped_quality(positions)
+    if not raw.valid.any():
+        raise InputError(capture.manifest_path, f"camera {camera!r}: no pixel was decoded at 2 or more "
+                                                "stage positions")
+    notes += _coverage_notes(camera, quality, raw.valid) + _clipping_notes(camera, positions)
+
+    z_a, z_b = zs[0], zs[-1]
+    lines, sigma, regularisation = regularise_lines(capture, camera, raw, positions, smoother, z_a, z_b, z_ref)
+    meta = ray_meta(capture, camera, positions, im, regularisation, z_a, z_b, z_ref, notes)
+    meta.update({"z_positions_mm": zs, "stage_axis": list(capture.stage_axis)})
+    if stage is not None:
+        meta["stage_poses"] = stage.to_json()
+    prvm = ray_prvm(raw, lines, sigma, quality, im, meta)
+    return Calibration(prvm, raw, lines, positions, quality, im, notes, stage)

@@ -26,6 +26,10 @@ from calib.imageio import image_size, read_gray, write_gray
 FORMAT = "stereodic.capture/1"
 KINDS = ("calibration", "scan", "dic")
 MANIFEST = "capture.json"
+BAYER_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
+# the fewest display poses of a stage-free capture: three planes at unknown poses fix a generic
+# (non-central) ray field (Sturm and Ramalingam 2004); each pixel's line then has 2 spare equations
+MIN_POSES = 3
 
 # Pattern types and the keys each one requires. "fringe": a phase-shifting fringe of DESIGN.md;
 # "flat": a uniform grey level (intensity calibration); "chessboard": squares of `square_px` display
@@ -113,11 +117,14 @@ class Frame:
     exposure_ms: float | None = None
     repeat: int | None = None
     extra: dict = field(default_factory=dict)
+    pose: int | None = None
 
     def to_json(self) -> dict:
         d: dict[str, Any] = {"camera": self.camera, "file": self.file}
         if self.z_mm is not None:
             d["z_mm"] = self.z_mm
+        if self.pose is not None:
+            d["pose"] = self.pose
         if self.state is not None:
             d["state"] = self.state
         d["pattern"] = self.pattern.to_json()
@@ -130,7 +137,7 @@ class Frame:
 
     def identity(self) -> tuple:
         """What makes two frames the same capture (a duplicate if it appears twice)."""
-        return (self.camera, self.z_mm, self.state, self.pattern.key(), self.repeat or 0)
+        return (self.camera, self.z_mm, self.pose, self.state, self.pattern.key(), self.repeat or 0)
 
 
 @dataclass
@@ -145,6 +152,12 @@ class Capture:
     stage_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
     extra: dict = field(default_factory=dict)     # other top-level keys (projector, notes, ...), kept
     bit_depth: dict[str, int] = field(default_factory=dict)  # camera -> bits per pixel, where declared
+    bayer: dict[str, str] = field(default_factory=dict)      # camera -> raw mosaic layout, where declared
+
+    @property
+    def posed(self) -> bool:
+        """Whether this is a stage-free capture (frames carry `pose`, not `z_mm`)."""
+        return any(f.pose is not None for f in self.frames)
 
     @property
     def manifest_path(self) -> Path:
@@ -191,7 +204,7 @@ class Capture:
                 continue
             ok = True
             for k, v in where.items():
-                have = getattr(f, k) if k in ("z_mm", "state", "repeat", "exposure_ms") else (
+                have = getattr(f, k) if k in ("z_mm", "pose", "state", "repeat", "exposure_ms") else (
                     f.pattern.type if k == "type" else f.pattern.params.get(k))
                 if have != v:
                     ok = False
@@ -203,6 +216,23 @@ class Capture:
     def z_positions(self, camera: str) -> list[float]:
         """The distinct stage positions (mm) at which `camera` has frames, sorted."""
         return sorted({f.z_mm for f in self.frames if f.camera == camera and f.z_mm is not None})
+
+    def poses(self, camera: str) -> list[int]:
+        """The distinct display poses at which `camera` has frames (a stage-free capture), sorted."""
+        return sorted({f.pose for f in self.frames if f.camera == camera and f.pose is not None})
+
+    def positions(self, camera: str) -> list:
+        """Where the display stood for `camera`'s frames: the poses (ints) of a stage-free capture, else
+        the stage positions (mm)."""
+        return self.poses(camera) if self.posed else self.z_positions(camera)
+
+    def at(self, position) -> dict:
+        """The `select` keyword of one position: {"pose": N} or {"z_mm": z}."""
+        return {"pose": position} if self.posed else {"z_mm": position}
+
+    def label(self, position) -> str:
+        """One position in words, for messages: "pose 3" or "z=50 mm"."""
+        return f"pose {position}" if self.posed else f"z={position:g} mm"
 
     def states(self, camera: str) -> list[int]:
         """The distinct states (load steps) of `camera`, sorted."""
@@ -229,8 +259,9 @@ class Capture:
             d["display"] = self.display.to_json()
         if tuple(self.stage_axis) != (0.0, 0.0, 1.0):
             d["stage"] = {"axis": list(self.stage_axis)}
-        d["cameras"] = {n: {"width": w, "height": h, **({"bit_depth": self.bit_depth[n]}
-                                                          if n in self.bit_depth else {})}
+        d["cameras"] = {n: {"width": w, "height": h,
+                            **({"bit_depth": self.bit_depth[n]} if n in self.bit_depth else {}),
+                            **({"bayer": self.bayer[n]} if n in self.bayer else {})}
                         for n, (w, h) in self.cameras.items()}
         d.update(self.extra)
         d["frames"] = [f.to_json() for f in self.frames]
@@ -316,7 +347,7 @@ def _parse_pattern(where: Path, i: int, p: Any) -> Pattern:
     return Pattern(t, params)
 
 
-_FRAME_KEYS = {"camera", "file", "pattern", "z_mm", "state", "exposure_ms", "repeat"}
+_FRAME_KEYS = {"camera", "file", "pattern", "z_mm", "pose", "state", "exposure_ms", "repeat"}
 
 
 def _parse_frame(where: Path, i: int, f: Any, cameras: dict, kind: str) -> Frame:
@@ -327,14 +358,19 @@ def _parse_frame(where: Path, i: int, f: Any, cameras: dict, kind: str) -> Frame
             raise InputError(where, f"frame {i} lacks '{k}'")
     if f["camera"] not in cameras:
         raise InputError(where, f"frame {i}: camera {f['camera']!r} is not in 'cameras'")
-    if kind == "calibration" and "z_mm" not in f:
-        raise InputError(where, f"frame {i} ({f['file']}): calibration frames need 'z_mm'")
+    if kind == "calibration" and "z_mm" not in f and "pose" not in f:
+        raise InputError(where, f"frame {i} ({f['file']}): calibration frames need 'z_mm' (a stage position) "
+                                "or 'pose' (a stage-free capture)")
+    if "z_mm" in f and "pose" in f:
+        raise InputError(where, f"frame {i} ({f['file']}): has both 'z_mm' and 'pose'; a frame is either "
+                                "at a stage position or at a display pose")
     if kind in ("scan", "dic") and "state" not in f:
         raise InputError(where, f"frame {i} ({f['file']}): {kind} frames need 'state'")
     pattern = _parse_pattern(where, i, f.get("pattern", {"type": "none"}))
     return Frame(
         camera=f["camera"], file=str(f["file"]), pattern=pattern,
         z_mm=None if f.get("z_mm") is None else _num(where, f"frame {i}: z_mm", f["z_mm"]),
+        pose=None if f.get("pose") is None else _pose(where, i, f["pose"]),
         state=None if f.get("state") is None else _num(where, f"frame {i}: state", f["state"], integer=True),
         exposure_ms=None if f.get("exposure_ms") is None else _num(where, f"frame {i}: exposure_ms",
                                                                     f["exposure_ms"], positive=True),
@@ -342,6 +378,41 @@ def _parse_frame(where: Path, i: int, f: Any, cameras: dict, kind: str) -> Frame
                                                          integer=True),
         extra={k: v for k, v in f.items() if k not in _FRAME_KEYS},
     )
+
+
+def _pose(where: Path, i: int, v) -> int:
+    pose = _num(where, f"frame {i}: pose", v, integer=True)
+    if pose < 0:
+        raise InputError(where, f"frame {i}: pose must be a whole number >= 0, got {v!r}")
+    return pose
+
+
+def _check_poses(where: Path, frames: list[Frame]) -> None:
+    """A capture has `z_mm` on every calibration frame or `pose` on every one; every pose of a camera
+    shows the same fringe sets (axis and period, 3 or more distinct shifts each)."""
+    posed = [f for f in frames if f.pose is not None]
+    if not posed:
+        return
+    staged = [f for f in frames if f.z_mm is not None]
+    if staged:
+        raise InputError(where, f"mixes stage positions and display poses: {staged[0].file} has 'z_mm', "
+                                f"{posed[0].file} has 'pose'; a capture has one or the other on every frame")
+    for camera in sorted({f.camera for f in frames}):
+        sets: dict[int, dict[tuple, set]] = {}
+        for f in posed:
+            if f.camera == camera:
+                by_set = sets.setdefault(f.pose, {})
+                if f.pattern.type == "fringe":
+                    key = (f.pattern.axis, float(f.pattern.period_px))
+                    by_set.setdefault(key, set()).add(round(float(f.pattern.shift_rad), 9))
+        every = set().union(*(s.keys() for s in sets.values()))
+        for pose in sorted(sets):
+            for axis, period in sorted(every):
+                shifts = sets[pose].get((axis, period), set())
+                if len(shifts) < 3:
+                    have = f"only {len(shifts)} distinct shift(s)" if shifts else "none of its frames"
+                    raise InputError(where, f"camera {camera!r}, pose {pose}: the {axis} fringe set of period "
+                                            f"{period:g} px is incomplete ({have}; other poses have it)")
 
 
 def load_capture(path: str | os.PathLike, check_images: bool = True,
@@ -386,7 +457,7 @@ def load_capture(path: str | os.PathLike, check_images: bool = True,
     cams = d.get("cameras")
     if not isinstance(cams, dict) or not cams:
         raise InputError(manifest, "'cameras' must name at least one camera")
-    cameras, bits = {}, {}
+    cameras, bits, bayer = {}, {}, {}
     for name, c in cams.items():
         if not isinstance(c, dict) or "width" not in c or "height" not in c:
             raise InputError(manifest, f"camera {name!r} needs width and height")
@@ -396,10 +467,16 @@ def load_capture(path: str | os.PathLike, check_images: bool = True,
             bits[name] = _num(manifest, f"camera {name}: bit_depth", c["bit_depth"], positive=True, integer=True)
             if not 1 <= bits[name] <= 16:
                 raise InputError(manifest, f"camera {name}: bit_depth must be 1..16, got {bits[name]}")
+        if c.get("bayer") is not None:
+            if c["bayer"] not in BAYER_PATTERNS:
+                raise InputError(manifest, f"camera {name}: bayer must be one of {', '.join(BAYER_PATTERNS)}, "
+                                           f"got {c['bayer']!r}")
+            bayer[name] = c["bayer"]
     raw_frames = d.get("frames")
     if not isinstance(raw_frames, list) or not raw_frames:
         raise InputError(manifest, "'frames' must be a non-empty list")
     frames = [_parse_frame(manifest, i, f, cameras, kind) for i, f in enumerate(raw_frames)]
+    _check_poses(manifest, frames)
 
     seen_files: dict[str, int] = {}
     seen_ids: dict[tuple, int] = {}
@@ -410,21 +487,25 @@ def load_capture(path: str | os.PathLike, check_images: bool = True,
         seen_files[f.file] = i
         if f.identity() in seen_ids:
             raise InputError(manifest, f"duplicate frame: frames {seen_ids[f.identity()]} and {i} are the same "
-                                       f"capture ({f.camera}, z={f.z_mm}, state={f.state}, "
+                                       f"capture ({f.camera}, {'pose' if f.pose is not None else 'z'}="
+                                       f"{f.pose if f.pose is not None else f.z_mm}, state={f.state}, "
                                        f"{f.pattern.key()}); give each a distinct 'repeat'")
         seen_ids[f.identity()] = i
 
-    if min_positions is None:
-        min_positions = 2 if kind == "calibration" else 0
     cap = Capture(manifest.parent, kind, cameras, frames, display, axis,
                   {k: v for k, v in d.items()
-                   if k not in ("format", "kind", "display", "stage", "cameras", "frames")}, bits)
+                   if k not in ("format", "kind", "display", "stage", "cameras", "frames")}, bits, bayer)
+    if min_positions is None:
+        min_positions = (MIN_POSES if cap.posed else 2) if kind == "calibration" else 0
     for name in cameras:
         if not cap.select(name):
             raise InputError(manifest, f"camera {name!r} has no frames")
-        if min_positions and len(cap.z_positions(name)) < min_positions:
-            raise InputError(manifest, f"camera {name!r} has frames at {len(cap.z_positions(name))} stage "
-                                       f"position(s); at least {min_positions} are needed")
+        have = len(cap.positions(name))
+        if min_positions and have < min_positions:
+            what = "display pose(s)" if cap.posed else "stage position(s)"
+            raise InputError(manifest, f"camera {name!r} has frames at {have} {what}; at least {min_positions} "
+                                       f"are needed" + (" (a stage-free calibration fixes the poses and rays "
+                                                        "together)" if cap.posed else ""))
     if check_images:
         for f in frames:
             w, h = image_size(cap.path(f))
@@ -445,12 +526,12 @@ class CaptureWriter:
 
     def __init__(self, root: str | os.PathLike, kind: str, cameras: dict[str, tuple[int, int]],
                  display: Display | None = None, stage_axis=(0.0, 0.0, 1.0), extra: dict | None = None,
-                 bit_depth: dict[str, int] | None = None):
+                 bit_depth: dict[str, int] | None = None, bayer: dict[str, str] | None = None):
         root = Path(root)
         if kind not in KINDS:
             raise ValueError(f"kind must be one of {KINDS}")
         self.capture = Capture(root, kind, dict(cameras), [], display, tuple(stage_axis), dict(extra or {}),
-                               dict(bit_depth or {}))
+                               dict(bit_depth or {}), dict(bayer or {}))
         if (root / MANIFEST).is_file():
             old = load_capture(root, check_images=False, min_positions=0)
             if old.kind != kind or old.cameras != self.capture.cameras:
@@ -490,5 +571,5 @@ def fringe_frame(camera: str, file: str, z_mm: float | None, axis: str, period_p
                  z_mm=z_mm, **kw)
 
 
-__all__ = ["FORMAT", "KINDS", "MANIFEST", "CoverGlass", "Display", "Pattern", "Frame", "Capture",
+__all__ = ["FORMAT", "KINDS", "MANIFEST", "BAYER_PATTERNS", "MIN_POSES", "CoverGlass", "Display", "Pattern", "Frame", "Capture",
            "CaptureWriter", "load_capture", "fringe_frame"]

@@ -41,7 +41,8 @@ EDGE_FALL = 0.05
 
 @dataclass
 class DecodedPosition:
-    """Display coordinates seen by each camera pixel at one stage position.
+    """Display coordinates seen by each camera pixel at one stage position (or display pose: z_mm NaN,
+    `pose` its number).
 
     coord: (2, H, W) float64 display pixels (column c, row r); modulation, mean: (2, H, W) float32 fringe
     amplitude B and mean A of the shortest period (decoding units: relative luminance with an intensity
@@ -61,15 +62,16 @@ class DecodedPosition:
     period_px: tuple[float, float]
     mismatch_sigma: dict = field(default_factory=dict)
     clipped: tuple[int, int] = (0, 0)
+    pose: int | None = None
 
     @property
     def valid(self) -> np.ndarray:
         return self.quality == 0
 
 
-def _frames_by_set(capture: Capture, camera: str, z_mm: float) -> dict[str, dict[float, list[Frame]]]:
+def _frames_by_set(capture: Capture, camera: str, z_mm) -> dict[str, dict[float, list[Frame]]]:
     sets: dict[str, dict[float, list[Frame]]] = {a: defaultdict(list) for a in AXES}
-    for f in capture.select(camera, z_mm=z_mm, type="fringe"):
+    for f in capture.select(camera, **capture.at(z_mm), type="fringe"):
         sets[f.pattern.axis][float(f.pattern.period_px)].append(f)
     return sets
 
@@ -86,16 +88,18 @@ def read_ahead(capture: Capture, frames: list[Frame], depth: int = 2) -> Iterato
             yield f, image
 
 
-def intensity_matrix(capture: Capture, camera: str, z_mm: float) -> IntensityMatrix | None:
-    """The IM from the flat frames at stage position z_mm, or at the nearest position that has flats;
-    None if the dataset has no flats for this camera. Repeated flats are averaged."""
+def intensity_matrix(capture: Capture, camera: str, z_mm) -> IntensityMatrix | None:
+    """The IM from the flat frames at stage position z_mm, or at the nearest position that has flats
+    (a stage-free capture: at pose z_mm, else the first pose with flats); None if the dataset has no
+    flats for this camera. Repeated flats are averaged."""
     flats = capture.select(camera, type="flat")
     if not flats:
         return None
-    zs = sorted({f.z_mm for f in flats}, key=lambda z: (abs(z - z_mm), z))
+    where = (lambda f: f.pose) if capture.posed else (lambda f: f.z_mm)
+    zs = sorted({where(f) for f in flats}, key=lambda z: (z != z_mm, abs(z - z_mm), z))
     by_level: dict[float, list[Frame]] = defaultdict(list)
     for f in flats:
-        if f.z_mm == zs[0]:
+        if where(f) == zs[0]:
             by_level[float(f.pattern.level)].append(f)
     levels = sorted(by_level)
     w, h = capture.cameras[camera]
@@ -112,7 +116,7 @@ def intensity_matrix(capture: Capture, camera: str, z_mm: float) -> IntensityMat
         return fit_intensity(levels, images, full, min_range=DARK_FRACTION * full)
     except ValueError as exc:
         raise InputError(capture.path(by_level[levels[0]][0]).parent, f"flat frames of camera {camera!r} at "
-                                                                      f"z={zs[0]} mm: {exc}") from None
+                                                                      f"{capture.label(zs[0])}: {exc}") from None
 
 
 def _waveform_correction(capture: Capture, frames: list[Frame], im: IntensityMatrix) -> WaveformCorrection:
@@ -153,12 +157,12 @@ def decode_position(capture: Capture, camera: str, z_mm: float, im: IntensityMat
     for axis in AXES:
         if not sets[axis]:
             raise InputError(capture.manifest_path, f"camera {camera!r} has no {axis}-axis fringes at "
-                                                    f"z={z_mm} mm (both axes are needed)")
+                                                    f"{capture.label(z_mm)} (both axes are needed)")
     for axis in AXES:
         for period, frames in sets[axis].items():
             if len({round(f.pattern.shift_rad, 9) for f in frames}) < 3:
                 raise InputError(capture.manifest_path,
-                                 f"camera {camera!r}, z={z_mm} mm: the {axis} fringe of period {period:g} px "
+                                 f"camera {camera!r}, {capture.label(z_mm)}: the {axis} fringe of period {period:g} px "
                                  f"has {len(frames)} frame(s) with fewer than 3 distinct shifts")
     order = {axis: sorted(sets[axis], reverse=True) for axis in AXES}
     stream = read_ahead(capture, [f for axis in AXES for period in order[axis] for f in sets[axis][period]])
@@ -198,7 +202,7 @@ def decode_position(capture: Capture, camera: str, z_mm: float, im: IntensityMat
         for (p_long, p_short), s in zip(zip(periods, periods[1:]), un.mismatch_sigma):
             if s > MAX_MISMATCH_SIGMA:
                 raise InputError(capture.manifest_path,
-                                 f"camera {camera!r}, z={z_mm} mm, {axis} fringes: the period ratio "
+                                 f"camera {camera!r}, {capture.label(z_mm)}, {axis} fringes: the period ratio "
                                  f"{p_long:g}/{p_short:g} = {p_long / p_short:.3g} is too large for the "
                                  f"measured phase noise (the periods disagree by {s:.3f} period RMS, safe "
                                  f"<= {MAX_MISMATCH_SIGMA}); add a period near {np.sqrt(p_long * p_short):.0f} px"
@@ -222,8 +226,9 @@ def decode_position(capture: Capture, camera: str, z_mm: float, im: IntensityMat
         _raise_unusable(capture, camera, z_mm, quality, first_file)
     lost = (quality & SATURATED) != 0
     clipped = (int(np.count_nonzero(clip_any & ~lost)), int(np.count_nonzero(clip_any & lost)))
-    return DecodedPosition(float(z_mm), coord, np.stack(mods), np.stack(means), quality, tuple(steps),
-                           tuple(shortest), mismatch, clipped)
+    return DecodedPosition(np.nan if capture.posed else float(z_mm), coord, np.stack(mods), np.stack(means),
+                           quality, tuple(steps), tuple(shortest), mismatch, clipped,
+                           z_mm if capture.posed else None)
 
 
 def display_edge(coord: np.ndarray, modulation: np.ndarray, quality: np.ndarray,
@@ -302,4 +307,4 @@ def _raise_unusable(capture: Capture, camera: str, z_mm: float, quality: np.ndar
     else:
         why = "no pixel has a usable fringe (low modulation everywhere)"
     raise InputError(where if where is not None else capture.manifest_path,
-                     f"camera {camera!r}, z={z_mm} mm: {why}")
+                     f"camera {camera!r}, {capture.label(z_mm)}: {why}")

@@ -32,6 +32,28 @@ def working_plane(truth: PRVM) -> float:
     return float(z[0]) if z is not None and len(z) else truth.reference_z_mm
 
 
+MAX_MEDIAN_ERROR_PX = 20.0  # a calibration this far from a truth everywhere is not of the truth's camera
+
+
+def check_truth(estimate: PRVM, truth: PRVM, estimate_name: str, truth_name: str) -> None:
+    """InputError (naming `truth_name`) unless `truth` can be the truth of the camera `estimate`
+    calibrated: the same size, the same camera name where both files record one, and rays that meet
+    the truth's on the working plane (median error below MAX_MEDIAN_ERROR_PX camera pixels: a
+    calibration that far off everywhere is another camera's, dataset's or WCS's)."""
+    from calib.errors import InputError
+    if (estimate.width, estimate.height) != (truth.width, truth.height):
+        raise InputError(truth_name, f"is the truth of a {truth.width}x{truth.height} camera, but {estimate_name} "
+                                     f"is {estimate.width}x{estimate.height}")
+    a, b = estimate.meta.get("camera"), truth.meta.get("camera")
+    if a and b and a != b:
+        raise InputError(truth_name, f"is the truth of camera {b!r}, but {estimate_name} calibrated {a!r}")
+    err = ray_error_px(estimate, truth)
+    median = float(np.nanmedian(err)) if np.isfinite(err).any() else float("nan")
+    if not median <= MAX_MEDIAN_ERROR_PX:
+        raise InputError(truth_name, f"is not the truth of {estimate_name}: their rays are a median {median:.0f} "
+                                     f"camera pixels apart (another camera, dataset or world frame?)")
+
+
 def ray_error_px(estimate: PRVM | tuple, truth: PRVM, z_mm: float | None = None,
                  footprint: float | None = None) -> np.ndarray:
     """(H, W) float64 error in camera pixels on the plane z = z_mm (default `working_plane`); NaN where

@@ -17,34 +17,67 @@ from calib.atomic import atomic_output
 from calib.errors import InputError
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
+SUPPORTED_MODES = ("1", "L", "LA", "P", "RGB", "RGBA", "I;16", "I;16B", "I;16L", "I;16N", "I")  # PIL's names
+_TIFF_DATA = ((273, 279), (324, 325))  # TIFF tags (offsets, byte counts) of strips and of tiles
+
+
+def _check_file(path: Path) -> None:
+    if path.is_dir():
+        raise InputError(path, "is a directory, not an image file")
+    if not path.is_file():
+        raise InputError(path, "image file is missing")
 
 
 def image_size(path: str | os.PathLike) -> tuple[int, int]:
-    """(width, height) from the file header alone; InputError if missing or not an image."""
+    """(width, height) from the file header alone; InputError naming the file if it is missing, not a
+    readable image, of an unsupported pixel type, or shorter than its header says (a PNG's chunk
+    checksums are verified, a TIFF's strips or tiles must lie inside the file), so that thousands of
+    images are checked in seconds before any work."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "image file is missing")
+    _check_file(path)
     try:
         with Image.open(path) as im:
-            return im.size
-    except Exception as exc:  # PIL raises several types for unreadable files
-        raise InputError(path, f"not a readable image ({exc.__class__.__name__})") from None
+            size, mode, fmt = im.size, im.mode, im.format
+            tags = dict(im.tag_v2) if fmt == "TIFF" else {}
+        if fmt == "PNG":
+            with Image.open(path) as im:
+                im.verify()
+    except Exception:  # PIL raises several types for unreadable files
+        raise InputError(path, "not a readable image (8/16-bit PNG or TIFF)") from None
+    if mode not in SUPPORTED_MODES:
+        raise InputError(path, f"pixel type {mode!r} is not supported (8- or 16-bit grey or colour)")
+    for offsets, counts in _TIFF_DATA:
+        if offsets in tags and counts in tags:
+            o, c = (v if isinstance(v, tuple) else (v,) for v in (tags[offsets], tags[counts]))
+            end = max(a + b for a, b in zip(o, c))
+            if end > path.stat().st_size:
+                raise InputError(path, f"the file is cut short ({path.stat().st_size} bytes; its image data "
+                                       f"runs to byte {end})")
+    return size
 
 
 def read_gray(path: str | os.PathLike) -> np.ndarray:
     """Read an image as a 2-D uint8 or uint16 array (colour -> luminance, alpha dropped)."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "image file is missing")
+    _check_file(path)
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
-        raise InputError(path, "not a readable image")
+        raise InputError(path, "not a readable image (8/16-bit PNG or TIFF)")
     if img.ndim == 3:
         code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
         img = cv2.cvtColor(img, code)
     if img.dtype not in (np.uint8, np.uint16):
         raise InputError(path, f"pixel type {img.dtype} is not supported (8- or 16-bit grayscale)")
     return img
+
+
+def write_rgb(path: str | os.PathLike, img: np.ndarray) -> None:
+    """Write an (H, W, 3) uint8 RGB image as PNG (or any format cv2 writes by extension), atomically."""
+    if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
+        raise ValueError(f"write_rgb wants an (H, W, 3) uint8 array, got {img.shape} {img.dtype}")
+    with atomic_output(path) as tmp:
+        if not cv2.imwrite(str(tmp), img[:, :, ::-1]):
+            raise OSError(f"{path}: could not write image")
 
 
 def write_gray(path: str | os.PathLike, img: np.ndarray) -> None:

@@ -14,22 +14,36 @@ import numpy as np
 from calib.errors import InputError
 
 
-def read_npz(path: str | os.PathLike, fmt: str, what: str,
-             advice: dict[str, str] | None = None) -> tuple[dict, dict[str, np.ndarray]]:
-    """(meta, arrays without meta) of the file at `path`, which must be a `fmt` file.
+def read_npz(path: str | os.PathLike, fmt: str | tuple[str, ...], what: str,
+             advice: dict[str, str] | None = None, keys: tuple[str, ...] | None = None
+             ) -> tuple[dict, dict[str, np.ndarray]]:
+    """(meta, arrays without meta) of the file at `path`, which must be a `fmt` file (or of one of the
+    formats, a tuple); `keys`: read only these arrays (default all), e.g. the small ones of a large file.
 
     what: the kind of file in messages ("PRVM", "rig", ...). advice: for formats a user may pass by
     mistake, a hint added to the message (e.g. {"stereodic.prvm/1": "a camera file: build a rig ..."}).
     Raises InputError naming the file: missing, not a readable .npz, no JSON meta, another format.
     """
     path = Path(path)
+    if path.is_dir():
+        raise InputError(path, f"is a directory, not a {what} file")
     if not path.is_file():
         raise InputError(path, f"{what} file is missing")
     try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except OSError as exc:
+        raise InputError(path, f"cannot be read ({exc.strerror})") from None
+    if not head:
+        raise InputError(path, f"is empty, not a {what} file")
+    if head != b"PK\x03\x04":
+        raise InputError(path, f"not a readable {what} file: not an .npz (zip) archive")
+    try:
         with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except Exception as exc:  # numpy raises several types for a file that is not an .npz
-        raise InputError(path, f"not a readable {what} file ({exc.__class__.__name__})") from None
+            arrays = {k: z[k] for k in z.files if keys is None or k in keys or k == "meta"}
+    except Exception:  # zipfile and numpy raise several types for a damaged archive
+        raise InputError(path, f"not a readable {what} file: the .npz archive is damaged or holds other "
+                               "than numpy arrays") from None
     if "meta" not in arrays:
         raise InputError(path, f"not a {what} file: lacks 'meta'")
     try:
@@ -37,7 +51,9 @@ def read_npz(path: str | os.PathLike, fmt: str, what: str,
     except json.JSONDecodeError:
         raise InputError(path, "'meta' is not valid JSON") from None
     found = meta.get("format") if isinstance(meta, dict) else None
-    if found != fmt:
+    formats = (fmt,) if isinstance(fmt, str) else fmt
+    if found not in formats:
         hint = (advice or {}).get(str(found))
-        raise InputError(path, f"format is {found!r}, expected {fmt!r}" + (f" ({hint})" if hint else ""))
+        expected = " or ".join(repr(f) for f in formats)
+        raise InputError(path, f"format is {found!r}, expected {expected}" + (f" ({hint})" if hint else ""))
     return meta, arrays

@@ -2,8 +2,9 @@
 OpenCV FileStorage YAML that holds one.
 
 OpenCV's conventions: x_cam = R x_world + t; pixel = K * distort(x_cam / z_cam); distortion coefficients
-(k1, k2, p1, p2[, k3[, k4, k5, k6[, s1..s4[, tau_x, tau_y]]]]). With the WCS of DESIGN.md the camera
-must look along +z (towards the display), so that every ray has a positive z component.
+(k1, k2, p1, p2[, k3[, k4, k5, k6[, s1..s4[, tau_x, tau_y]]]]); the model itself (projection and its
+exact inverse) is `calib.camera_models`. With the WCS of DESIGN.md the camera must look along +z (towards
+the display), so that every ray has a positive z component.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from calib.camera_models import CameraModel, prvm_of
 from calib.errors import InputError
 from calib.prvm_file import PRVM
 
@@ -48,59 +50,27 @@ class PinholeCamera:
     def rvec(self) -> np.ndarray:
         return cv2.Rodrigues(self.R)[0].ravel()
 
+    def model(self, name: str = "cam0") -> CameraModel:
+        """The camera as a `calib.camera_models.CameraModel` (OpenCV lens, skew K[0, 1])."""
+        return CameraModel(self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2], self.K[0, 1], "opencv",
+                           self.dist, self.R, self.t, self.width, self.height, name)
+
 
 def prvm_from_opencv(K, dist, rvec, tvec, width: int, height: int, reference_z_mm: float = 0.0,
                      camera: str = "cam0") -> PRVM:
     """The PRVM of an OpenCV-calibrated camera: every pixel's ray through the optical centre.
 
-    K: 3x3; dist: OpenCV distortion coefficients (any supported length, or None); rvec (3,) Rodrigues
-    vector or 3x3 matrix and tvec (3,) mm: the world-to-camera pose. Ray origins on z = reference_z_mm.
-    Pixels are undistorted with OpenCV's iterative inverse and then refined by Newton steps on
-    cv2.projectPoints until they re-project within 1e-9 pixel (OpenCV's inverse alone is not exact for
-    strong distortion).
+    K: 3x3 (K[0, 1] is the skew, which OpenCV itself ignores); dist: OpenCV distortion coefficients (any
+    supported length, or None); rvec (3,) Rodrigues vector or 3x3 matrix and tvec (3,) mm: the world-to-
+    camera pose. Ray origins on z = reference_z_mm. Pixels are inverted exactly through the model
+    (`calib.camera_models.unproject`, to 1e-10 pixel). InputError if the camera does not look along +z.
     """
     cam = PinholeCamera(K, np.zeros(5) if dist is None else dist, rvec, tvec, width, height)
-    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
-    pix = np.stack([u.ravel(), v.ravel()], axis=-1)
-    xy = undistort_exact(pix, cam.K, cam.dist)
-    d_cam = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
-    d = d_cam @ cam.R  # R^T d for each row: camera frame -> world frame
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    if not (np.isfinite(d).all() and (d[:, 2] > 1e-9).all()):
-        raise InputError(None, "the OpenCV camera does not look along +z of the world frame (every ray must "
-                               "move away from the camera in z)")
-    c = cam.centre
-    origin = c + ((reference_z_mm - c[2]) / d[:, 2])[:, None] * d
-    meta = {"camera": camera, "width": width, "height": height, "reference_z_mm": float(reference_z_mm),
-            "dataset": "imported from an OpenCV calibration",
-            "opencv": {"K": cam.K.tolist(), "dist": cam.dist.tolist(), "rvec": cam.rvec.tolist(),
-                       "tvec": cam.t.tolist()}}
-    return PRVM(origin.reshape(height, width, 3), d.reshape(height, width, 3), np.ones((height, width), bool),
-                None, meta)
-
-
-def undistort_exact(pix: np.ndarray, K: np.ndarray, dist: np.ndarray, tol_px: float = 1e-9,
-                    iterations: int = 8) -> np.ndarray:
-    """(N, 2) normalised camera coordinates (x/z, y/z) that OpenCV projects onto pixels `pix` (N, 2)."""
-    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-    xy = cv2.undistortPoints(pix.reshape(-1, 1, 2), K, dist, criteria=criteria).reshape(-1, 2)
-    h = 1e-7
-    for _ in range(iterations):
-        f = _project(xy, K, dist)
-        r = f - pix
-        if np.abs(r).max() < tol_px:
-            break
-        jx = (_project(xy + [h, 0], K, dist) - f) / h
-        jy = (_project(xy + [0, h], K, dist) - f) / h
-        det = jx[:, 0] * jy[:, 1] - jx[:, 1] * jy[:, 0]
-        xy = xy - np.stack([jy[:, 1] * r[:, 0] - jy[:, 0] * r[:, 1],
-                            jx[:, 0] * r[:, 1] - jx[:, 1] * r[:, 0]], axis=-1) / det[:, None]
-    return xy
-
-
-def _project(xy: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    pts = np.concatenate([xy, np.ones((len(xy), 1))], axis=1).reshape(-1, 1, 3)
-    return cv2.projectPoints(pts, np.zeros(3), np.zeros(3), K, dist)[0].reshape(-1, 2)
+    prvm = prvm_of(cam.model(camera), reference_z_mm=reference_z_mm,
+                   dataset="imported from an OpenCV calibration")
+    prvm.meta["opencv"] = {"K": cam.K.tolist(), "dist": cam.dist.tolist(), "rvec": cam.rvec.tolist(),
+                           "tvec": cam.t.tolist()}
+    return prvm
 
 
 def opencv_yaml(cam: PinholeCamera) -> str:
@@ -117,10 +87,10 @@ def opencv_yaml(cam: PinholeCamera) -> str:
     return fs.releaseAndGetString()
 
 
-def read_opencv_yaml(path: str | os.PathLike) -> PinholeCamera:
-    """A camera from OpenCV FileStorage YAML/XML/JSON as `opencv_yaml` writes it. Also accepted: K/D
-    for the matrices, rvec or R for the rotation, tvec or T for the translation (identity pose when
-    absent)."""
+def read_filestorage(path: str | os.PathLike) -> dict:
+    """The top-level nodes of an OpenCV FileStorage file (YAML, XML or JSON): matrices as float64 arrays,
+    numbers as floats, sequences of numbers as 1-D arrays, strings as str (maps are skipped).
+    InputError naming the file if it is missing or not a FileStorage file."""
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "calibration file is missing")
@@ -128,26 +98,45 @@ def read_opencv_yaml(path: str | os.PathLike) -> PinholeCamera:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     except cv2.error:
         raise InputError(path, "not an OpenCV FileStorage file") from None
+    if not fs.isOpened():
+        raise InputError(path, "not an OpenCV FileStorage file")
+    out = {}
+    for name in fs.root().keys():
+        node = fs.getNode(name)
+        if node.isString():
+            out[name] = node.string()
+        elif node.isReal() or node.isInt():
+            out[name] = float(node.real())
+        elif node.isSeq():
+            vals = [node.at(i) for i in range(node.size())]
+            if all(v.isReal() or v.isInt() for v in vals):
+                out[name] = np.array([v.real() for v in vals], np.float64)
+        elif node.isMap():
+            m = node.mat()
+            if m is not None:
+                out[name] = np.asarray(m, np.float64)
+    fs.release()
+    return out
+
+
+def read_opencv_yaml(path: str | os.PathLike) -> PinholeCamera:
+    """A camera from OpenCV FileStorage YAML/XML/JSON as `opencv_yaml` writes it. Also accepted: K/D
+    for the matrices, rvec or R for the rotation, tvec or T for the translation (identity pose when
+    absent)."""
+    nodes = read_filestorage(path)
 
     def mat(*names):
         for name in names:
-            node = fs.getNode(name)
-            if not node.empty():
-                m = node.mat()
-                if m is None:
+            if name in nodes:
+                if not isinstance(nodes[name], np.ndarray) or nodes[name].size < 3:
                     raise InputError(path, f"{name!r} is not a matrix")
-                return m
+                return nodes[name]
         return None
-
-    def real(name):
-        node = fs.getNode(name)
-        return None if node.empty() else node.real()
 
     K, dist = mat("camera_matrix", "K"), mat("distortion_coefficients", "D")
     rot, t = mat("rotation_matrix", "R", "rvec"), mat("translation_vector", "T", "tvec")
-    w, h = real("image_width"), real("image_height")
-    fs.release()
-    if K is None or w is None or h is None:
+    w, h = nodes.get("image_width"), nodes.get("image_height")
+    if K is None or not isinstance(w, float) or not isinstance(h, float):
         raise InputError(path, "needs camera_matrix (or K), image_width and image_height")
     return PinholeCamera(K, np.zeros(5) if dist is None else dist, np.eye(3) if rot is None else rot,
                          np.zeros(3) if t is None else t, int(w), int(h))

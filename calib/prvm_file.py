@@ -57,6 +57,20 @@ class PRVM:
         t = (np.asarray(z_mm, dtype=np.float64) - self.reference_z_mm) / self.direction[..., 2]
         return self.origin + t[..., None] * self.direction
 
+    def transformed(self, rotation: np.ndarray, translation: np.ndarray, meta: dict | None = None) -> PRVM:
+        """The same rays in another frame, X_new = rotation @ X + translation (mm), origins on its plane
+        z = reference_z_mm; `meta` replaces the meta (default: kept). ValueError if a valid ray does not
+        point towards +z there."""
+        rotation = np.asarray(rotation, float)
+        d = self.direction @ rotation.T
+        if np.any(d[self.valid][:, 2] <= 0):
+            raise ValueError("in the new frame some rays point towards -z")
+        o = self.origin @ rotation.T + np.asarray(translation, float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            o = o + ((self.reference_z_mm - o[..., 2]) / d[..., 2])[..., None] * d
+        return PRVM(o, d, self.valid.copy(), self.residual_mm, dict(self.meta) if meta is None else meta,
+                    dict(self.extra))
+
     def save(self, path: str | os.PathLike) -> None:
         """Write the `.npz` atomically."""
         meta = {"format": FORMAT, "width": self.width, "height": self.height,

@@ -9,6 +9,14 @@
   phone, a DSLR on a tripod: the seed's reduced PRVM and hand-held cases). Each `grab` takes the next
   photo (by file name) not used yet, waiting for it to appear (the user is asked to take it). Pixels
   stay as the sensor stored them (EXIF rotation is not applied: a PRVM belongs to the sensor).
+- `SimulatedCamera` (`--camera sim[:LENS]?size=WxH&seed=N&pixel_um=P&tilt=TX,TY&roll=R`):
+  `scanners.sim.camera.SimCamera` looking at the `SimScreen` on the emulated stage, rendered at the
+  stage's TRUE position along its true travel direction (`stage_axis`). `pixel_um` sets the pixel pitch
+  (default 5.3 um: a small sensor has a narrow field; pixel_um=21.2 at 320x256 sees the field of the
+  1280x1024 default); `tilt` and `roll` (degrees) aim it so that its true alignment readings
+  (`scanners.sim.aim`) are those (either given: the other defaults to 0; neither: the lens keeps its
+  seeded pose). Its noise is seeded by what it sees (image shown, position, grab number), so a resumed
+  acquisition gives the same images.
 
 Bit depth (`Camera.bit_depth`, recorded as `cameras.NAME.bit_depth` in capture.json): the significant
 bits of the pixel values, LSB-aligned. 8-bit frames are 8 bits. A 16-bit frame may hold 10, 12 or 14
@@ -18,9 +26,6 @@ driver delivers 16-bit words: `cv:0?bit_depth=12`), and without either it is the
 declared depth is checked against the first frame: values beyond 2^N - 1 (data MSB-aligned, or the
 wrong N) are refused. The full scale 2^N - 1 is then where saturation is counted, here and in the
 calibration.
-- `SimulatedCamera` (`--camera sim[:LENS]?size=WxH&seed=N`): `scanners.sim.camera.SimCamera` looking at
-  the `SimScreen` on the emulated stage, rendered at the stage's TRUE position. Its noise is seeded by
-  what it sees (image shown, position, grab number), so a resumed acquisition gives the same images.
 """
 
 from __future__ import annotations
@@ -223,21 +228,32 @@ class SimulatedCamera(Camera):
     """A simulated camera rendering a SimScreen at the true position `true_z_mm()` (mm) of its stage."""
 
     def __init__(self, name: str, screen, true_z_mm: Callable[[], float], lens: str = "brown",
-                 size: tuple[int, int] = (160, 128), seed: int = 0, noise: bool = True, supersample: int = 3):
+                 size: tuple[int, int] = (160, 128), seed: int = 0, noise: bool = True, supersample: int = 3, *,
+                 pixel_um: float | None = None, aim: tuple[float, float, float] | None = None,
+                 stage_axis=(0.0, 0.0, 1.0)):
+        from scanners.sim.aim import aim as aim_lens
         from scanners.sim.camera import SimCamera
         from scanners.sim.lenses import make_lens
         from scanners.sim.sensor import Sensor
         self.name, self.size, self.seed, self.noise = name, size, seed, noise
-        self.screen, self.true_z_mm = screen, true_z_mm
-        self.sim = SimCamera(make_lens(lens, size[0], size[1], seed), Sensor(bit_depth=8), supersample, seed=seed)
+        self.screen, self.true_z_mm, self.stage_axis = screen, true_z_mm, tuple(stage_axis)
+        optics = make_lens(lens, size[0], size[1], seed, **({} if pixel_um is None else {"pixel_mm": pixel_um / 1000}))
+        if aim is not None:
+            optics = aim_lens(optics, *aim, display=screen.sim)
+        self.sim = SimCamera(optics, Sensor(bit_depth=8), supersample, seed=seed)
         self.bit_depth = self.sim.sensor.bit_depth
         self._seen: tuple[int, int] = (-1, 0)  # (screen serial, grabs of that image)
 
     def set_exposure(self, level: int, z_mm: float, fraction: float = 0.87) -> None:
         """Expose so that the brightest pixel seeing a flat screen at `level` reaches `fraction` of full
         scale at stage position z_mm."""
+        self.sim.set_exposure(self.screen.sim, level, self.true_pose(z_mm), fraction)
+
+    def true_pose(self, z_mm: float | None = None):
+        """The display's TRUE pose (`scanners.sim.pose.DisplayPose`) at stage position z_mm (default: where
+        the stage truly is now)."""
         from scanners.sim.pose import DisplayPose
-        self.sim.set_exposure(self.screen.sim, level, DisplayPose.staged(z_mm), fraction)
+        return DisplayPose.staged(self.true_z_mm() if z_mm is None else z_mm, self.stage_axis)
 
     def grab(self) -> np.ndarray:
         if self.screen.image is None:
@@ -248,8 +264,7 @@ class SimulatedCamera(Camera):
         z = self.true_z_mm()
         rng = np.random.default_rng([self.seed, zlib.crc32(self.screen.image.tobytes()),
                                      round(z * 1e6) & 0xFFFFFFFF, k])
-        from scanners.sim.pose import DisplayPose
-        return self.sim.render(self.screen.image, self.screen.sim, DisplayPose.staged(z), self.noise, rng=rng)
+        return self.sim.render(self.screen.image, self.screen.sim, self.true_pose(z), self.noise, rng=rng)
 
 
 # ------------------------------------------------------------------------------------------ specs
@@ -275,16 +290,29 @@ def _float_option(options: dict, key: str, spec: str) -> float | None:
         raise InputError("--camera", f"{spec!r}: {key} must be a number") from None
 
 
-def open_camera(spec: str, name: str, screen=None, true_z_mm: Callable[[], float] | None = None) -> Camera:
+def _floats_option(options: dict, key: str, spec: str, count: int) -> tuple[float, ...] | None:
+    if key not in options:
+        return None
+    try:
+        values = tuple(float(v) for v in options[key].split(","))
+    except ValueError:
+        values = ()
+    if len(values) != count or not all(np.isfinite(values)):
+        raise InputError("--camera", f"{spec!r}: {key} must be {count} comma-separated number(s)")
+    return values
+
+
+def open_camera(spec: str, name: str, screen=None, true_z_mm: Callable[[], float] | None = None,
+                stage_axis=(0.0, 0.0, 1.0)) -> Camera:
     """A camera from a `--camera` value: `cv:INDEX`, `folder:DIR` or `sim[:LENS]`, with ?key=value
-    options (see the module docstring). A simulated camera needs the SimScreen and the stage's true
-    position."""
+    options (see the module docstring). A simulated camera needs the SimScreen, the stage's true
+    position and its true travel direction (`stage_axis`, a unit vector in the WCS)."""
     parts = urlsplit(spec)
     kind = parts.scheme or spec.split("?")[0]
     options = dict(parse_qsl(parts.query))
     target = parts.netloc + parts.path if parts.scheme else ""
     allowed = {"cv": {"exposure_ms", "gain", "size", "discard", "bit_depth"}, "folder": {"size", "timeout", "bit_depth"},
-               "sim": {"size", "seed", "noise"}}
+               "sim": {"size", "seed", "noise", "pixel_um", "tilt", "roll"}}
     if kind not in allowed:
         raise InputError("--camera", f"unknown camera {spec!r} (cv:INDEX, folder:DIR or sim[:LENS])")
     unknown = set(options) - allowed[kind]
@@ -312,8 +340,16 @@ def open_camera(spec: str, name: str, screen=None, true_z_mm: Callable[[], float
         raise InputError("--camera", "a simulated camera needs --display sim and a stage (emulated:zaber or "
                                      "emulated:grbl)")
     seed = _float_option(options, "seed", spec)
+    pixel_um = _float_option(options, "pixel_um", spec)
+    if pixel_um is not None and not pixel_um > 0:
+        raise InputError("--camera", f"{spec!r}: pixel_um must be positive")
+    tilt, roll = _floats_option(options, "tilt", spec, 2), _floats_option(options, "roll", spec, 1)
+    aim = None if tilt is None and roll is None else (*(tilt or (0.0, 0.0)), (roll or (0.0,))[0])
+    if aim is not None and max(abs(a) for a in aim) > 30:
+        raise InputError("--camera", f"{spec!r}: tilt and roll must be within +-30 degrees")
     return SimulatedCamera(name, screen, true_z_mm, target or "brown", size or (160, 128),
-                           int(seed or 0), options.get("noise", "1") not in ("0", "no", "false"))
+                           int(seed or 0), options.get("noise", "1") not in ("0", "no", "false"),
+                           pixel_um=pixel_um, aim=aim, stage_axis=stage_axis)
 
 
 __all__ = ["Camera", "SaturatedError", "capture", "frame_bit_depth", "OpenCVCamera", "FolderCamera", "SimulatedCamera",

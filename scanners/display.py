@@ -1,7 +1,9 @@
 """Showing patterns: full screen on a chosen monitor, one display pixel per image pixel.
 
-A `Screen` shows 8-bit grey images of exactly its own size and returns only once the image is on the
-glass and has settled (the LCD's response time and the camera's pipeline latency: `settle_s`).
+A `Screen` shows 8-bit images of exactly its own size, grey patterns or colour pictures (the alignment
+aid's readout), and returns only once the image is on the glass and has settled (the LCD's response
+time and the camera's pipeline latency: `settle_s`). `pressed` returns the keys pressed on it since the
+last call (a full-screen window has the keyboard: Esc or q to stop, s to measure the stage again).
 
 - `PygameScreen` (`--display screen[:N]`): SDL2 through pygame, borderless full screen on monitor N at
   the monitor's own resolution, so there is no scaling; SDL applies no colour management; the mouse
@@ -14,7 +16,8 @@ glass and has settled (the LCD's response time and the camera's pipeline latency
 - `FileScreen` (`--display file:DIR?size=WxH`): headless; each shown image is written to DIR as
   00000.png, 00001.png, ... (for a dry run, or for another program that puts them on a screen).
 - `SimScreen` (`--display sim`): the simulated LCD of `scanners.sim`; it only holds the image shown, for
-  the simulated camera to render.
+  the simulated camera to render (a colour picture as the grey a monochrome display would show: its
+  Rec. 601 luma).
 """
 
 from __future__ import annotations
@@ -28,28 +31,35 @@ from urllib.parse import parse_qsl, urlsplit
 import numpy as np
 
 from calib.errors import InputError
-from calib.imageio import write_gray
+from calib.imageio import write_gray, write_rgb
 from scanners.errors import HardwareError
 
 
 class Screen(ABC):
-    """A display device showing uint8 grey images of exactly `size` = (width, height) pixels."""
+    """A display device showing uint8 images of exactly `size` = (width, height) pixels: grey (H, W) or
+    colour (H, W, 3) RGB."""
 
     size: tuple[int, int]
     pitch_mm: tuple[float, float] | None = None   # known for simulated screens; real ones: say it
     serial = 0                                     # counts the images shown
 
     def show(self, image: np.ndarray) -> None:
-        """Put `image` ((height, width) uint8) on the screen and wait until it is settled."""
+        """Put `image` ((height, width) or (height, width, 3) RGB, uint8) on the screen and wait until it
+        is settled."""
         w, h = self.size
-        if image.shape != (h, w) or image.dtype != np.uint8:
-            raise ValueError(f"pattern is {image.dtype} {image.shape[::-1]}, the screen needs uint8 {w}x{h}")
+        if image.shape[:2] != (h, w) or image.shape[2:] not in ((), (3,)) or image.dtype != np.uint8:
+            raise ValueError(f"pattern is {image.dtype} {image.shape[1::-1]}, the screen needs uint8 {w}x{h}")
         self._show(image)
         self.serial += 1
 
     @abstractmethod
     def _show(self, image: np.ndarray) -> None:
         ...
+
+    def pressed(self) -> list[str]:
+        """Names of the keys pressed on the screen since the last call ("escape", "q", "s", ...; "quit"
+        when its window was closed). Screens without a keyboard return []."""
+        return []
 
     def close(self) -> None:
         """Release the screen."""
@@ -70,7 +80,7 @@ class FileScreen(Screen):
         self._next = len(list(self.folder.glob("[0-9][0-9][0-9][0-9][0-9].png"))) if self.folder.is_dir() else 0
 
     def _show(self, image: np.ndarray) -> None:
-        write_gray(self.folder / f"{self._next:05d}.png", image)
+        (write_gray if image.ndim == 2 else write_rgb)(self.folder / f"{self._next:05d}.png", image)
         self._next += 1
 
 
@@ -85,6 +95,8 @@ class SimScreen(Screen):
         self.image: np.ndarray | None = None
 
     def _show(self, image: np.ndarray) -> None:
+        if image.ndim == 3:
+            image = np.rint(image @ np.array([0.299, 0.587, 0.114])).astype(np.uint8)
         self.image = image.copy()
 
 
@@ -102,6 +114,9 @@ class PygameScreen(Screen):
         self._pg = pygame
         try:
             pygame.display.init()
+            if pygame.display.get_driver() in ("offscreen", "dummy", "evdev"):   # SDL fell back: nothing shows
+                raise HardwareError(f"screen:{monitor}: no monitor to show patterns on (SDL video driver "
+                                    f"{pygame.display.get_driver()!r}; is DISPLAY set?)")
             sizes = pygame.display.get_desktop_sizes()
             if not 0 <= monitor < len(sizes):
                 raise HardwareError(f"screen:{monitor}: there are {len(sizes)} monitor(s), numbered from 0")
@@ -123,17 +138,34 @@ class PygameScreen(Screen):
             pygame.display.quit()
             raise
         self.monitor, self.settle_s = monitor, settle_s
+        self._keys: list[str] = []
 
     def _show(self, image: np.ndarray) -> None:
         pg = self._pg
         try:
-            rgb = np.repeat(image[:, :, None], 3, axis=2)
+            rgb = np.repeat(image[:, :, None], 3, axis=2) if image.ndim == 2 else np.ascontiguousarray(image)
             self._surface.blit(pg.image.frombuffer(rgb.tobytes(), self.size, "RGB"), (0, 0))
             pg.display.flip()
-            pg.event.pump()  # keep the window responsive for the window manager
+            self._collect()  # keep the window responsive for the window manager
         except pg.error as exc:
             raise HardwareError(f"screen:{self.monitor}: {exc}") from None
         time.sleep(self.settle_s)
+
+    def _collect(self) -> None:
+        pg = self._pg
+        for event in pg.event.get():
+            if event.type == pg.QUIT:
+                self._keys.append("quit")
+            elif event.type == pg.KEYDOWN:
+                self._keys.append(pg.key.name(event.key))
+
+    def pressed(self) -> list[str]:
+        try:
+            self._collect()
+        except self._pg.error as exc:
+            raise HardwareError(f"screen:{self.monitor}: {exc}") from None
+        keys, self._keys = self._keys, []
+        return keys
 
     def close(self) -> None:
         self._pg.display.quit()

@@ -11,7 +11,13 @@ Faults are injected with `inject(kind, at_move=None, count=1)`; they strike at t
 - "timeout": that command and the next count-1 lines get no answer (they are still carried out);
 - "reject": the move is refused (Zaber `RJ ... BADDATA`, GRBL `error:20`);
 - "alarm": the stage stops half way with a fault (Zaber flag FS, GRBL `ALARM:1` and the Alarm state);
-- "drop": the line goes dead (the pty master or the socket is closed).
+- "drop": the line goes dead (the pty master or the socket is closed);
+- "slip": the move is carried out and reported as usual, but the carriage does not move (a slipping
+  coupling or a motor turning without its load): its true position stays where it was, and stays off
+  by that move from then on. Only a measurement (`scanners.align`) can tell.
+`travel_axis` is the direction the carriage travels in the simulated rig's WCS (a unit vector, default along
+the display normal, DESIGN.md `stage.axis`): the simulated camera sees the display at
+`DisplayPose.staged(true_position_mm(), axis)`.
 `wire_in`/`wire_out` keep every byte received and sent.
 """
 
@@ -28,7 +34,7 @@ import tty
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
-FAULT_KINDS = ("timeout", "reject", "alarm", "drop")
+FAULT_KINDS = ("timeout", "reject", "alarm", "drop", "slip")
 
 
 class Motion:
@@ -70,6 +76,9 @@ class StageEmulator(ABC):
             raise ValueError("transport must be 'pty' or 'socket'")
         self.speed_mm_s, self.travel_mm = speed_mm_s, travel_mm
         self.motion = Motion(start_mm)
+        self.travel_axis = (0.0, 0.0, 1.0)
+        self._slip_from: float | None = None     # the true position held during a slipping move
+        self._slipped_mm = 0.0                    # reported minus true position after slipped moves
         self.wire_in, self.wire_out = bytearray(), bytearray()
         self.moves = 0
         self._faults: list[_Fault] = []
@@ -103,7 +112,9 @@ class StageEmulator(ABC):
     def true_position_mm(self) -> float:
         """Where the carriage really is now (mm from the home switch)."""
         with self._lock:
-            return self.motion.position(time.monotonic())
+            if self._slip_from is not None:
+                return self._slip_from
+            return self.motion.position(time.monotonic()) - self._slipped_mm
 
     def close(self) -> None:
         self._stop.set()
@@ -165,6 +176,19 @@ class StageEmulator(ABC):
                 return f.kind
         return None
 
+    def _go(self, fault: str | None, target_mm: float, speed_mm_s: float, now: float) -> None:
+        """Start a move (half way and stall on an "alarm" fault, without the carriage on a "slip")."""
+        if fault == "alarm":
+            return self._stall_half_way(target_mm, now)
+        if fault == "slip":
+            self._slip_from = self.motion.position(now) - self._slipped_mm
+        self.motion.go(target_mm, speed_mm_s, now)
+
+    def _end_slip(self, now: float) -> None:
+        if self._slip_from is not None and not self.motion.busy(now):
+            self._slipped_mm = self.motion.position(now) - self._slip_from
+            self._slip_from = None
+
     def _stall_half_way(self, target_mm: float, now: float) -> None:
         """Start a move that will stop with a fault half way."""
         here = self.motion.position(now)
@@ -213,6 +237,7 @@ class StageEmulator(ABC):
                 now = time.monotonic()
                 for b in data:
                     self._byte(b, now)
+                self._end_slip(now)
                 self._tick(now)
 
     def _on_connect(self) -> None:
@@ -301,11 +326,7 @@ class ZaberEmulator(StageEmulator):
             return
         if fault == "reject":
             return self._reply(axis, msg_id, False, now, "BADDATA")
-        target_mm = target * self.microstep_um / 1000
-        if fault == "alarm":
-            self._stall_half_way(target_mm, now)
-        else:
-            self.motion.go(target_mm, self.speed_mm_s, now)
+        self._go(fault, target * self.microstep_um / 1000, self.speed_mm_s, now)
         self._reply(axis, msg_id, True, now)
 
     def _tick(self, now: float) -> None:
@@ -433,11 +454,8 @@ class GrblEmulator(StageEmulator):
             if not 0 <= target <= self.travel_mm:
                 self.state = "Alarm"
                 return self._send("ALARM:2")
-            speed = min(self.speed_mm_s, self.feed / 60) if self.feed > 0 else self.speed_mm_s
-            if fault == "alarm":
-                self._stall_half_way(target, now)
-            else:
-                self.motion.go(target, speed, now)
+            self._go(fault, target, min(self.speed_mm_s, self.feed / 60) if self.feed > 0 else self.speed_mm_s,
+                     now)
         self._send("ok")
 
     def _tick(self, now: float) -> None:

@@ -1,8 +1,9 @@
 """The end-to-end demo on the built-in simulated rig: every step is a real `stereodic` command, printed
-before it runs so that a user can repeat it by hand.
+before it runs so that a user can repeat it by hand, and every command says what it wrote.
 
-Each step is a function that takes the output folder and returns the command lines it ran; a figure of
-merit against the simulator's ground truth is printed after the steps that have one.
+Each step is a function that takes the output folder; its docstring's first line, one sentence, is the
+step's heading. A figure of merit against the simulator's ground truth is printed after the steps that
+have one.
 """
 
 from __future__ import annotations
@@ -14,8 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
+from stereodic.cli.common import wrote
+
 DEMO_LENS = "freeform"            # the lens OpenCV's models cannot follow
 DEMO_SIZE = ("640", "512")
+STEREO_SIZE = ("480", "384")     # two cameras to render and calibrate: smaller, to keep the demo short
 
 
 def _run(*argv: str) -> None:
@@ -30,7 +34,7 @@ def _run(*argv: str) -> None:
 
 
 def calibration(out: Path) -> None:
-    """Simulate a calibration bench, calibrate the camera, compare its rays with the truth."""
+    """Calibrate a free-form lens from simulated fringes and hold its rays against the simulator's truth."""
     from calib.evaluate import ErrorStats, ray_error_px
     from calib.prvm_file import load_prvm
     data = out / "calibration"
@@ -45,29 +49,27 @@ def calibration(out: Path) -> None:
 
 
 def virtual_camera(out: Path) -> None:
-    """Undistort one captured frame with the camera's virtual pinhole model and export the model."""
+    """Undistort one captured frame with the camera's virtual pinhole model, and export the model."""
     frame = sorted((out / "calibration").glob("z*/cam0_flat_*.png"))[0].parent / "cam0_x_P60_s0.png"
     _run("undistort", str(out / "cam0.npz"), str(frame), "-o", str(out / "undistorted"))
     _run("export", str(out / "cam0.npz"), "--format", "opencv", "-o", str(out / "cam0_pinhole.yaml"))
 
 
 def stereo(out: Path) -> None:
-    """Calibrate a simulated stereo pair (Brown-Conrady left, free-form right), build the rectified
-    virtual pair, rectify an image pair."""
+    """Calibrate a stereo pair, build its rectified virtual rig and export the rig for OpenCV.
+
+    The pair: Brown-Conrady lens left, free-form right."""
     data = out / "stereo"
-    _run("simulate", "stereo", "--left", "brown", "--right", DEMO_LENS, "--width", DEMO_SIZE[0],
-         "--height", DEMO_SIZE[1], "-o", str(data))
+    _run("simulate", "stereo", "--left", "brown", "--right", DEMO_LENS, "--width", STEREO_SIZE[0],
+         "--height", STEREO_SIZE[1], "-o", str(data))
     for cam in ("cam0", "cam1"):
         _run("calibrate", str(data), "--camera", cam, "-o", str(out / f"stereo_{cam}.npz"))
     _run("rig", str(out / "stereo_cam0.npz"), str(out / "stereo_cam1.npz"), "-o", str(out / "rig.npz"))
-    z = sorted({p.parent.name for p in (data / "cam0").glob("z*/cam0_x_P60_s0.png")})[0]
-    _run("rectify", str(out / "rig.npz"), str(data / "cam0" / z / "cam0_x_P60_s0.png"),
-         str(data / "cam1" / z / "cam1_x_P60_s0.png"), "-o", str(out / "rectified"))
     _run("export", str(out / "rig.npz"), "--format", "opencv", "-o", str(out / "rig_opencv.yaml"))
 
 
 def scan(out: Path) -> None:
-    """Scan a simulated sphere with the fringe-projection scanner and check its fitted radius."""
+    """Scan a simulated sphere with the fringe-projection scanner and check its fitted diameter."""
     from scanners.sim.scan import load_truth
     from scanners.sim.scan_scene import Sphere, surface_from_dict
     import open3d as o3d
@@ -87,7 +89,7 @@ def scan(out: Path) -> None:
 
 
 def dic2d(out: Path) -> None:
-    """2D DIC on a rendered speckle pattern moved by a known sub-pixel translation."""
+    """Measure a known sub-pixel translation of a speckle image with 2D DIC."""
     import csv
 
     from calib.imageio import write_gray
@@ -96,6 +98,8 @@ def dic2d(out: Path) -> None:
     speckle = make_speckle(512, 512, seed=1)
     write_gray(out / "dic" / "reference.png", render(speckle, None, noise_sigma=1.0, seed=2))
     write_gray(out / "dic" / "moved.png", render(speckle, shift, noise_sigma=1.0, seed=3))
+    wrote(out / "dic" / "reference.png", "a rendered 512x512 speckle image")
+    wrote(out / "dic" / "moved.png", f"the same speckle moved by ({shift[0]:+.2f}, {shift[1]:+.2f}) px")
     _run("dic2d", str(out / "dic" / "reference.png"), str(out / "dic" / "moved.png"), "--subset", "21",
          "--step", "8", "-o", str(out / "dic" / "displacements.csv"))
     with open(out / "dic" / "displacements.csv") as f:
@@ -107,19 +111,25 @@ def dic2d(out: Path) -> None:
 
 
 def dic3d(out: Path) -> None:
-    """Stereo 3D-DIC of a speckled plate (translation, rotation, 1 % tension, bulge) and the strain error
-    of the tension state against the truth."""
-    from scanners.sim.dic import load_dic_truth, truth_at_virtual
+    """Rectify a speckled plate's image pair, then measure its shape, 3D displacement and strain with stereo DIC.
+
+    The rectified pair's overlay shows the row alignment (speckle has the texture it needs). States:
+    translation, rotation, 1 % tension, bulge; the tension state's strain is held against the truth."""
+    from scanners.sim.dic import load_dic_truth, truth_at_pixels
     from stereodic.rig import load_rig
     data = out / "dic3d"
     _run("simulate", "dic", "-o", str(data))
+    _run("rectify", str(data / "rig.npz"), str(data / "s000" / "cam0.png"), str(data / "s000" / "cam1.png"), "-o",
+         str(out / "rectified"))
     _run("dic", str(data / "rig.npz"), str(data), "-o", str(out / "dic3d_result"))
     truth = load_dic_truth(data)
     tension = next(k for k, st in enumerate(truth.states) if st.name == "tension")
     rows = np.genfromtxt(out / "dic3d_result" / "dic.csv", delimiter=",", names=True, dtype=None,
                          encoding="utf-8")
     rows = rows[(rows["state"] == tension) & (rows["strain_valid"] == 1)]
-    true = truth_at_virtual(truth, load_rig(data / "rig.npz"), rows["x"], rows["y"])
+    # the material point of each row: the one the left camera sees where the rig's IMM puts the row's grid
+    # point in the original image; its truth from the simulator's own lens and plate
+    true = truth_at_pixels(truth, load_rig(data / "rig.npz").left.imm.real_position(rows["x"], rows["y"]))
     for c in ("exx", "eyy"):
         print(f"  tension, {c}: measured mean {rows[c].mean() * 1e6:.0f}, true {true[c][tension].mean() * 1e6:.0f} "
               f"microstrain, mean error {(rows[c] - true[c][tension]).mean() * 1e6:+.1f} microstrain "
@@ -134,8 +144,11 @@ def run_demo(output: str) -> int:
     out.mkdir(parents=True, exist_ok=True)
     np.seterr(all="ignore")
     t0 = time.perf_counter()
-    for step in STEPS:
-        print(f"\n== {step.__doc__.splitlines()[0]}", flush=True)
+    for k, step in enumerate(STEPS, 1):
+        print(f"\n== {k}/{len(STEPS)}. {step.__doc__.splitlines()[0]}", flush=True)
         step(out)
-    print(f"\ndemo finished in {time.perf_counter() - t0:.0f} s; results in {out}/", file=sys.stderr)
+    print(f"\ndemo finished in {time.perf_counter() - t0:.0f} s; everything it wrote is in {out}/. Pictures "
+          f"to look at: {out}/report/error_xy.png (ray error), {out}/rectified/overlay.png (row alignment), "
+          f"{out}/dic3d_result/maps/ (strain), {out}/sphere.ply (open it in CloudCompare or MeshLab)",
+          file=sys.stderr)
     return 0

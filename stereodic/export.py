@@ -16,9 +16,10 @@ import numpy as np
 
 from calib.errors import InputError
 from calib.pinhole import PinholeCamera, opencv_yaml
+from stereodic.formats import mrcal, vic3d
 from stereodic.virtual import VirtualCamera
 
-FORMATS = ("opencv", "colmap", "json")
+FORMATS = ("opencv", "colmap", "json", "vic3d", "mrcal")
 
 
 def pinhole_of(camera: VirtualCamera) -> PinholeCamera:
@@ -35,6 +36,14 @@ def pinhole_of(camera: VirtualCamera) -> PinholeCamera:
                   [0, d / s.pitch_mm[1], (foot - s.origin) @ s.axis_v / s.pitch_mm[1]],
                   [0, 0, 1]])
     return PinholeCamera(K, np.zeros(5), R, -R @ c, s.width, s.height)
+
+
+def in_world(cam: PinholeCamera, world_from_rig: np.ndarray) -> PinholeCamera:
+    """`cam` (posed in the rig's frame) posed in the world frame instead: x_cam = R x_rig + t and
+    x_rig = A^T (x_world - b) for world_from_rig = [A | b] give R' = R A^T, t' = t - R A^T b."""
+    m = np.asarray(world_from_rig, np.float64)
+    rot = cam.R @ m[:3, :3].T
+    return PinholeCamera(cam.K, cam.dist, rot, cam.t - rot @ m[:3, 3], cam.width, cam.height)
 
 
 def colmap_cameras(cameras: list[PinholeCamera]) -> str:
@@ -60,13 +69,21 @@ def camera_json(name: str, camera: VirtualCamera) -> dict:
     return d
 
 
-def export_text(cameras: dict[str, VirtualCamera], fmt: str) -> str:
-    """The file text of `cameras` (name -> virtual camera) in format `fmt` (one of FORMATS). The OpenCV
-    YAML holds one camera."""
+def export_text(cameras: dict[str, VirtualCamera], fmt: str, world_from_rig: np.ndarray | None = None) -> str:
+    """The file text of `cameras` (name -> virtual camera) in format `fmt` (one of FORMATS), poses moved
+    to the world frame by `world_from_rig` (4x4, rig frame -> world; identity when None). The OpenCV YAML
+    and the mrcal model hold one camera."""
+    m = np.eye(4) if world_from_rig is None else np.asarray(world_from_rig, np.float64)
     if fmt == "json":
-        return json.dumps({"format": "stereodic.virtual-cameras/1",
+        return json.dumps({"format": "stereodic.virtual-cameras/1", "world_from_rig": m.tolist(),
                            "cameras": [camera_json(n, c) for n, c in cameras.items()]}, indent=1) + "\n"
-    pinholes = [pinhole_of(c) for c in cameras.values()]
+    pinholes = [in_world(pinhole_of(c), m) for c in cameras.values()]
+    if fmt == "vic3d":
+        return vic3d.write([p.model(n) for p, n in zip(pinholes, cameras)])
+    if fmt == "mrcal":
+        if len(pinholes) != 1:
+            raise InputError(None, "a mrcal camera model holds one camera")
+        return mrcal.write(pinholes[0].model(next(iter(cameras))))
     if fmt == "colmap":
         return colmap_cameras(pinholes)
     if fmt == "opencv":

@@ -13,10 +13,15 @@ triangulation exactly; the EVM (the real rays' correction) cannot be expressed i
 
 Formats: opencv (FileStorage YAML with the keys above plus image_width, image_height, R_wcs, T_wcs);
 dice (DICe camera system XML: CAMERA 0 / CAMERA 1 with CX CY FX FY FS, IMAGE_HEIGHT_WIDTH, no lens
-distortion, world-to-camera rotation_3x3_matrix and TX TY TZ in the WCS, mm); colmap (a text model
-folder: cameras.txt, images.txt with the two posed images "left.png" and "right.png", empty
-points3D.txt); json (both cameras' sensor plane, centre and OpenCV intrinsics/pose, and the stereo
-matrices).
+distortion, world-to-camera rotation_3x3_matrix and TX TY TZ in the WCS, mm); vic3d (VIC-3D project XML:
+cx cy fx fy skew and zero kappas, Cardan-Bryant orientation, image size; `stereodic.formats.vic3d`);
+mrcal (a folder with left.cameramodel and right.cameramodel, LENSMODEL_PINHOLE, rt_fromref in mm;
+`stereodic.formats.mrcal`); colmap (a text model folder: cameras.txt, images.txt with the two posed images
+"left.png" and "right.png", empty points3D.txt); json (both cameras' sensor plane, centre and OpenCV
+intrinsics/pose, and the stereo matrices).
+Every pose is written in the rig's world frame: the rig's own frame moved by its `world_from_rig` (for a
+rig made by `stereodic import`, the calibration file's world frame), so `stereodic import` of an export
+gives back the same rays.
 """
 
 from __future__ import annotations
@@ -33,15 +38,16 @@ from scipy.spatial.transform import Rotation
 from calib.atomic import write_text
 from calib.errors import InputError
 from calib.pinhole import PinholeCamera
-from stereodic.export import camera_json, colmap_cameras, pinhole_of
+from stereodic.export import camera_json, colmap_cameras, in_world, pinhole_of
+from stereodic.formats import mrcal, vic3d
 from stereodic.rig import FORMAT, SIDES, Rig, load_rig
 
-FORMATS = ("opencv", "colmap", "dice", "json")
+FORMATS = ("opencv", "colmap", "dice", "json", "vic3d", "mrcal")
 
 
 def rig_pinholes(rig: Rig) -> tuple[PinholeCamera, PinholeCamera]:
-    """The left and right virtual pinhole cameras (K, zero distortion, WCS pose)."""
-    return pinhole_of(rig.virtual_camera("left")), pinhole_of(rig.virtual_camera("right"))
+    """The left and right virtual pinhole cameras (K, zero distortion, pose in the rig's world frame)."""
+    return tuple(in_world(pinhole_of(rig.virtual_camera(s)), rig.world_from_rig) for s in SIDES)
 
 
 def stereo_matrices(rig: Rig) -> dict[str, np.ndarray]:
@@ -118,7 +124,7 @@ def _quaternion(r: np.ndarray) -> np.ndarray:
 def rig_json(rig: Rig) -> dict:
     """The rig as JSON data: both virtual cameras and the OpenCV stereo matrices."""
     return {"format": "stereodic.rig-export/1", "model": rig.model, "baseline_mm": rig.baseline.tolist(),
-            "working_distance_mm": rig.working_distance_mm,
+            "working_distance_mm": rig.working_distance_mm, "world_from_rig": rig.world_from_rig.tolist(),
             "cameras": [camera_json(side, rig.virtual_camera(side)) for side in SIDES],
             "stereo": {k: v.tolist() for k, v in stereo_matrices(rig).items()}}
 
@@ -141,6 +147,14 @@ def export_rig(path: str | os.PathLike, fmt: str, out: str | os.PathLike) -> Non
         write_text(out, dice_xml(rig))
     elif fmt == "json":
         write_text(out, json.dumps(rig_json(rig), indent=1) + "\n")
+    elif fmt == "vic3d":
+        write_text(out, vic3d.write([p.model(f"camera {i}") for i, p in enumerate(rig_pinholes(rig))]))
+    elif fmt == "mrcal":
+        out = Path(out)
+        if out.exists() and not out.is_dir():
+            raise InputError(out, "the mrcal export of a rig is a folder (left.cameramodel, right.cameramodel)")
+        for side, cam in zip(SIDES, rig_pinholes(rig)):
+            write_text(out / f"{side}.cameramodel", mrcal.write(cam.model(side)))
     elif fmt == "colmap":
         out = Path(out)
         if out.exists() and not out.is_dir():

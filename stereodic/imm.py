@@ -61,6 +61,26 @@ class IMM:
             self._fixed = cv2.convertMaps(self.map_x, self.map_y, cv2.CV_16SC2)
         return self._fixed
 
+    def real_position(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """(..., 2) float64 real image positions (u, v) sampled by virtual positions (x, y) (arrays of one
+        shape, sub-pixel): the maps interpolated bilinearly, as cv2.remap does between virtual pixel
+        centres. NaN outside the virtual image or where one of the 4 neighbouring virtual pixels is
+        blank."""
+        h, w = self.shape
+        x, y = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64))
+        inside = np.isfinite(x) & np.isfinite(y) & (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)
+        i = np.clip(np.floor(np.where(inside, x, 0)), 0, w - 2).astype(np.intp)
+        j = np.clip(np.floor(np.where(inside, y, 0)), 0, h - 2).astype(np.intp)
+        a, b = x - i, y - j
+        taps = ((j, i), (j, i + 1), (j + 1, i), (j + 1, i + 1))
+        ok = inside & np.logical_and.reduce([self.valid[t] for t in taps])
+        out = []
+        for m in (self.map_x, self.map_y):
+            p00, p10, p01, p11 = (m[t].astype(np.float64) for t in taps)
+            out.append(np.where(ok, p00 + a * (p10 - p00) + b * (p01 - p00) + a * b * (p11 - p10 - p01 + p00),
+                                np.nan))
+        return np.stack(out, axis=-1)
+
     def taps(self) -> tuple[np.ndarray, np.ndarray]:
         """The seed's form: (index (Hv, Wv, 4) int64 into the row-major flattened real image,
         weights (Hv, Wv, 4) float64) such that virtual = sum(weights * real.ravel()[index], axis=-1).

@@ -1,11 +1,14 @@
 """Rectifying stereo image pairs with a rig: each camera's intensity matrix, then its IMM, onto the common
-virtual sensor; and an overlay picture with epipolar rows to check the result by eye.
+virtual sensor; and how well the rows line up: features matched between the rectified images, their
+vertical disparity, and a picture that shows it.
 
 In the rectified pair a scene point lies on the same row of both images (exactly for central lenses;
 for non-central ones the EVM says how far off, see `stereodic.triangulate`).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -15,29 +18,154 @@ from stereodic.undistort import undistort_image
 
 
 def rectify_pair(rig: Rig, left: np.ndarray, right: np.ndarray, intensity: bool = True,
-                 fixed_point: bool = False, where: tuple = ("left", "right")) -> tuple[np.ndarray, np.ndarray]:
+                 fixed_point: bool = False, where: tuple = ("left", "right"), exact: bool = False
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """The rectified (virtual) images of a real image pair (8/16-bit, each its camera's size): same dtype,
     (Hv, Wv), blank pixels 0. intensity: apply each camera's intensity matrix if the rig has one;
     fixed_point: OpenCV's 1/32-pixel maps instead of exact float maps; where: the images' names for
-    error messages."""
+    error messages; exact: float32 images, the interpolated grey levels not rounded to the input's integer
+    type (for DIC: the rounding adds noise to every match)."""
     out = []
     for side, image, name in zip(("left", "right"), (left, right), where):
         cam = rig.camera(side)
-        out.append(undistort_image(image, cam.imm, cam.im if intensity else None, fixed_point, where=name))
+        out.append(undistort_image(image, cam.imm, cam.im if intensity else None, fixed_point, where=name,
+                                   exact=exact))
     return out[0], out[1]
 
 
-def epipolar_overlay(left: np.ndarray, right: np.ndarray, every: int = 32) -> np.ndarray:
-    """(Hv, 2 Wv, 3) uint8 BGR picture: the two rectified images side by side (scaled to 8 bits), with a
-    coloured line on every `every`-th row across both: a feature must sit on the same line in both."""
+@dataclass
+class RowAlignment:
+    """Features matched between the two rectified images: left position (x, y), right column x_right, the
+    vertical disparity dy = y_right - y_left (pixels, sub-pixel; 0 for a perfect rectification) and the
+    match's ZNCC. (N,) float64 arrays."""
+
+    x: np.ndarray
+    y: np.ndarray
+    x_right: np.ndarray
+    dy: np.ndarray
+    zncc: np.ndarray
+
+    @property
+    def rms(self) -> float:
+        return float(np.sqrt(np.mean(self.dy ** 2))) if self.dy.size else float("nan")
+
+
+def row_alignment(left: np.ndarray, right: np.ndarray, *, max_dy: int = 6, half: int = 10, count: int = 150,
+                  min_zncc: float = 0.9) -> RowAlignment:
+    """How well the rows of a rectified pair line up, from features with texture in both directions.
+
+    Corners of the left image (Shi-Tomasi, at most `count`, whole subsets of half-width `half` inside
+    both images' valid areas) are searched for in the right image over the whole width and rows within
+    `max_dy` of their own (ZNCC, cv2.matchTemplate); a match with a second peak nearly as good elsewhere
+    along the rows (a periodic or stripe pattern: no reliable position) is dropped; the rest are refined
+    to sub-pixel by IC-GN with an affine subset (the 2D DIC engine, `stereodic.dic`: the two views
+    foreshorten a surface differently) and kept where they converge with at least `min_zncc`. Pixels,
+    rectified images."""
+    from stereodic.dic import BSplineImage, DicSettings, correlate_points
+
+    lf, rf = left.astype(np.float32), right.astype(np.float32)
+    side = 2 * half + 1
+    valid = cv2.erode(((left > 0) & (right > 0)).astype(np.uint8), np.ones((side + 2, side + 2), np.uint8))
+    corners = cv2.goodFeaturesToTrack(lf, count, 0.05, 2 * half, mask=valid)
+    seeds = []
+    h, w = left.shape
+    for x, y in ([] if corners is None else np.rint(corners[:, 0]).astype(int)):
+        if not (half + max_dy <= y < h - half - max_dy and half <= x < w - half):
+            continue
+        tpl = lf[y - half:y + half + 1, x - half:x + half + 1]
+        score = np.nan_to_num(cv2.matchTemplate(rf[y - half - max_dy:y + half + max_dy + 1], tpl,
+                                                cv2.TM_CCOEFF_NORMED), nan=-1.0)
+        r, c = np.unravel_index(int(np.argmax(score)), score.shape)
+        away = np.abs(np.arange(score.shape[1]) - c) > half
+        if not away.any() or score[:, away].max() < score[r, c] - 0.1:
+            seeds.append((x, y, c + half - x, r - max_dy))
+    if not seeds:
+        return RowAlignment(*(np.empty(0) for _ in range(5)))
+    x, y, du, dv = np.array(seeds, np.float64).T
+    settings = DicSettings(subset=side, min_zncc=min_zncc)
+    res = correlate_points(BSplineImage.from_image(left, 3, settings.prefilter_sigma),
+                           BSplineImage.from_image(right, 3, settings.prefilter_sigma), x, y,
+                           np.stack([du, dv], 1), settings)
+    ok = np.isfinite(res.u) & (np.abs(res.v) <= max_dy)
+    return RowAlignment(x[ok], y[ok], x[ok] + res.u[ok], res.v[ok], res.zncc[ok])
+
+
+def plot_row_alignment(left: np.ndarray, right: np.ndarray, match: RowAlignment, every: int = 32):
+    """A matplotlib figure that shows by eye and in numbers whether the rows line up: both rectified
+    images side by side with a labelled line every `every` rows and the matched features joined across;
+    three magnified crops of matches (left above right, the feature's row drawn through both); the
+    vertical disparity of every match against its column. Returns the figure."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from calib.numbers import fixed
+
     def to8(img):
         img = img.astype(np.float32)
-        top = float(img.max()) or 1.0
-        return np.clip(img * (255.0 / top), 0, 255).astype(np.uint8)
+        return np.clip(img * (255.0 / (float(img.max()) or 1.0)), 0, 255)
 
-    pair = cv2.cvtColor(np.hstack([to8(left), to8(right)]), cv2.COLOR_GRAY2BGR)
-    colours = ((0, 0, 255), (0, 200, 0), (255, 80, 0), (0, 200, 255))
-    for k, r in enumerate(range(every // 2, pair.shape[0], every)):
-        pair[r, :] = colours[k % len(colours)]
-    pair[:, left.shape[1]] = (255, 255, 255)
-    return pair
+    h, w = left.shape
+    fig = plt.figure(figsize=(12, 8.2), layout="constrained")
+    grid = fig.add_gridspec(2, 4, height_ratios=[1.35, 1])
+    ax = fig.add_subplot(grid[0, :])
+    ax.imshow(np.hstack([to8(left), to8(right)]), cmap="gray", interpolation="nearest")
+    for r in range(every // 2, h, every):
+        ax.axhline(r, color="#ffd166", lw=0.6, alpha=0.7)
+    ax.set_yticks(range(every // 2, h, 2 * every))
+    ax.axvline(w - 0.5, color="white", lw=1.5)
+    n = match.dy.size
+    lim = max(0.05, float(np.abs(match.dy).max()) if n else 0.05)
+    cmap = plt.get_cmap("coolwarm")
+    ax.plot(match.x, match.y, "o", ms=3, mfc="none", mec="#06d6a0")
+    ax.plot(w + match.x_right, match.y + match.dy, "o", ms=3, mfc="none", mec="#06d6a0")
+    order = np.argsort(np.abs(match.dy))
+    picks = [order[0], order[len(order) // 2], order[-1]] if n else []
+    for name, k in zip("ABC", picks):
+        ax.plot([match.x[k], w + match.x_right[k]], [match.y[k], match.y[k] + match.dy[k]], "-", lw=1,
+                color="#ef476f")
+        for px in (match.x[k], w + match.x_right[k]):
+            ax.annotate(name, (px, match.y[k]), xytext=(4, -4), textcoords="offset points", color="#ef476f",
+                        fontsize=11, fontweight="bold")
+    ax.set_xlim(-0.5, 2 * w - 0.5)
+    ax.set_ylim(h - 0.5, -0.5)
+    ax.set_xticks([w / 2, 1.5 * w], ["left rectified image", "right rectified image"])
+    ax.set_ylabel("rectified row (px)")
+    ax.set_title(f"Rectified pair: a scene point lies on the same row in both images (yellow lines every "
+                 f"{every} rows; circles: {n} features matched left to right)", fontsize=10)
+    if n == 0:
+        fig.add_subplot(grid[1, :]).text(
+            0.5, 0.5, "No feature with texture in both directions could be matched, so the row alignment\n"
+                      "cannot be measured from this pair (stripes or a blank scene?). Rectify a pair that\n"
+                      "shows speckle or a chessboard.", ha="center", va="center", fontsize=11)
+        fig.axes[-1].set_axis_off()
+        return fig
+    half = 20
+    for slot, (k, label) in enumerate(zip(picks, ("A: smallest |dy|", "B: median |dy|", "C: largest |dy|"))):
+        cx, cy, cr = int(match.x[k]), int(match.y[k]), int(match.x_right[k])
+        y0, y1 = max(cy - half, 0), min(cy + half + 1, h)
+        crop_l = to8(left)[y0:y1, max(cx - half, 0):cx + half + 1]
+        crop_r = to8(right)[y0:y1, max(cr - half, 0):cr + half + 1]
+        width = min(crop_l.shape[1], crop_r.shape[1])
+        sub = fig.add_subplot(grid[1, slot])
+        sub.imshow(np.vstack([crop_l[:, :width], np.full((2, width), 255.0), crop_r[:, :width]]), cmap="gray",
+                   interpolation="nearest")
+        gap = crop_l.shape[0] + 2
+        sub.axhline(cy - y0, color="#06d6a0", lw=1.2)
+        sub.axhline(gap + cy - y0, color="#06d6a0", lw=1.2)
+        sub.axhline(gap + cy - y0 + match.dy[k], color="#ef476f", lw=1.2, ls="--")
+        sub.set_xticks([])
+        sub.set_yticks([(y1 - y0) / 2, gap + (y1 - y0) / 2], ["left", "right"])
+        sub.set_title(f"{label}\nrow {cy}, dy {fixed(match.dy[k], 3)} px", fontsize=9)
+        if slot == 0:
+            sub.set_xlabel("green: the feature's row in the left image\nred dashes: where the right image has it",
+                           fontsize=8)
+    res = fig.add_subplot(grid[1, 3])
+    res.axhline(0, color="black", lw=0.8)
+    res.scatter(match.x, match.dy, s=8, c=match.dy, cmap=cmap, vmin=-lim, vmax=lim)
+    res.set_xlabel("left column (px)")
+    res.set_ylabel("y_right - y_left (px; 0: rows aligned)")
+    res.set_ylim(-1.2 * lim, 1.2 * lim)
+    res.set_title(f"vertical disparity, {n} features\nRMS {fixed(match.rms, 3)} px, max "
+                  f"{fixed(np.abs(match.dy).max(), 3)} px", fontsize=9)
+    return fig

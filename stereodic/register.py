@@ -83,15 +83,11 @@ def _line_distance(o1, d1, o2, d2, depth: float) -> np.ndarray:
 def apply_registration(prvm: PRVM, reg: Registration, wcs: str) -> PRVM:
     """The PRVM's rays in the common WCS (origins on its plane z = reference_z_mm there), with meta
     `wcs` = `wcs` and `registration` (the transform and its RMS)."""
-    d = prvm.direction @ reg.rotation.T
-    if np.any(d[prvm.valid][:, 2] <= 0):
-        raise InputError(None, "after registration some rays point towards -z: the common WCS must have the "
-                               "cameras looking along +z")
-    o = prvm.origin @ reg.rotation.T + reg.translation_mm
-    z = prvm.reference_z_mm
-    with np.errstate(divide="ignore", invalid="ignore"):
-        o = o + ((z - o[..., 2]) / d[..., 2])[..., None] * d
     meta = {**prvm.meta, "wcs": wcs,
             "registration": {"rotation": reg.rotation.tolist(), "translation_mm": reg.translation_mm.tolist(),
                              "rms_mm": reg.rms_mm, "pixels": reg.pixels}}
-    return PRVM(o, d, prvm.valid.copy(), prvm.residual_mm, meta, dict(prvm.extra))
+    try:
+        return prvm.transformed(reg.rotation, reg.translation_mm, meta)
+    except ValueError:
+        raise InputError(None, "after registration some rays point towards -z: the common WCS must have the "
+                               "cameras looking along +z") from None

@@ -26,7 +26,8 @@ distance), and the two real fields must overlap on the plane.
 
 RIG file (`.npz`, "stereodic.rig/1", no pickles): `meta` (0-d str JSON: format, model, sensor (the
 VirtualSensor), baseline_mm, working_distance_mm, cameras: {left, right: name, centre, file, real
-width/height, dataset, wcs}, software) and per side S in (left, right): `S_map_x`, `S_map_y` (Hv, Wv)
+width/height, dataset, wcs}, world_from_rig (4x4 rows, the rig frame -> the world frame of its results;
+absent = identity; from the PRVMs' meta of the same name, which must agree), software) and per side S in (left, right): `S_map_x`, `S_map_y` (Hv, Wv)
 float32 (the IMM in cv2.remap form, -1 where blank), `S_valid` (Hv, Wv) bool, `S_direction`
 (Hv, Wv, 3) float64 (model-less unit directions through each virtual pixel centre, NaN where blank), and
 the camera's intensity matrix as `S_im_*` when its PRVM has one.
@@ -48,7 +49,7 @@ from calib.errors import InputError
 from calib.intensity import IntensityMatrix
 from calib.npzfile import read_npz
 from calib.prvm_file import FORMAT as PRVM_FORMAT
-from calib.prvm_file import PRVM
+from calib.prvm_file import PRVM, load_prvm
 from stereodic.imm import IMM, build_imm
 from stereodic.undistort import intensity_matrix
 from stereodic.virtual import VirtualCamera, VirtualSensor, fit_optical_centre, project_to_plane
@@ -81,12 +82,16 @@ class RigCamera:
 class Rig:
     """The rectified virtual stereo pair: one VirtualSensor on the Rectified Common FOV Plane and the two
     cameras on it. model: "pinhole" (the Virtual PRVMs are the pinhole rays, EVM = model-less - pinhole)
-    or "modelless" (the Virtual PRVMs are the model-less rays, EVM zero); the images are the same."""
+    or "modelless" (the Virtual PRVMs are the model-less rays, EVM zero); the images are the same.
+    world_from_rig: (4, 4) float64 rigid transform from the rig's frame (the WCS of its rays) to the world
+    frame its results are reported in (identity, except for a rig made by `stereodic import` from a file
+    whose cameras look along -z: there it leads back to the calibration file's own world frame)."""
 
     sensor: VirtualSensor
     left: RigCamera
     right: RigCamera
     model: str = "pinhole"
+    world_from_rig: np.ndarray = field(default_factory=lambda: np.eye(4))
 
     def camera(self, side: str) -> RigCamera:
         if side not in SIDES:
@@ -103,6 +108,16 @@ class Rig:
         """Distance of both optical centres from the common plane (they are equal: the plane is parallel
         to the baseline)."""
         return float((self.sensor.origin - self.left.centre) @ self.sensor.normal)
+
+    def to_world(self, points: np.ndarray, *, vector: bool = False) -> np.ndarray:
+        """(..., 3) rig-frame points (mm) in the reporting frame: world_from_rig applied (its rotation
+        alone with `vector`, for directions and displacements). An identity transform returns the input
+        unchanged."""
+        T = np.asarray(self.world_from_rig, np.float64)
+        if np.array_equal(T, np.eye(4)):
+            return points
+        out = np.asarray(points, np.float64) @ T[:3, :3].T
+        return out if vector else out + T[:3, 3]
 
     def virtual_camera(self, side: str) -> VirtualCamera:
         """The pinhole virtual camera of `side`: the common sensor and that camera's centre."""
@@ -138,6 +153,7 @@ class Rig:
                 "baseline_mm": self.baseline.tolist(), "working_distance_mm": self.working_distance_mm,
                 "cameras": {s: {"name": self.camera(s).name, "centre": self.camera(s).centre.tolist(),
                                 **self.camera(s).info} for s in SIDES},
+                "world_from_rig": np.asarray(self.world_from_rig, np.float64).tolist(),
                 "software": f"stereodic {__version__}"}
 
 
@@ -268,6 +284,10 @@ def build_rig(left: PRVM, right: PRVM, model: str = "pinhole", width: int | None
             centres.append(fit_optical_centre(prvm)[0])
         except InputError as exc:
             raise InputError(name, exc.problem) from None
+    frames = [world_from_rig(p.meta, name) for p, name in zip((left, right), where)]
+    if not np.allclose(frames[0], frames[1], atol=1e-12):
+        raise InputError(where[1], f"its rays are in another internal frame than {where[0]}'s (their "
+                                   f"world_from_rig differ): import both cameras from one calibration file")
     plane = rectified_plane(left, right, centres[0], centres[1], plane_z_mm, where)
     width = left.width if width is None else int(width)
     height = left.height if height is None else int(height)
@@ -282,7 +302,16 @@ def build_rig(left: PRVM, right: PRVM, model: str = "pinhole", width: int | None
                 "blank_pixels": int((~setup.imm.valid).sum())}
         cams.append(RigCamera(prvm.meta.get("camera", Path(os.fspath(name)).stem), centre, setup.imm, direction,
                               intensity_matrix(prvm), info))
-    return Rig(sensor, cams[0], cams[1], model)
+    return Rig(sensor, cams[0], cams[1], model, frames[0])
+
+
+def rig_from_files(left: str | os.PathLike, right: str | os.PathLike, *, model: str = "pinhole",
+                   width: int | None = None, height: int | None = None, pitch_mm=None,
+                   plane_z_mm: float | None = None) -> Rig:
+    """`build_rig` of the two PRVM files `left` and `right` (paths; the files name the cameras in
+    messages and in the rig's `info`); the options as in `build_rig`."""
+    return build_rig(load_prvm(left), load_prvm(right), model, width, height, pitch_mm, plane_z_mm,
+                     (os.fspath(left), os.fspath(right)))
 
 
 # ------------------------------------------------------------------------------------------- file
@@ -320,4 +349,22 @@ def load_rig(path: str | os.PathLike) -> Rig:
                   (int(info["real_width"]), int(info["real_height"])))
         im = IntensityMatrix.from_arrays(arrays, prefix=f"{side}_im_") if f"{side}_im_offset" in arrays else None
         cams.append(RigCamera(name, centre, imm, arrays[f"{side}_direction"].astype(np.float64), im, info))
-    return Rig(sensor, cams[0], cams[1], meta.get("model", "pinhole"))
+    return Rig(sensor, cams[0], cams[1], meta.get("model", "pinhole"), world_from_rig(meta, path))
+
+
+def world_from_rig(meta: dict, path) -> np.ndarray:
+    """The meta's world_from_rig (identity when absent); InputError naming the file unless it is a 4x4
+    rigid transform (rotation with determinant +1, last row 0 0 0 1)."""
+    if "world_from_rig" not in meta:
+        return np.eye(4)
+    try:
+        T = np.asarray(meta["world_from_rig"], np.float64)
+    except (TypeError, ValueError):
+        T = np.zeros(0)
+    if T.shape != (4, 4) or not np.isfinite(T).all():
+        raise InputError(path, "world_from_rig is not a 4x4 matrix of numbers")
+    R = T[:3, :3]
+    if (np.abs(R.T @ R - np.eye(3)).max() > 1e-9 or np.linalg.det(R) < 0
+            or np.abs(T[3] - (0, 0, 0, 1)).max() > 1e-12):
+        raise InputError(path, "world_from_rig is not a rigid transform (rotation and translation)")
+    return T

@@ -77,23 +77,34 @@ def _bilinear3(field, u, v, out):  # pragma: no cover - numba kernel
 @numba.njit(cache=True, parallel=True)
 def _triangulate(xl, rl, xr, rr, origin, eu, ev, dir_l, dir_r, c_l, c_r, corrected, points, gap
                  ):  # pragma: no cover - numba kernel
+    # scalar code per point: array expressions inside a prange become nested parallel loops, which
+    # numba takes ~10 s to compile
     for k in numba.prange(xl.size):
-        o1 = origin + xl[k] * eu + rl[k] * ev
-        o2 = origin + xr[k] * eu + rr[k] * ev
+        o1 = np.empty(3)
+        o2 = np.empty(3)
         d1 = np.empty(3)
         d2 = np.empty(3)
+        for c in range(3):
+            o1[c] = origin[c] + xl[k] * eu[c] + rl[k] * ev[c]
+            o2[c] = origin[c] + xr[k] * eu[c] + rr[k] * ev[c]
         if corrected:
             _bilinear3(dir_l, xl[k], rl[k], d1)
             _bilinear3(dir_r, xr[k], rr[k], d2)
         else:
-            d1[:] = o1 - c_l
-            d2[:] = o2 - c_r
-        d1 /= np.sqrt(d1[0] * d1[0] + d1[1] * d1[1] + d1[2] * d1[2])
-        d2 /= np.sqrt(d2[0] * d2[0] + d2[1] * d2[1] + d2[2] * d2[2])
-        w = o1 - o2
-        b = d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]
-        d = d1[0] * w[0] + d1[1] * w[1] + d1[2] * w[2]
-        e = d2[0] * w[0] + d2[1] * w[1] + d2[2] * w[2]
+            for c in range(3):
+                d1[c] = o1[c] - c_l[c]
+                d2[c] = o2[c] - c_r[c]
+        n1 = np.sqrt(d1[0] * d1[0] + d1[1] * d1[1] + d1[2] * d1[2])
+        n2 = np.sqrt(d2[0] * d2[0] + d2[1] * d2[1] + d2[2] * d2[2])
+        b = d = e = 0.0
+        for c in range(3):
+            d1[c] /= n1
+            d2[c] /= n2
+        for c in range(3):
+            w = o1[c] - o2[c]
+            b += d1[c] * d2[c]
+            d += d1[c] * w
+            e += d2[c] * w
         den = 1.0 - b * b
         if den > 1e-15:
             s = (b * e - d) / den

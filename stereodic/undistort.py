@@ -49,9 +49,13 @@ def linearise(image: np.ndarray, im: IntensityMatrix) -> np.ndarray:
 
 
 def undistort_image(image: np.ndarray, imm: IMM, im: IntensityMatrix | None = None,
-                    fixed_point: bool = False, where=None) -> np.ndarray:
-    """The virtual image of a real 8/16-bit image: checked, linearised by the IM if given, mapped."""
+                    fixed_point: bool = False, where=None, exact: bool = False) -> np.ndarray:
+    """The virtual image of a real 8/16-bit image: checked, linearised by the IM if given, mapped. Same
+    dtype, or with `exact` float32 (no rounding of the interpolated grey levels back to integers: for
+    measuring on the virtual image, e.g. DIC, where that rounding would add its noise)."""
     check_image(image, imm, im, where)
     if im is not None:
         image = linearise(image, im)
+    if exact:
+        image = image.astype(np.float32)
     return apply_imm(image, imm, fixed_point)

@@ -27,10 +27,32 @@ def plot_noncentrality(miss_mm: np.ndarray, miss_px: np.ndarray | None = None, t
     return fig
 
 
-def plot_distortion(imm: IMM, step: int = 32, scale: float = 1.0, title: str = "distortion map"):
+def round_down(x: float) -> float:
+    """The largest of 1, 2, 5 x 10^k not above x (x > 0): a round number for scales."""
+    k = np.floor(np.log10(x))
+    return float(max(m * 10.0 ** k for m in (1, 2, 5) if m * 10.0 ** k <= x * (1 + 1e-9)))
+
+
+def arrows(ax, u, v, du, dv, unit: str, color: str = "white") -> None:
+    """Arrows (du, dv) at the grid points (u, v) (2-D arrays, data units), magnified by a round factor so
+    that the longest (99th percentile) spans about 1.5 grid steps, and the scale above the axes: an
+    arrow of a round length and the factor. `unit` names the arrows' unit ("px")."""
+    length = np.hypot(du, dv)
+    top = float(np.nanpercentile(length, 99)) if np.isfinite(length).any() else 0.0
+    if top <= 0:
+        return
+    step = float(u[0, 1] - u[0, 0]) if u.shape[1] > 1 else 1.0
+    magnify = round_down(1.5 * step / top)
+    key = round_down(top)
+    q = ax.quiver(u, v, du, dv, color=color, angles="xy", scale_units="xy", scale=1 / magnify, width=0.003)
+    ax.quiverkey(q, 0.97, 1.035, key, f"arrow scale: {key:g} {unit}\n(drawn {magnify:g}x)", labelpos="W",
+                 coordinates="axes", color="black", fontproperties={"size": 8})
+
+
+def plot_distortion(imm: IMM, step: int = 32, title: str = "distortion map"):
     """Where each virtual pixel samples the real image, relative to the best similarity transform
-    (scale, rotation, shift) between the two grids: arrows on a grid every `step` virtual pixels,
-    magnified `scale` times, over a colour map of the displacement length (real pixels)."""
+    (scale, rotation, shift) between the two grids: arrows on a grid every `step` virtual pixels
+    (`arrows`: magnified, with their scale) over a colour map of the displacement length (real pixels)."""
     import matplotlib.pyplot as plt
     v, u = np.mgrid[0:imm.shape[0], 0:imm.shape[1]].astype(np.float64)
     ok = imm.valid
@@ -45,9 +67,8 @@ def plot_distortion(imm: IMM, step: int = 32, scale: float = 1.0, title: str = "
     fig, ax = plt.subplots(figsize=(7, 5.5))
     im = ax.imshow(np.abs(disp), cmap="magma")
     s = (slice(step // 2, None, step), slice(step // 2, None, step))
-    ax.quiver(u[s], v[s], disp[s].real, disp[s].imag, color="cyan", angles="xy", scale_units="xy",
-              scale=1 / scale)
-    ax.set_title(title)
+    arrows(ax, u[s], v[s], disp[s].real, disp[s].imag, "real px", color="cyan")
+    ax.set_title(title, loc="left")
     ax.set_xlabel("virtual u (px)")
     ax.set_ylabel("virtual v (px)")
     fig.colorbar(im, ax=ax, shrink=0.8, label="displacement from a similarity (real px)")

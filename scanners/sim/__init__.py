@@ -9,3 +9,6 @@ Modules: `optics` (Snell refraction, planes), `lenses` (the five lens families),
 `screens` (the 8-bit images the display shows), `stage` (positions with errors), `sensor` (photons to
 digital numbers), `defocus` (the blur), `camera` (rendering), `calibration` (calibration datasets).
 """
+
+# The lens families of `lenses`, here so that the command line can offer them without loading the renderer.
+LENS_FAMILIES = ("brown", "freeform", "noncentral", "telecentric", "scheimpflug")

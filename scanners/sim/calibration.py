@@ -9,6 +9,10 @@ Frame order per stage position (nominal positions in the manifest; the true ones
 2*pi*k/N wrapped to (-pi, pi], then chessboards. Files: `z000/cam0_flat_128.png`,
 `z000/cam0_x_P60_s0.png`, `z000/cam0_chess_0.png`, ... The manifest is written last, so an interrupted
 run never leaves a folder that looks like a complete dataset.
+
+With `handheld` (`scanners.sim.handheld`) the display is held by hand in random poses instead: frames
+carry `pose` (files `pose00/cam0_x_P60_s0.png`, ...), the flats are at pose 0 only, and the truth is in
+the display's frame at pose 0 (DESIGN.md's WCS of a stage-free capture).
 """
 
 from __future__ import annotations
@@ -23,8 +27,10 @@ from calib.capture import MANIFEST, Capture, CoverGlass, Frame, Pattern, load_ca
 from calib.errors import InputError
 from calib.imageio import write_gray
 from calib.progress import progress
+from scanners.sim.bayer import BayerCamera, BayerSensor
 from scanners.sim.camera import SimCamera
 from scanners.sim.display import SimDisplay
+from scanners.sim.handheld import HandHeld, disturbed_pose, handheld_poses, relative_poses, to_pose0_frame
 from scanners.sim.lenses import DEFAULT_TARGET_MM, Lens, make_lens
 from scanners.sim.pose import DisplayPose
 from scanners.sim.screens import fringe_shifts, screen_image
@@ -46,7 +52,8 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
                          display: SimDisplay | None = None, lens_options: dict | None = None,
                          camera: str = "cam0", sensor_seed: int | None = None, ambient: float = 0.0,
                          ambient_variation: float = 0.0, hot_pixels: float = 0.0, overexposure: float = 0.0,
-                         unseen: float = 0.0) -> Capture:
+                         unseen: float = 0.0, board_lenses: tuple[Lens, ...] = (), handheld: HandHeld | None = None,
+                         bayer: BayerSensor | None = None) -> Capture:
     """Write a simulated calibration dataset to `out_dir` and return it (as load_capture reads it).
 
     lens: a family of scanners.sim.lenses (with `lens_options` passed to make_lens) or a Lens;
@@ -59,14 +66,19 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
     tilt about each of the display's x and y axes (about the display's centre), and across the axis
     (`scanners.sim.stage.SimStage`); exposure_fraction: brightest fringe pixel / full scale;
     sensor_seed: seed of the camera's gain map, hot pixels and noise (default `seed`; cameras of one
-    rig share the stage's seed but each has its own sensor).
+    rig share the stage's seed but each has its own sensor); board_lenses: further lenses (a stereo
+    rig's other cameras) that must see every chessboard whole too: one display shows one board to all
+    of them; handheld: hold the display by hand in random poses (`scanners.sim.handheld.HandHeld`)
+    instead of the stage (z_positions and the stage errors unused); bayer: a colour camera with that raw
+    Bayer mosaic (`scanners.sim.bayer.BayerSensor`; its lens gets the sensor's lateral chromatic
+    aberration).
     A real bench's flaws (all off by default; docs/simulator.md): `display` (a SimDisplay: bow, pitch
     error, viewing-angle falloff and gamma, bezel); ambient, ambient_variation: room light on the
     sensor (`SimCamera`); hot_pixels: their fraction (`Sensor`); overexposure: the fraction of the
     pixels seeing the display that exceed full scale at a flat of level `high` (instead of
     `exposure_fraction`); unseen: the fraction of the image rows beyond the display's lower edge at
-    the last stage position (a lens family only: the camera and its aim are moved along the display's
-    rows until they are).
+    the last stage position (a lens family on a stage only: the camera and its aim are moved along the
+    display's rows until they are).
     Raises InputError naming the argument for bad arguments or a camera that does not see the display.
     """
     periods = _check_list("--periods", periods, positive=True)
@@ -96,37 +108,59 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
     display = display or SimDisplay()
     if cover_glass is not None:
         display = dataclasses.replace(display, cover_glass=cover_glass)
+    if unseen > 0 and (handheld is not None or not isinstance(lens, str)):
+        raise InputError("--unseen", "needs a lens family on a stage (the camera is moved), not a Lens or a "
+                                     "hand-held display")
     if isinstance(lens, str):
         lens = make_lens(lens, width, height, seed, **(lens_options or {}))
         if unseen > 0:
             lens = _shifted_for_unseen(lens, display, seed, unseen, z_nominal[-1], stage_axis, lens_options)
-    elif unseen > 0:
-        raise InputError("unseen", "needs a lens family (the camera is moved), not a Lens")
-    try:
-        stage = SimStage(tuple(z_nominal), stage_error_um, tuple(stage_axis), seed, stage_tilt_deg,
-                         stage_lateral_um, pivot_mm=tuple(np.array(display.size_mm) / 2))
-    except ValueError as exc:
-        raise InputError("stage", str(exc)) from None
-    cam = SimCamera(lens, Sensor(bit_depth=bit_depth, hot_pixels=hot_pixels), supersample,
-                    seed=seed if sensor_seed is None else sensor_seed, ambient=ambient,
-                    ambient_variation=ambient_variation)
-    cam.set_exposure(display, high, stage.poses[0], exposure_fraction, clipped=overexposure)
+    if handheld is not None and chessboard:
+        raise InputError("--chessboard", "chessboards are rendered at stage positions only")
+    stage = None
+    if handheld is None:
+        try:
+            stage = SimStage(tuple(z_nominal), stage_error_um, tuple(stage_axis), seed, stage_tilt_deg,
+                             stage_lateral_um, pivot_mm=tuple(np.array(display.size_mm) / 2))
+        except ValueError as exc:
+            raise InputError("stage", str(exc)) from None
+    sensor = Sensor(bit_depth=bit_depth, hot_pixels=hot_pixels)
+    sensor_options = dict(seed=seed if sensor_seed is None else sensor_seed, ambient=ambient,
+                          ambient_variation=ambient_variation)
+    if bayer is not None:
+        lens = dataclasses.replace(lens, colour=bayer.colour(lens.width, lens.height))
+        cam = BayerCamera(lens, sensor, supersample, bayer=bayer, **sensor_options)
+    else:
+        cam = SimCamera(lens, sensor, supersample, **sensor_options)
+    poses = list(stage.poses) if stage is not None else handheld_poses(lens, display, handheld, seed)
+    cam.set_exposure(display, high, poses[0], exposure_fraction, clipped=overexposure)
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / MANIFEST).unlink(missing_ok=True)     # an old manifest must not describe half-new images
-    boards = [_chess_placements(cam, display, pose) if chessboard else [] for pose in stage.poses]
-    frames = _frames(camera, z_nominal, flats, periods, steps, low, high, boards)
-    for f in progress(frames, "simulating", total=len(frames)):
+    others = [SimCamera(ln, Sensor(bit_depth=bit_depth), cam.supersample) for ln in board_lenses]
+    boards = [_chess_placements([cam, *others], display, pose) if chessboard else [] for pose in poses]
+    places = ([{"z_mm": z} for z in z_nominal] if stage is not None else
+              [{"pose": i} for i in range(len(poses))])
+    frames = _frames(camera, places, flats, periods, steps, low, high, boards)
+    shown = _shown_poses(frames, poses, stage, handheld, display, seed)
+    for f, pose in progress(list(zip(frames, shown)), "simulating", total=len(frames)):
         image = screen_image(f.pattern, display.width_px, display.height_px)
-        write_gray(out / f.file, cam.render(image, display, stage.true_pose(f.z_mm), noise))
+        write_gray(out / f.file, cam.render(image, display, pose, noise))
 
-    _truth(cam, display, stage, seed, noise, camera, ambient, ambient_variation, overexposure).save(
-        out / "truth.npz")
+    truth = _truth(cam, display, poses, seed, noise, camera, stage, ambient, ambient_variation, overexposure)
+    simulated = {"lens": lens.family, "seed": seed, "noise": noise, "supersample": cam.supersample,
+                 "truth": "truth.npz"}
+    if bayer is not None:
+        simulated["bayer"] = dataclasses.asdict(bayer)
+        truth.meta["bayer"] = simulated["bayer"]
+    if handheld is not None:
+        truth = _handheld_truth(truth, poses, handheld, shown, frames)
+        simulated["handheld"] = truth.meta["handheld"]
+    truth.save(out / "truth.npz")
     cap = Capture(out, "calibration", {camera: (lens.width, lens.height)}, frames, display.record(),
-                  stage.axis, {"simulated": {"lens": lens.family, "seed": seed, "noise": noise,
-                                             "supersample": cam.supersample, "truth": "truth.npz"}},
-                  {camera: bit_depth})
+                  stage.axis if stage is not None else (0.0, 0.0, 1.0), {"simulated": simulated},
+                  {camera: bit_depth}, {camera: bayer.pattern} if bayer is not None else {})
     cap.save()
     return load_capture(out, min_positions=1)
 
@@ -156,45 +190,63 @@ def _shifted_for_unseen(lens: Lens, display: SimDisplay, seed: int, unseen: floa
     return make_lens(lens.family, lens.width, lens.height, seed, **{**options, "target_mm": tuple(target)})
 
 
-def _frames(camera, z_nominal, flats, periods, steps, low, high, boards) -> list[Frame]:
+def _frames(camera, places, flats, periods, steps, low, high, boards) -> list[Frame]:
+    """The frames at each place ({"z_mm": z}: flats at every stage position; {"pose": i}: at pose 0)."""
     frames = []
-    for i, z in enumerate(z_nominal):
-        folder = f"z{i:03d}"
-        for level in flats:
+    for i, where in enumerate(places):
+        folder = f"z{i:03d}" if "z_mm" in where else f"pose{i:02d}"
+        for level in flats if "z_mm" in where or i == 0 else ():
             frames.append(Frame(camera, f"{folder}/{camera}_flat_{level}.png", Pattern("flat", {"level": level}),
-                                z_mm=z))
+                                **where))
         for axis in ("x", "y"):
             for p, n in zip(periods, steps):
                 for k, shift in enumerate(fringe_shifts(int(n))):
                     frames.append(Frame(camera, f"{folder}/{camera}_{axis}_P{p:g}_s{k}.png",
                                         Pattern("fringe", {"axis": axis, "period_px": p, "shift_rad": shift,
-                                                           "low": low, "high": high}), z_mm=z))
+                                                           "low": low, "high": high}), **where))
         for j, board in enumerate(boards[i]):
             frames.append(Frame(camera, f"{folder}/{camera}_chess_{j}.png",
-                                Pattern("chessboard", {**board, "low": low, "high": high}), z_mm=z))
+                                Pattern("chessboard", {**board, "low": low, "high": high}), **where))
     return frames
 
 
-def _chess_placements(cam: SimCamera, display: SimDisplay, pose: DisplayPose) -> list[dict]:
-    """Five board placements (centre and four shifted ones) inside the camera's field at the display's
-    true pose: sized from the field's extent (2nd-98th percentile of the display coordinates seen),
-    then shrunk until every corner of every board lies inside the field's outline (an oblique view sees
-    a trapezoid, not the box of its extent) by half a square or more (the light border a detector
-    needs)."""
-    cr = cam.view(display, pose).display_cr
-    lo, hi = np.percentile(cr.reshape(-1, 2), [2, 98], axis=0)
+def _shown_poses(frames, poses, stage, held, display, seed) -> list[DisplayPose]:
+    """The display's true pose while each frame was captured: the stage's at its nominal position, or
+    the hand's, moved halfway through the fringe frames of the disturbed pose."""
+    if stage is not None:
+        return [stage.true_pose(f.z_mm) for f in frames]
+    shown = [poses[f.pose] for f in frames]
+    if held.disturbed is not None:
+        moved = disturbed_pose(poses[held.disturbed], display, held, seed)
+        index = [i for i, f in enumerate(frames) if f.pose == held.disturbed and f.pattern.type == "fringe"]
+        for i in index[len(index) // 2:]:
+            shown[i] = moved
+    return shown
+
+
+def _chess_placements(cams: list[SimCamera], display: SimDisplay, pose: DisplayPose) -> list[dict]:
+    """Five board placements (centre and four shifted ones) inside every camera's field at the display's
+    true pose: sized from the common field's extent (2nd-98th percentile of the display coordinates
+    each camera sees), then shrunk until every corner of every board lies inside each field's outline
+    (an oblique view sees a trapezoid, not the box of its extent) by half a square or more (the light
+    border a detector needs)."""
+    lo, hi, outlines = np.full(2, -np.inf), np.full(2, np.inf), []
+    for cam in cams:
+        cr = cam.view(display, pose).display_cr
+        a, b = np.percentile(cr.reshape(-1, 2), [2, 98], axis=0)
+        lo, hi = np.maximum(lo, a), np.minimum(hi, b)
+        outlines.append(np.concatenate([cr[0], cr[1:, -1], cr[-1, -2::-1], cr[-2:0:-1, 0]]).astype(np.float32))
     lo = np.maximum(lo, 0.0)                            # and on the display, if it does not fill the field
     hi = np.minimum(hi, [display.width_px - 1.0, display.height_px - 1.0])
-    outline = np.concatenate([cr[0], cr[1:, -1], cr[-1, -2::-1], cr[-2:0:-1, 0]]).astype(np.float32)
-    field = hi - lo
+    field = np.maximum(hi - lo, 0.0)
     size = int(0.65 * min(field[0] / CHESS_SQUARES[0], field[1] / CHESS_SQUARES[1]))
     while size >= 4:
         boards = _boards(size, lo, hi)
-        if all(_inside(outline, b, size / 2) for b in boards):
+        if all(_inside(outline, b, size / 2) for b in boards for outline in outlines):
             return boards
         size -= 1
-    raise InputError("chessboard", f"the camera sees only {field[0]:.0f}x{field[1]:.0f} display pixels "
-                                   f"at z = {pose.translation[2]:g} mm: too few for a {CHESS_SQUARES[0]}x{CHESS_SQUARES[1]} "
+    raise InputError("chessboard", f"the camera(s) see in common only {field[0]:.0f}x{field[1]:.0f} display "
+                                   f"pixels at z = {pose.translation[2]:g} mm: too few for a {CHESS_SQUARES[0]}x{CHESS_SQUARES[1]} "
                                    f"chessboard")
 
 
@@ -218,39 +270,60 @@ def _inside(outline: np.ndarray, board: dict, margin: float) -> bool:
                for c, r in ((c0, r0), (c0 + w, r0), (c0, r0 + h), (c0 + w, r0 + h)))
 
 
-def _truth(cam: SimCamera, display: SimDisplay, stage: SimStage, seed: int, noise: bool, camera: str,
-           ambient: float, ambient_variation: float, overexposure: float):
-    """The true PRVM with the rig's other truths: stage positions, the display's true poses, gain and
-    vignetting maps (and the hot pixels' and ambient light's, if any), and the display coordinates
-    (c, r) each pixel centre's ray reaches at each true pose (outside 0..width-1, 0..height-1 by more
-    than half a pixel: the ray misses the display's pixel area)."""
+def _truth(cam: SimCamera, display: SimDisplay, poses: list[DisplayPose], seed: int, noise: bool, camera: str,
+           stage: SimStage | None, ambient: float, ambient_variation: float, overexposure: float):
+    """The true PRVM (simulator frame) with the rig's other truths: stage positions (with a stage), the
+    display's true poses, gain and vignetting maps (and the hot pixels' and ambient light's, if any), and
+    the display coordinates (c, r) each pixel centre's ray reaches at each true pose (outside
+    0..width-1, 0..height-1 by more than half a pixel: the ray misses the display's pixel area)."""
     lens = cam.lens
     o, d = lens.rays(*lens.pixel_grid())
-    display_cr = np.stack([np.stack(display.hit(o, d, pose), axis=-1) for pose in stage.poses])
-    first = cam.view(display, stage.poses[0]).points_mm
+    display_cr = np.stack([np.stack(display.hit(o, d, pose), axis=-1) for pose in poses])
+    first = cam.view(display, poses[0]).points_mm
     h, w = lens.height, lens.width
     centre = first[h // 2, w // 2]
     footprint = 0.5 * (np.linalg.norm(np.diff(first, axis=1), axis=-1).mean()
                        + np.linalg.norm(np.diff(first, axis=0), axis=-1).mean())
+    rig = {} if stage is None else {"stage": {
+        "nominal_mm": list(stage.nominal_mm), "true_mm": list(stage.true_mm), "axis": list(stage.axis),
+        "error_um": stage.error_um, "tilt_deg": stage.tilt_deg, "lateral_um": stage.lateral_um,
+        "true_tilt_deg": stage.tilts_deg.tolist(), "true_lateral_mm": stage.lateral_mm.tolist()}}
     prvm = lens.true_prvm(
         camera=camera, dataset="capture.json", seed=seed, noise=noise,
-        working_distance_mm=float(lens.axis_depth(centre)), pixel_footprint_mm=float(footprint),
-        stage={"nominal_mm": list(stage.nominal_mm), "true_mm": list(stage.true_mm),
-               "axis": list(stage.axis), "error_um": stage.error_um, "tilt_deg": stage.tilt_deg,
-               "lateral_um": stage.lateral_um, "true_tilt_deg": stage.tilts_deg.tolist(),
-               "true_lateral_mm": stage.lateral_mm.tolist()},
+        working_distance_mm=float(lens.axis_depth(centre)), pixel_footprint_mm=float(footprint), **rig,
         display={"fill_factor": list(display.fill_factor), "stripes": display.stripes,
                  "black_level": display.black_level, "gamma": display.gamma, **display.flaws()},
         sensor={**cam.sensor.__dict__, "exposure_e": cam.exposure_e, "supersample": cam.supersample,
                 "diffraction_sigma_px": cam.sigma_px, "ambient": ambient, "ambient_variation": ambient_variation,
                 "overexposure": overexposure})
-    prvm.extra = {"stage_nominal_z_mm": np.array(stage.nominal_mm, float),
-                  "stage_true_z_mm": np.array(stage.true_mm, float),
-                  "display_rotation": np.array([p.R for p in stage.poses]),
-                  "display_translation_mm": np.array([p.t for p in stage.poses]), "gain": cam.gain,
+    prvm.extra = {"display_rotation": np.array([p.R for p in poses]),
+                  "display_translation_mm": np.array([p.t for p in poses]), "gain": cam.gain,
                   "vignetting": cam.vignetting, "display_cr": display_cr.astype(np.float32)}
+    if stage is not None:
+        prvm.extra = {"stage_nominal_z_mm": np.array(stage.nominal_mm, float),
+                      "stage_true_z_mm": np.array(stage.true_mm, float), **prvm.extra}
     if cam.hot_e is not None:
         prvm.extra["hot_pixels_e"] = cam.hot_e
     if cam.ambient is not None:
         prvm.extra["ambient"] = cam.ambient
     return prvm
+
+
+def _handheld_truth(truth, poses: list[DisplayPose], held: HandHeld, shown: list[DisplayPose],
+                    frames: list[Frame]):
+    """The truth of a hand-held capture in the display's frame at pose 0 (the WCS its calibration
+    reports): rays, and each pose relative to pose 0 (the disturbed pose: where its first frames saw it);
+    `sim_rotation`, `sim_translation_mm`: pose 0 in the simulator's frame (X_sim = R X_wcs + t)."""
+    out = to_pose0_frame(truth, poses[0])
+    rot, t = relative_poses(poses)
+    out.extra.update({"display_rotation": rot, "display_translation_mm": t, "sim_rotation": poses[0].R,
+                      "sim_translation_mm": poses[0].t})
+    meta = {"poses": held.poses, "distance_mm": list(held.distance_mm), "max_tilt_deg": held.max_tilt_deg,
+            "roll_deg": held.roll_deg, "min_cover": held.min_cover, "disturbed": held.disturbed}
+    if held.disturbed is not None:
+        moved = next(p for p, f in zip(reversed(shown), reversed(frames)) if f.pose == held.disturbed)
+        mr, mt = relative_poses([poses[0], moved])
+        out.extra.update({"disturbed_rotation": mr[1], "disturbed_translation_mm": mt[1]})
+        meta.update(disturbance_mm=held.disturbance_mm, disturbance_deg=held.disturbance_deg)
+    out.meta["handheld"] = meta
+    return out

@@ -8,11 +8,16 @@ plate's centre along its edges e1 = (cos tilt, 0, sin tilt) and e2 = (0, 1, 0); 
 from the cameras.
 
 A state (`DicState`) maps every material point to the WCS:
-    p(X) = C + t + R A (l1 X1, l2 X2, w(X)),   w(X) = -h (1 - r^2/Rb^2)^2 for r = |X| < Rb, else 0,
+    p(X) = C + t + R A (l1 X'1, l2 X'2, w(X')),   w(X) = -h (1 - r^2/Rb^2)^2 for r = |X| < Rb, else 0,
+    X' = Q(theta(r)) X,   theta(r) = theta0 exp(-r^2 / (2 s^2))   (a twist: Q the 2-D rotation),
 A = [e1 e2 n] (the plate frame), R a rotation about the plate's centre C, t a translation (mm), l1, l2
-in-plane stretches, h the height of a bulge of radius Rb towards the cameras. Its deformation gradient
-(material frame) is F = R A J with J = [[l1, 0], [0, l2], [dw/dX1, dw/dX2]], so the Green-Lagrange
-strain in the plate's frame is E = (J^T J - I) / 2 exactly.
+in-plane stretches, h the height of a bulge of radius Rb towards the cameras, theta0 the angle of a
+twist of radius s about the plate's centre (a rotation that fades with the distance from the centre: a
+deformation no affine subset follows when theta0 is large). Its deformation gradient (material frame)
+is F = R A J T with J = [[l1, 0], [0, l2], [dw/dX'1, dw/dX'2]] (at X') and T = dX'/dX = Q(theta) +
+Q(theta + pi/2) X grad(theta)^T, grad(theta) = -theta X / s^2, so the Green-Lagrange strain in the
+plate's frame is E = (T^T J^T J T - I) / 2 exactly. The twist keeps |X'| = |X|, so a ray meets the
+deformed plate where it would without it, at X' (then X = Q(-theta(|X'|)) X').
 
 Rendering one camera image of one state: each pixel is sampled at S x S points; the TRUE ray of each
 sample (`Lens.rays`) meets the deformed plate where w(X(s)) equals the ray's height above the plate
@@ -22,8 +27,10 @@ diffraction blur, pixel integration, vignetting, PRNU, shot and read noise and 8
 (`SimCamera`'s pieces). Outside the plate a dark untextured background.
 
 `simulate_dic` writes a `stereodic.capture/1` dataset of kind "dic" (cameras cam0 = left, cam1 = right,
-one image per camera and state: s{state:03d}/cam{k}.png), rig.npz (the rectified pair of the TRUE camera
-models) and truth.npz (`DicTruth`).
+one image per camera and state: s{state:03d}/cam{k}.png), the TRUE camera models as PRVMs
+(truth_cam0.npz, truth_cam1.npz; the `simulate dic` command adds rig.npz, their rectified pair built by
+`stereodic.rig`) and truth.npz (`DicTruth`). `truth_at_pixels` gives the truth at the points the left
+camera sees at given real pixels, through the simulator's own lens rays and the plate's geometry.
 """
 
 from __future__ import annotations
@@ -82,7 +89,7 @@ class Specimen:
 class DicState:
     """One load state (module docstring): name, in-plane stretches (l1, l2), bulge height h (mm, towards
     the cameras) and radius Rb (mm), rigid rotation (rotation vector, degrees, about the plate's centre)
-    and translation (WCS mm)."""
+    and translation (WCS mm), twist angle theta0 (degrees, about the plate's normal) and radius s (mm)."""
 
     name: str
     stretch: tuple = (1.0, 1.0)
@@ -90,6 +97,17 @@ class DicState:
     bulge_radius_mm: float = 60.0
     rotation_deg: tuple = (0.0, 0.0, 0.0)
     translation_mm: tuple = (0.0, 0.0, 0.0)
+    twist_deg: float = 0.0
+    twist_radius_mm: float = 40.0
+
+    def twist(self, X1, X2, inverse: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(X'1, X'2, theta): material points twisted (X' = Q(theta(|X|)) X; with `inverse`, X from X'),
+        theta (radians) at each."""
+        X1, X2 = np.asarray(X1, np.float64), np.asarray(X2, np.float64)
+        theta = math.radians(self.twist_deg) * np.exp(-(X1 * X1 + X2 * X2) / (2.0 * self.twist_radius_mm ** 2))
+        a = -theta if inverse else theta
+        c, s = np.cos(a), np.sin(a)
+        return c * X1 - s * X2, s * X1 + c * X2, theta
 
     @property
     def rotation(self) -> np.ndarray:
@@ -185,18 +203,35 @@ class DicTruth:
         """(..., 3) WCS mm of material points (X1, X2) (mm) in `state`."""
         C, A, st = self._placed(state)
         X1, X2 = np.broadcast_arrays(np.asarray(X1, np.float64), np.asarray(X2, np.float64))
+        if st.twist_deg:
+            X1, X2, _ = st.twist(X1, X2)
         q = np.stack([st.stretch[0] * X1, st.stretch[1] * X2, bulge(st, X1, X2)[..., 0]], -1)
         return C + q @ A.T
 
     def strain(self, state: int, X1, X2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Green-Lagrange (E11, E22, E12) in the plate's frame (e1, e2) at material points (X1, X2)."""
         st = self.states[state]
-        g = bulge(st, X1, X2)[..., 1:]
+        X1, X2 = np.broadcast_arrays(np.asarray(X1, np.float64), np.asarray(X2, np.float64))
         l1, l2 = st.stretch
-        e11 = 0.5 * (l1 * l1 + g[..., 0] ** 2 - 1.0)
-        e22 = 0.5 * (l2 * l2 + g[..., 1] ** 2 - 1.0)
-        e12 = 0.5 * g[..., 0] * g[..., 1]
-        return e11, e22, e12
+        if not st.twist_deg:
+            g = bulge(st, X1, X2)[..., 1:]
+            e11 = 0.5 * (l1 * l1 + g[..., 0] ** 2 - 1.0)
+            e22 = 0.5 * (l2 * l2 + g[..., 1] ** 2 - 1.0)
+            e12 = 0.5 * g[..., 0] * g[..., 1]
+            return e11, e22, e12
+        Y1, Y2, theta = st.twist(X1, X2)
+        g = bulge(st, Y1, Y2)[..., 1:]
+        J = np.zeros(X1.shape + (3, 2))
+        J[..., 0, 0], J[..., 1, 1], J[..., 2, 0], J[..., 2, 1] = l1, l2, g[..., 0], g[..., 1]
+        c, s = np.cos(theta), np.sin(theta)
+        k = -theta / st.twist_radius_mm ** 2          # grad(theta) = k X
+        qx = np.stack([c * X1 - s * X2, s * X1 + c * X2], -1)   # Q X
+        perp = np.stack([-qx[..., 1], qx[..., 0]], -1)           # Q(theta + pi/2) X
+        T = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+        T = T + perp[..., :, None] * (k[..., None] * np.stack([X1, X2], -1))[..., None, :]
+        F = J @ T
+        Cg = np.swapaxes(F, -1, -2) @ F
+        return 0.5 * (Cg[..., 0, 0] - 1.0), 0.5 * (Cg[..., 1, 1] - 1.0), 0.5 * Cg[..., 0, 1]
 
     def material_at(self, origin: np.ndarray, direction: np.ndarray, state: int = 0) -> np.ndarray:
         """(N, 2) material points (mm) hit by rays (N, 3) in `state`; NaN where missed or off the
@@ -208,9 +243,17 @@ class DicTruth:
         t = np.empty(len(o))
         _trace(o, d, C, np.ascontiguousarray(A), float(st.stretch[0]), float(st.stretch[1]),
                float(st.bulge_mm), float(st.bulge_radius_mm), X, t)
+        if st.twist_deg:
+            X[:, 0], X[:, 1], _ = st.twist(X[:, 0], X[:, 1], inverse=True)
         half = np.asarray(self.specimen.size_mm) / 2
         X[~np.isfinite(t) | np.any(np.abs(X) > half, axis=1)] = np.nan
         return X
+
+    def lenses(self) -> tuple[Lens, Lens]:
+        """The true (left, right) lenses of the dataset (`dic_lenses` of the family, size and seed it was
+        simulated with)."""
+        ln = self.meta["lenses"]
+        return dic_lenses(ln["width"], ln["height"], ln["seed"], ln["family"])
 
     def to_json(self) -> dict:
         return {"format": "stereodic.dic-truth/1", "units": "WCS mm; strains Green-Lagrange in the plate "
@@ -302,11 +345,9 @@ def dic_lenses(width: int = 640, height: int = 512, seed: int = 0, lens: str = "
 
 def simulate_dic(out_dir: str | os.PathLike, states: list[DicState] | None = None, width: int = 640,
                  height: int = 512, seed: int = 0, lens: str = "brown", supersample: int = 2, noise: bool = True,
-                 tilt_deg: float = 10.0, dot_px: float = 1.3, bit_depth: int = 8, build_rig: bool = True
-                 ) -> Capture:
+                 tilt_deg: float = 10.0, dot_px: float = 1.3, bit_depth: int = 8) -> Capture:
     """Render a DIC dataset (module docstring) to `out_dir` and return it loaded. states: default
     `standard_states()`; dot_px: the speckle dots' Gaussian radius in pixels (a dot looks ~4x as wide)."""
-    from stereodic.rig import build_rig as make_rig, save_rig
     states = standard_states() if states is None else states
     if not states:
         raise InputError("states", "need at least one state")
@@ -317,7 +358,8 @@ def simulate_dic(out_dir: str | os.PathLike, states: list[DicState] | None = Non
     fov = unit * width
     specimen = Specimen(tilt_deg=tilt_deg, size_mm=(1.45 * fov, 1.45 * fov * height / width), unit_mm=unit,
                         dot_radius=dot_px, seed=seed)
-    truth = DicTruth(specimen, states, {"field_of_view_mm": fov, "cameras": list(CAMERAS)})
+    truth = DicTruth(specimen, states, {"field_of_view_mm": fov, "cameras": list(CAMERAS),
+                                        "lenses": {"family": lens, "width": width, "height": height, "seed": seed}})
     sampler = SpeckleSampler(specimen.speckle())
     sensor = Sensor(bit_depth=bit_depth)
     cams = []
@@ -335,13 +377,12 @@ def simulate_dic(out_dir: str | os.PathLike, states: list[DicState] | None = Non
             write_gray(out / f.file, img)
             frames.append(f)
     frames.sort(key=lambda f: (f.state, f.camera))
-    if build_rig:
-        truths = [ln.true_prvm(camera=n, dataset=f"simulated dic rig, seed {seed}",
-                               wcs=f"simulated dic rig, seed {seed}") for n, ln in zip(CAMERAS, (left, right))]
-        save_rig(out / "rig.npz", make_rig(*truths, width=width, height=height, where=tuple(CAMERAS)))
+    for name, ln in zip(CAMERAS, (left, right)):
+        ln.true_prvm(camera=name, dataset=f"simulated dic rig, seed {seed}",
+                     wcs=f"simulated dic rig, seed {seed}").save(out / f"truth_{name}.npz")
     write_npz(out / "truth.npz", meta=np.array(json.dumps(truth.to_json())), **truth_arrays(truth))
     extra = {"simulated": {"lens": lens, "seed": seed, "noise": noise, "supersample": supersample,
-                           "truth": "truth.npz", "rig": "rig.npz" if build_rig else None,
+                           "truth": "truth.npz", "true_prvms": [f"truth_{n}.npz" for n in CAMERAS],
                            "states": [s.name for s in states]}}
     cap = Capture(out, "dic", {n: (ln.width, ln.height) for n, ln in zip(CAMERAS, (left, right))}, frames,
                   None, (0.0, 0.0, 1.0), extra, {n: bit_depth for n in CAMERAS})
@@ -349,12 +390,14 @@ def simulate_dic(out_dir: str | os.PathLike, states: list[DicState] | None = Non
     return load_capture(out)
 
 
-def truth_at_virtual(truth: DicTruth, rig, x: np.ndarray, y: np.ndarray) -> dict:
-    """The truth at points (x, y) of the rig's LEFT rectified reference image (a DIC grid): the material
-    point its true ray meets in state 0 (the rig built from the true camera models gives the true ray);
-    returns material (N, 2) mm, position and displacement (S, N, 3) WCS mm, exx, eyy, exy (S, N)."""
-    from stereodic.triangulate import rays_at
-    o, d = rays_at(rig, "left", np.ravel(x).astype(np.float64), np.ravel(y).astype(np.float64))
+def truth_at_pixels(truth: DicTruth, uv: np.ndarray) -> dict:
+    """The truth at the material points the LEFT camera sees at its real image positions uv (..., 2)
+    (column, row pixels) in the reference state 0: each position's true ray (the simulator's own
+    `Lens.rays` of `DicTruth.lenses`) meets the plate there. Returns material (N, 2) mm, position and
+    displacement (S, N, 3) WCS mm, exx, eyy, exy (S, N) Green-Lagrange in the plate frame, N the number of
+    positions; NaN where the ray misses the plate."""
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    o, d = truth.lenses()[0].rays(uv[:, 0], uv[:, 1])
     X = truth.material_at(o, d, 0)
     pos = np.stack([truth.position(k, X[:, 0], X[:, 1]) for k in range(len(truth.states))])
     strains = [truth.strain(k, X[:, 0], X[:, 1]) for k in range(len(truth.states))]

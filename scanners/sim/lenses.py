@@ -27,10 +27,9 @@ import numpy as np
 
 from calib.errors import InputError
 from calib.prvm_file import PRVM
+from scanners.sim import LENS_FAMILIES
 from scanners.sim.distortion import Distortion
 from scanners.sim.optics import rotation, through_slab
-
-LENS_FAMILIES = ("brown", "freeform", "noncentral", "telecentric", "scheimpflug")
 
 PIXEL_MM = 0.0053                                  # 1.3 MP machine-vision sensor, 5.3 um pixels
 DEFAULT_TARGET_MM = (959.5 * 0.2745, 539.5 * 0.2745, 0.0)   # centre of the default 24" 1080p display
@@ -57,7 +56,9 @@ class Lens:
 
     width, height: pixels; pixel_mm: pixel pitch (mm); rotation: 3x3 camera-to-WCS; centre_mm: (3,)
     camera frame origin in the WCS; focus_mm: distance along the axis (from the camera frame origin) of
-    the plane in focus; params: the family's parameters (for the truth's metadata).
+    the plane in focus; params: the family's parameters (for the truth's metadata); colour: lateral
+    chromatic aberration of a colour sensor's photosites (`scanners.sim.bayer.LateralColour`), None for
+    a monochrome one.
     """
 
     family: str
@@ -69,6 +70,7 @@ class Lens:
     focus_mm: float
     vignetting: float                  # mechanical falloff: relative illumination *= 1 + vignetting*rn^2
     params: dict = field(default_factory=dict)
+    colour: object = None
 
     # -- to be provided by each family (camera frame) --
     def _camera_rays(self, u, v) -> tuple[np.ndarray, np.ndarray]:
@@ -92,6 +94,8 @@ class Lens:
         """True rays of sensor points (u, v) (any broadcastable shapes): (origin, direction), each
         (..., 3) float64 in the WCS; origin on the plane z = 0, direction unit with z > 0."""
         u, v = np.broadcast_arrays(np.asarray(u, np.float64), np.asarray(v, np.float64))
+        if self.colour is not None:
+            u, v = self.colour.sensor_point(u, v)
         o, d = self._camera_rays(u, v)
         d = d @ self.rotation.T
         o = o @ self.rotation.T + self.centre_mm

@@ -15,8 +15,8 @@ Rendering one camera frame:
 `simulate_scan` writes a `stereodic.capture/1` dataset of kind "scan" (cameras cam0 = left, cam1 =
 right; one state per scene; the projector's fringes along its columns, for each period its number of
 steps, per state and camera), with a top-level `projector` block (panel size, gamma, axis, periods, steps), the true
-PRVMs truth_cam0.npz / truth_cam1.npz, the rig built from them (rig.npz, `stereodic.rig`), and
-truth.npz whose `meta` lists every state's exact surfaces.
+PRVMs truth_cam0.npz / truth_cam1.npz (the `simulate scan` command adds rig.npz, their rectified pair
+built by `stereodic.rig`), and truth.npz whose `meta` lists every state's exact surfaces.
 """
 
 from __future__ import annotations
@@ -212,11 +212,10 @@ def scan_frames(state: int, periods, steps, low: int, high: int) -> list[Frame]:
 
 def simulate_scan(out_dir: str | os.PathLike, scenes: list[Scene] | None = None, rig: ScanRig | None = None,
                   periods=DEFAULT_PERIODS, steps=None, seed: int = 0, noise: bool = True, low: int = 10,
-                  high: int = 250, build_rig: bool = True, rig_size: tuple[int, int] | None = None) -> Capture:
+                  high: int = 250) -> Capture:
     """Render a scan dataset (module docstring) of `scenes` (default `standard_scenes()`) with `rig`
-    (default `default_scan_rig(seed=seed)`). build_rig: also write rig.npz (the rectified pair of the
-    true PRVMs, virtual size `rig_size`, default the cameras'). Returns the loaded dataset."""
-    from stereodic.rig import build_rig as make_rig, save_rig
+    (default `default_scan_rig(seed=seed)`), with the true PRVMs of its cameras (`truth_cam0.npz`,
+    `truth_cam1.npz`; `stereodic rig` makes the rectified pair of them). Returns the loaded dataset."""
     rig = rig or default_scan_rig(seed=seed)
     scenes = standard_scenes() if scenes is None else scenes
     periods = [int(p) if float(p) == int(p) else float(p) for p in periods]
@@ -239,16 +238,9 @@ def simulate_scan(out_dir: str | os.PathLike, scenes: list[Scene] | None = None,
                 if f.camera == name:
                     write_gray(out / f.file, render_frame(cam, view, rig.projector, f.pattern, rig.ambient, noise))
         frames += state_frames
-    truths = []
     for name, lens in zip(CAMERAS, (rig.left, rig.right)):
-        prvm = lens.true_prvm(camera=name, dataset=f"simulated scanner, seed {seed}",
-                              wcs=f"simulated scanner, seed {seed}")
-        prvm.save(out / f"truth_{name}.npz")
-        truths.append(prvm)
-    if build_rig:
-        w, h = rig_size or (rig.left.width, rig.left.height)
-        save_rig(out / "rig.npz", make_rig(*truths, width=w, height=h,
-                                           where=(str(out / "truth_cam0.npz"), str(out / "truth_cam1.npz"))))
+        lens.true_prvm(camera=name, dataset=f"simulated scanner, seed {seed}",
+                       wcs=f"simulated scanner, seed {seed}").save(out / f"truth_{name}.npz")
     p = rig.projector
     geometry = {"centre_mm": p.centre_mm.tolist(), "rotation": p.rotation.tolist(), "fx": p.fx, "fy": p.fy,
                 "cx": p.cx, "cy": p.cy, "k1": p.k1, "k2": p.k2, "distance_mm": p.distance_mm}
@@ -259,7 +251,7 @@ def simulate_scan(out_dir: str | os.PathLike, scenes: list[Scene] | None = None,
     extra = {"projector": {**p.record(), "axis": "x", "periods_px": periods,
                            "steps": per[0] if len(set(per)) == 1 else per},
              "simulated": {"lens": rig.left.family, "seed": seed, "noise": noise, "supersample": rig.supersample,
-                           "truth": "truth.npz", "rig": "rig.npz" if build_rig else None,
+                           "truth": "truth.npz", "true_prvms": [f"truth_{n}.npz" for n in CAMERAS],
                            "scenes": [sc.name for sc in scenes]}}
     cap = Capture(out, "scan", {n: (ln.width, ln.height) for n, ln in zip(CAMERAS, (rig.left, rig.right))},
                   frames, None, (0.0, 0.0, 1.0), extra, {n: rig.sensor.bit_depth for n in CAMERAS})

@@ -8,6 +8,9 @@ Datasets (`simulate_stereo`):
 - joint (default): one `stereodic.capture/1` dataset with cameras cam0 (left) and cam1 (right), both
   rendering the same display at the same (true) stage positions; truth_cam0.npz / truth_cam1.npz hold
   the true rays in that WCS.
+  With `handheld` (`scanners.sim.handheld.HandHeld`) the display is held by hand instead of staged:
+  both cameras see the same poses (drawn so that the display covers both fields), and both truths are
+  in the display's frame at pose 0.
 - separate: each camera calibrated on its own, facing the display straight (its axis along +z, centred
   on the display) in its own display WCS: left/ and right/ (each a dataset of one camera with its
   truth.npz); then register/, a joint dataset of both cameras in the stereo pose (the common WCS)
@@ -29,6 +32,8 @@ from calib.capture import MANIFEST, Capture, load_capture
 from calib.errors import InputError
 from calib.prvm_file import load_prvm
 from scanners.sim.calibration import simulate_calibration
+from scanners.sim.display import SimDisplay
+from scanners.sim.handheld import handheld_poses
 from scanners.sim.lenses import DEFAULT_TARGET_MM, Lens, look_at, make_lens
 
 CAMERAS = ("cam0", "cam1")
@@ -117,6 +122,12 @@ def simulate_stereo(out_dir: str | os.PathLike, left: str = "brown", right: str 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     lenses = stereo_lenses(left, right, width, height, seed, baseline_mm, distance_mm, **(lens_options or {}))
+    held = calibration.get("handheld")
+    if held is not None:
+        if separate:
+            raise InputError("--separate", "a hand-held stereo calibration is one joint dataset")
+        poses = handheld_poses(list(lenses), calibration.get("display") or SimDisplay(), held, seed)
+        calibration = {**calibration, "handheld": dataclasses.replace(held, given=tuple(poses))}
     if not separate:
         _joint(out, lenses, seed, calibration, f"simulated stereo rig, seed {seed}")
         return out
@@ -136,13 +147,14 @@ def simulate_stereo(out_dir: str | os.PathLike, left: str = "brown", right: str 
 
 def _joint(out: Path, lenses: tuple[Lens, Lens], seed: int, calibration: dict, wcs: str) -> None:
     """One dataset of both cameras at the same stage positions: each camera is rendered into its own
-    subfolder (same seed, hence the same true stage positions; each its own sensor gain map and noise),
-    then one manifest lists both."""
+    subfolder (same seed, hence the same true stage positions; each its own sensor gain map and noise;
+    chessboards placed where both cameras see them), then one manifest lists both."""
     (out / MANIFEST).unlink(missing_ok=True)
     frames, cameras, bits, caps = [], {}, {}, []
     for k, (name, lens) in enumerate(zip(CAMERAS, lenses)):
         cap = simulate_calibration(out / name, lens=lens, seed=seed, camera=name,
-                                   sensor_seed=seed + 7919 * (k + 1), **calibration)
+                                   sensor_seed=seed + 7919 * (k + 1),
+                                   board_lenses=tuple(ln for ln in lenses if ln is not lens), **calibration)
         caps.append(cap)
         frames += [dataclasses.replace(f, file=f"{name}/{f.file}") for f in cap.frames]
         cameras[name] = (lens.width, lens.height)

@@ -1,6 +1,6 @@
 """`stereodic bench`: speed, memory and accuracy figures, each beside the reference it is compared with.
 
-One module per group (`sim`, `calib`, `rectify`, `scan`, `dic`), each with
+One module per group (`sim`, `calib`, `rectify`, `scan`, `dic`, `align`, `startup`), each with
 `run(quick: bool) -> list[Figure]`. Benchmarks generate their data with the simulated rig, so this
 package (like `stereodic.cli`) may import `scanners`.
 """
@@ -8,13 +8,14 @@ package (like `stereodic.cli`) may import `scanners`.
 from __future__ import annotations
 
 import importlib
-import multiprocessing
-import resource
+import os
+import subprocess
+import sys
 import time
 from dataclasses import asdict, dataclass
 from typing import Callable
 
-GROUPS = ["sim", "calib", "rectify", "scan", "dic"]
+GROUPS = ["sim", "calib", "rectify", "scan", "dic", "align", "startup"]
 
 
 @dataclass
@@ -52,11 +53,29 @@ def best_time(fn: Callable[[], object], repeat: int = 3, warmup: int = 1) -> flo
     return best
 
 
+def time_command(argv: list[str], repeat: int) -> tuple[float, float]:
+    """(best wall seconds, best user + system CPU seconds) of `python -m stereodic ARGV` in fresh
+    processes, over `repeat` runs; RuntimeError if it fails."""
+    wall = cpu = float("inf")
+    for _ in range(repeat):
+        before = os.times()
+        t0 = time.perf_counter()
+        done = subprocess.run([sys.executable, "-m", "stereodic", *argv], capture_output=True, text=True)
+        dt = time.perf_counter() - t0
+        after = os.times()
+        if done.returncode != 0:
+            raise RuntimeError(f"stereodic {' '.join(argv)} failed: {done.stderr.strip()}")
+        wall = min(wall, dt)
+        cpu = min(cpu, (after.children_user - before.children_user) + (after.children_system - before.children_system))
+    return wall, cpu
+
+
 def peak_rss_bytes() -> int:
     """Peak resident memory (bytes) of this process since it was started (its last exec): VmHWM of
     /proc/self/status on Linux, else getrusage's ru_maxrss. On Linux ru_maxrss also keeps the memory
     of the parent at fork, which a spawned child carries through its exec: a bench process grown to
     2 GiB would lend every child its 2 GiB."""
+    import resource
     try:
         with open("/proc/self/status") as f:
             for line in f:
@@ -81,6 +100,7 @@ def run_isolated(fn: Callable, *args):
     Peak memory is the child's whole-process maximum RSS, interpreter and libraries included.
     `fn` must be a module-level function and its result picklable.
     """
+    import multiprocessing
     ctx = multiprocessing.get_context("spawn")
     parent, child = ctx.Pipe(duplex=False)
     p = ctx.Process(target=_child, args=(fn, args, child))

@@ -1,4 +1,4 @@
-"""Benchmark of the PRVM calibration (issue 3): accuracy per lens family against the simulator's truth
+"""Benchmark of the PRVM calibration (issue 3; the rows of issue 14 come from `stereodic.bench.poses`): accuracy per lens family against the simulator's truth
 (unregularised and regularised; the unregularised rays' noise, from a second capture with other sensor
 noise, against the phase-noise bound; OpenCV's 14-coefficient model fed dense
 correspondences and chessboards), and the speed and peak memory of decoding and fitting a 5 MP camera.
@@ -206,12 +206,15 @@ def regularise_seconds(width: int, height: int) -> float:
 
 def run(quick: bool = False) -> list[Figure]:
     from scanners.sim.calibration import simulate_calibration
+    from stereodic.bench import poses
     width, height = (320, 256) if quick else (1280, 1024)
     figs: list[Figure] = []
     ideal = {}
+    floors = {}
     with tempfile.TemporaryDirectory(prefix="bench_calib_") as root:
         for lens in LENSES:
             r = accuracy(lens, width, height, root, chessboard=not quick)
+            floors[lens] = r["floor"]["plane"].rms
             reg, raw, cv = r["reg"], r["raw"], r["opencv_dense"]
             ideal[lens] = reg
             g = f"calib/{lens}"
@@ -259,4 +262,5 @@ def run(quick: bool = False) -> list[Figure]:
                            seconds, "s", goal="<= 10 s" if not quick else "", ok=seconds <= 10 if not quick else None))
         figs.append(Figure("calib/speed", f"peak memory {mp:.1f} MP", peak / 2 ** 30, "GiB",
                            goal="<= 2 GiB" if not quick else "", ok=peak <= 2 * 2 ** 30 if not quick else None))
-    return figs
+    # issue 14: hand-held poses, pose refinement below the stage floor, Bayer, hand-held speed
+    return figs + poses.run(quick, floors)

@@ -4,6 +4,9 @@ Stereo: on a simulated experiment (`scanners.sim.dic`, the rig built from the tr
 mean strain error for 1 % uniaxial tension, the out-of-plane displacement error against the field of
 view, and the stereo matching throughput on the rectified pair.
 
+Long sequences (speed at 1920x1200, memory over 2,000 states, resumed-run identity):
+`stereodic.bench.dic_sequence`.
+
 References: OpenCorr (C++, FFT-CC + first-order IC-GN, bicubic B-spline) measured on this machine
 with 2 threads, DICe's committed regression result for sample 5, and OpenCorr's published figure for
 its (unrectified, epipolar-constrained) stereo matching.
@@ -15,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stereodic.bench import Figure, best_time
+from stereodic.bench import Figure, best_time, time_command
 
 SAMPLE5 = Path(__file__).resolve().parents[3] / "shared" / "data" / "dic-challenge-sample5"
 OPENCORR_MEAN = {21: 0.1025, 35: 0.1023}  # 35: OpenCorr's figure is for 33 x 33 subsets
@@ -125,22 +128,51 @@ def _speed(quick: bool) -> list[Figure]:
                               f">= {GOAL_POINTS_PER_S[subset]}", rate >= GOAL_POINTS_PER_S[subset]))
         figures.append(Figure("dic", f"2D DIC {subset}x{subset}: converged points",
                               float(result["f"].ok.mean() * 100), "%"))
+        if subset == 21:
+            figures += _whole_command(ref, dfm, pts, rate, quick)
     return figures
+
+
+def _whole_command(ref: np.ndarray, dfm: np.ndarray, points: int, kernel_rate: float, quick: bool) -> list[Figure]:
+    """Points per second of the whole `stereodic dic2d` process on the pair (8-bit PNG files: reading,
+    prefilter, correlation, CSV, PNG maps), its start-up taken off: the same command on a 64x64 crop of
+    the pair, 9 points (the interpreter, the imports, the options, the CSV)."""
+    import tempfile
+
+    from calib.imageio import write_gray
+    with tempfile.TemporaryDirectory() as tmp:
+        write_gray(f"{tmp}/ref.png", ref)
+        write_gray(f"{tmp}/def.png", dfm)
+        write_gray(f"{tmp}/ref_crop.png", np.ascontiguousarray(ref[:64, :64]))
+        write_gray(f"{tmp}/def_crop.png", np.ascontiguousarray(dfm[:64, :64]))
+        repeat = 1 if quick else 3
+        whole, _ = time_command(["dic2d", f"{tmp}/ref.png", f"{tmp}/def.png", "--subset", "21", "--step", "5",
+                                 "-o", f"{tmp}/r.csv", "--plot", f"{tmp}/maps"], repeat)
+        start, _ = time_command(["dic2d", f"{tmp}/ref_crop.png", f"{tmp}/def_crop.png", "--subset", "21",
+                                 "--roi", "27,27,37,37", "-o", f"{tmp}/s.csv"], repeat)
+    rate = points / (whole - start)
+    n = ref.shape[0]
+    return [Figure("dic", f"2D DIC 21x21, {n}x{n}, step 5 ({points} points): the whole dic2d command (read PNGs, "
+                   f"prefilter, correlation, CSV, PNG maps), start-up excluded", rate, "points/s",
+                   "the correlation alone (2 rows above)", kernel_rate),
+            Figure("dic", "2D DIC 21x21: the dic2d command's start-up (9 points on 64x64 px), taken off above",
+                   start, "s")]
 
 
 def _stereo(quick: bool) -> list[Figure]:
     import tempfile
 
-    from scanners.sim.dic import load_dic_truth, simulate_dic, standard_states, truth_at_virtual
+    from scanners.sim.dic import load_dic_truth, simulate_dic, standard_states, truth_at_pixels
     from stereodic.dic import DicSettings, make_grid
     from stereodic.dic3d.dataset import load_states
     from stereodic.dic3d.stereo import StereoDic, StereoSettings
-    from stereodic.rig import load_rig
+    from stereodic.rig import load_rig, rig_from_files, save_rig
 
     width, height = (640, 512) if quick else (1280, 1024)
     figures = []
     with tempfile.TemporaryDirectory() as tmp:
         simulate_dic(tmp, standard_states(), width=width, height=height, supersample=2)
+        save_rig(f"{tmp}/rig.npz", rig_from_files(f"{tmp}/truth_cam0.npz", f"{tmp}/truth_cam1.npz"))
         rig = load_rig(f"{tmp}/rig.npz")
         pairs = list(load_states(tmp, rig).rectified(rig))
         truth = load_dic_truth(tmp)
@@ -148,7 +180,7 @@ def _stereo(quick: bool) -> list[Figure]:
     fov = W * rig.sensor.pitch_mm[0]
     grid = make_grid(W, H, 21, 5, roi=(20, 20, W - 21, H - 21))
     X, Y = grid.points()
-    true = truth_at_virtual(truth, rig, X, Y)
+    true = truth_at_pixels(truth, rig.left.imm.real_position(X, Y))
     dic = StereoDic(rig, grid, StereoSettings(DicSettings(subset=21), strain_window=9))
     label = f"stereo {width}x{height}, 21x21, step 5"
     worst_z = 0.0
@@ -185,4 +217,5 @@ def _stereo(quick: bool) -> list[Figure]:
 
 
 def run(quick: bool = False) -> list[Figure]:
-    return _real_images(quick) + _synthetic_errors(quick) + _speed(quick) + _stereo(quick)
+    from stereodic.bench import dic_sequence
+    return _real_images(quick) + _synthetic_errors(quick) + _speed(quick) + _stereo(quick) + dic_sequence.figures(quick)

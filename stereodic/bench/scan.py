@@ -50,7 +50,7 @@ from calib.capture import Capture
 from calib.opencv_baseline import calibrate_opencv
 from calib.imageio import write_gray
 from calib.phase import phase_sigma
-from scanners.scan import SMOOTH_PX, match_and_triangulate, scan_state, virtual_phase
+from stereodic.scan import SMOOTH_PX, match_and_triangulate, scan_state, virtual_phase
 from scanners.sim.scan import (CAMERAS, DEFAULT_PERIODS, L0_MM, ScanRig, default_scan_rig, lit_view, load_truth,
                                render_frame,
                                scan_frames, simulate_scan, standard_scenes)
@@ -60,7 +60,7 @@ from stereodic.cloud import make_cloud
 from stereodic.fit import fit_plane, fit_sphere, trimmed_range
 from stereodic.matching import match_rows
 from stereodic.phase_filter import convolve, smooth_phase
-from stereodic.rig import build_rig, load_rig
+from stereodic.rig import build_rig, load_rig, rig_from_files, save_rig
 from stereodic.triangulate import triangulate
 
 GROUP = "scan"
@@ -90,6 +90,7 @@ def _setup(folder: str, quick: bool, lens: str = "brown", objects=("sphere", "ba
     size, periods = ((320, 256), (1280, 160, 32)) if quick else ((1280, 1024), DEFAULT_PERIODS)
     scanner = default_scan_rig(*size, lens=lens)
     cap = simulate_scan(folder, standard_scenes(objects), scanner, periods)
+    save_rig(f"{folder}/rig.npz", rig_from_files(f"{folder}/truth_cam0.npz", f"{folder}/truth_cam1.npz"))
     # the phase filter keeps its footprint on the object: SMOOTH_PX at 1280 pixels across
     return Setup(scanner, cap, load_rig(f"{folder}/rig.npz"), load_truth(folder), periods, lens,
                  SMOOTH_PX * size[0] / 1280)

@@ -1,8 +1,10 @@
 """The `stereodic` command: one sub-command per module of this package.
 
 Each sub-command module defines `register(subparsers)`, which adds its parser and sets `func` to the
-function that runs it; the function returns an exit status (or None for 0). Heavy imports happen inside
-those functions so that `stereodic --help` stays fast.
+function that runs it; the function returns an exit status (or None for 0). Path options are declared
+with `stereodic.cli.common.add_input`/`add_output` and checked before the command runs. Heavy imports
+happen inside the run functions, and only those the command uses, so that `stereodic --help` and a
+command's own start-up stay fast (tests/stereodic/test_startup.py lists what may be imported).
 
 Exit status: 0 success; 2 bad usage or bad input (one line naming the file and the problem); 1 an
 internal error (with its traceback) or a hardware fault.
@@ -12,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import keyword
 import sys
 import traceback
 
@@ -20,7 +23,7 @@ from calib.errors import InputError
 
 # In the order `stereodic --help` lists them.
 COMMANDS = ["demo", "simulate", "patterns", "calibrate", "undistort", "rig", "rectify", "scan", "dic2d",
-            "dic", "export", "bench", "acquire", "show"]
+            "dic", "strain", "speckle", "import", "export", "bench", "acquire", "align", "show"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -30,7 +33,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"stereodic {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS:
-        importlib.import_module(f"stereodic.cli.{name}").register(sub)
+        module = f"{name}_" if keyword.iskeyword(name) else name   # `import` lives in import_.py
+        importlib.import_module(f"stereodic.cli.{module}").register(sub)
     return parser
 
 
@@ -38,6 +42,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        from stereodic.cli.common import check_paths
+        check_paths(args)  # every path the command declared, before any work
         status = args.func(args)
     except InputError as exc:
         print(f"stereodic: {exc}", file=sys.stderr)

@@ -9,7 +9,7 @@ import argparse
 import contextlib
 import time
 
-from stereodic.cli.common import parse_floats
+from stereodic.cli.common import add_output, display_pitch, open_devices, parse_floats, wrote
 
 DEVICES = """devices:
   --stage    zaber:///dev/ttyUSB0?device=1&axis=1&microstep_um=0.047625   Zaber ASCII
@@ -19,15 +19,17 @@ DEVICES = """devices:
              manual                                                        you move it when asked
              serial options: baud, timeout (s), retries, move_timeout (s), home=auto|yes|no, tolerance_um;
              zaber: device, axis, microstep_um; grbl: axis, feed (mm/min);
-             emulated: speed (mm/s), travel (mm), transport=pty|socket, fault=KIND@MOVE
+             emulated: speed (mm/s), travel (mm), transport=pty|socket, fault=KIND@MOVE,
+             axis_deg=AX,AY (the simulated carriage's travel off the screen normal, degrees)
   --display  screen[:N]          full screen on monitor N (0-based), 1:1 pixels (pygame)
              file:DIR?size=WxH   write the patterns to DIR instead (headless)
              sim                 the simulated display
   --camera   cv:INDEX[?exposure_ms=E&gain=G&size=WxH&discard=N]
                                                         an OpenCV VideoCapture device
              folder:DIR[?size=WxH&timeout=S]            photos taken by hand arriving in DIR
-             sim[:LENS][?size=WxH&seed=N]               the simulated camera (needs --display sim and
-                                                        an emulated stage)
+             sim[:LENS][?size=WxH&seed=N&pixel_um=P&tilt=TX,TY&roll=R]
+                                                        the simulated camera (needs --display sim and
+                                                        an emulated stage); tilt/roll aim it (degrees)
   Cameras are named cam0, cam1, ... in the order given.
 """
 
@@ -78,7 +80,7 @@ def _pattern_options(p, flats: str):
                    help="fringe periods in display pixels; the longest should span the screen (default "
                         "60,360,1920)")
     p.add_argument("--steps", type=int, default=3, help="phase steps per period, >= 3 (default 3)")
-    p.add_argument("--flats", type=parse_floats, default=parse_floats(flats),
+    p.add_argument("--flat-levels", type=parse_floats, default=parse_floats(flats),
                    help=f"grey levels of the flat frames (default {flats or 'none'}; '' for none)")
     p.add_argument("--low", type=int, default=20, help="fringe minimum level (default 20, tip 1.7)")
     p.add_argument("--high", type=int, default=240, help="fringe maximum level (default 240)")
@@ -102,7 +104,7 @@ def _common_options(p, with_display: bool):
     p.add_argument("--average", type=int, default=1, metavar="K", help="frames averaged per image (default 1)")
     p.add_argument("--max-saturated", type=float, default=1e-4, metavar="FRACTION",
                    help="refuse a fringe frame with more saturated pixels than this (default 1e-4)")
-    p.add_argument("-o", "--output", required=True, metavar="DIR", help="dataset folder (resumed if it exists)")
+    add_output(p, kind="dir", metavar="DIR", help="dataset folder (resumed if it exists)")
 
 
 def _check(args):
@@ -118,8 +120,8 @@ def _check(args):
             raise InputError("--periods", f"expected positive periods, got {args.periods}")
         if args.steps < 3:
             raise InputError("--steps", f"need >= 3 phase steps, got {args.steps}")
-        if not 0 <= args.low < args.high <= 255 or any(not 0 <= v <= 255 for v in args.flats):
-            raise InputError("--low/--high/--flats", "levels must be 0..255 with low < high")
+        if not 0 <= args.low < args.high <= 255 or any(not 0 <= v <= 255 for v in args.flat_levels):
+            raise InputError("--low/--high/--flat-levels", "levels must be 0..255 with low < high")
     if hasattr(args, "states") and args.states < 1:
         raise InputError("--states", f"must be >= 1, got {args.states}")
 
@@ -131,20 +133,8 @@ def _settings(args):
 
 def _open_devices(args, stack: contextlib.ExitStack, stage_url: str | None):
     """Stage (or None), screen (or None) and cameras, all closed when `stack` closes."""
-    from scanners.camera import open_camera
-    from scanners.display import open_screen
-    from scanners.stage import open_stage
-    stage = screen = None
-    if stage_url is not None:
-        stage = stack.enter_context(open_stage(stage_url))
-    if getattr(args, "display", None) is not None:
-        screen = stack.enter_context(open_screen(args.display, args.settle_ms / 1000, args.vsync))
-    true_z = None
-    if stage is not None:
-        true_z = stage.emulator.true_position_mm if stage.emulator is not None else stage.position_mm
-    cameras = [stack.enter_context(open_camera(spec, f"cam{i}", screen, true_z))
-               for i, spec in enumerate(args.camera)]
-    return stage, screen, cameras
+    return open_devices(stack, stage_url, getattr(args, "display", None), args.camera,
+                        getattr(args, "settle_ms", 0.0) / 1000, getattr(args, "vsync", False))
 
 
 def _next_state(args):
@@ -185,10 +175,7 @@ def run_calibration(args) -> int:
         if isinstance(screen, SimScreen):
             display = screen.sim.record()
         else:
-            if not args.pitch_mm or len(args.pitch_mm) > 2 or min(args.pitch_mm) <= 0:
-                raise InputError("--pitch-mm", "give the display's pixel pitch in mm (PX or PX,PY)")
-            pitch = tuple(args.pitch_mm) * (2 // len(args.pitch_mm))
-            display = Display(screen.size[0], screen.size[1], pitch, args.gamma)
+            display = Display(screen.size[0], screen.size[1], display_pitch(screen, args.pitch_mm), args.gamma)
         extra = _provenance(args, args.stage)
         sims = [c for c in cameras if isinstance(c, SimulatedCamera)]
         if sims:
@@ -202,7 +189,7 @@ def run_calibration(args) -> int:
             truth.extra = {"stage_true_z_mm": np.array(args.positions, float)}
             truth.save(writer.capture.root / _truth_file(cam, len(sims)))
         shots = calibration_plan(screen.size, args.positions, args.periods, args.steps,
-                                 [int(v) for v in args.flats], args.low, args.high)
+                                 [int(v) for v in args.flat_levels], args.low, args.high)
         n = run(writer, shots, cameras, stage, screen, _settings(args))
     _report(writer, n)
     return 0
@@ -225,7 +212,7 @@ def run_scan(args) -> int:
         extra["projector"] = {"width_px": screen.size[0], "height_px": screen.size[1]}
         writer = open_writer(args.output, "scan", cameras, extra=extra)
         states = range(args.first_state, args.first_state + args.states)
-        shots = scan_plan(screen.size, states, args.periods, args.steps, [int(v) for v in args.flats], axes,
+        shots = scan_plan(screen.size, states, args.periods, args.steps, [int(v) for v in args.flat_levels], axes,
                           args.low, args.high)
         n = run(writer, shots, cameras, None, screen, _settings(args), _next_state(args))
     _report(writer, n)
@@ -246,5 +233,5 @@ def run_dic(args) -> int:
 
 def _report(writer, taken: int) -> None:
     cap = writer.capture
-    print(f"{cap.manifest_path}: {len(cap.frames)} frames ({taken} taken now, "
-          f"{len(cap.frames) - taken} already there)")
+    wrote(cap.manifest_path, f"{len(cap.frames)} frames in {cap.root} ({taken} taken now, "
+                             f"{len(cap.frames) - taken} already there)")

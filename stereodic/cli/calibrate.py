@@ -5,12 +5,17 @@ from __future__ import annotations
 
 import sys
 
+from stereodic.cli.common import add_input, add_output, wrote
+
 
 def register(sub):
     p = sub.add_parser("calibrate", help="calibrate one camera's per-pixel rays (PRVM)",
-                       description="Decode the fringe images of one camera at 2 or more stage positions into "
-                                   "its Pixel Ray Vector Matrix (.npz, stereodic.prvm/1).")
-    p.add_argument("dataset", metavar="DATASET", help="folder holding capture.json (or the manifest itself)")
+                       description="Decode the fringe images of one camera at 2 or more stage positions (or "
+                                   "3 or more poses of a hand-held display) into its Pixel Ray Vector Matrix "
+                                   "(.npz, stereodic.prvm/1). With a hand-held display the poses are estimated "
+                                   "together with the rays and the WCS is the display's frame at pose 0.")
+    add_input(p, "dataset", kind="dataset", metavar="DATASET",
+              help="folder holding capture.json (or the manifest itself)")
     p.add_argument("--camera", help="camera to calibrate (default: the dataset's only camera)")
     p.add_argument("--no-regularise", action="store_true",
                    help="keep each pixel's own ray (no spatial regularisation)")
@@ -18,14 +23,20 @@ def register(sub):
                    help="one fixed regularisation window (odd, camera pixels; default: a window chosen per "
                         "pixel, from the smallest the data need up to the image's size): larger lowers noise, "
                         "smaller follows finer distortion")
-    p.add_argument("--report", metavar="DIR", help="also write PNG pictures (distortion, residual, uncertainty, "
-                                                   "mask) and the measured display response there")
+    p.add_argument("--no-refine-poses", action="store_true",
+                   help="with 3 or more stage positions: use the nominal positions as they are (default: "
+                        "estimate the display's tilt and z and lateral errors at each position from the data and "
+                        "use them where they lower the residual significantly)")
+    add_output(p, "--report", kind="dir", metavar="DIR", help="also write PNG pictures (distortion, uncertainty, mask; "
+                                                   "residual with 3+ stage positions) and the measured display "
+                                                   "response there")
     p.add_argument("--reduced", action="store_true",
                    help="reduced-dimensional PRVM: from one stage position, write the undistortion map "
                         "(stereodic.undistort/1) instead of rays")
     p.add_argument("--position", type=float, default=None, metavar="Z_MM",
-                   help="with --reduced: the stage position to use (default the first)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.npz")
+                   help="with --reduced: the stage position to use, or the pose of a hand-held capture "
+                        "(default the first)")
+    add_output(p, metavar="OUT.npz", help="the PRVM file (stereodic.prvm/1), or with --reduced the undistortion map")
     p.set_defaults(func=run)
 
 
@@ -50,19 +61,53 @@ def run(args) -> int:
     if args.reduced:
         return _reduced(args, load_capture(args.dataset, min_positions=1), smoother)
     from calib.calibration import calibrate_camera
+    from calib.errors import InputError
     capture = load_capture(args.dataset)
-    cal = calibrate_camera(capture, args.camera, smoother)
+    if args.no_refine_poses and capture.posed:
+        raise InputError("--no-refine-poses", "a hand-held (stage-free) capture has no nominal poses to keep: "
+                                              "its poses are always estimated")
+    cal = calibrate_camera(capture, args.camera, smoother, refine=not args.no_refine_poses)
     for note in cal.notes:
         print(f"stereodic calibrate: warning: {note}", file=sys.stderr)
     cal.prvm.save(args.output)
     v = cal.prvm.valid
     unc = cal.prvm.extra["uncertainty_mm"][..., 0][v]
-    print(f"{args.output}: {cal.prvm.meta['camera']}, {v.shape[1]}x{v.shape[0]}, {v.mean():.1%} of pixels "
-          f"calibrated from {len(cal.positions)} stage positions; median 1-sigma ray uncertainty "
-          f"{1000 * float(np.median(unc)):.2f} um")
+    where = f"{len(cal.positions)} display poses" if capture.posed else f"{len(cal.positions)} stage positions"
+    wrote(args.output, f"{cal.prvm.meta['camera']}, {v.shape[1]}x{v.shape[0]}, {v.mean():.1%} of pixels "
+                       f"calibrated from {where}; median 1-sigma ray uncertainty "
+                       f"{1000 * float(np.median(unc)):.2f} um")
+    for line in pose_lines(cal.prvm.meta):
+        print(line)
     if args.report:
         _report(args.report, cal)
     return 0
+
+
+def pose_lines(meta: dict) -> list[str]:
+    """The estimated display poses (a hand-held capture) or stage errors (a staged one with 3 or more
+    positions) of a PRVM's meta, one line each."""
+    out = []
+    for p in meta.get("poses", []):
+        if not p["used"]:
+            out.append(f"  pose {p['pose']}: left out, out of family: its points do not lie on one rigid display "
+                       f"(statistic {p['chi']:.1f}; did the display move during its fringes?)")
+            continue
+        r, t = p["rotation_deg"], p["translation_mm"]
+        out.append(f"  pose {p['pose']}: rotation ({r[0]:+.4f}, {r[1]:+.4f}, {r[2]:+.4f}) deg "
+                   f"+- {max(p['sd_rotation_deg']):.5f}, translation ({t[0]:+.4f}, {t[1]:+.4f}, {t[2]:+.4f}) mm "
+                   f"+- {max(p['sd_translation_um']):.2f} um, RMS residual {p['rms_um']:.1f} um, "
+                   f"out-of-family statistic {p['chi']:.2f}" + (" OUT OF FAMILY" if p["out_of_family"] else ""))
+    stage = meta.get("stage_poses")
+    if stage:
+        state = ("refined poses used" if stage["used"] else
+                 "refinement not significant: nominal positions used")
+        out.append(f"  stage poses: {state} (residual {stage['cost_nominal']:.4g} -> {stage['cost_refined']:.4g}, "
+                   f"{stage['free_parameters']} parameters)")
+        for e in stage["positions"][1:]:
+            out.append(f"  z = {e['z_mm']:g} mm: z error {e['z_error_um']:+.2f} +- {e['sd_z_um']:.2f} um, lateral "
+                       f"({e['lateral_um'][0]:+.2f}, {e['lateral_um'][1]:+.2f}) um, tilt ({e['tilt_deg'][0]:+.5f}, "
+                       f"{e['tilt_deg'][1]:+.5f}, {e['tilt_deg'][2]:+.5f}) deg +- {max(e['sd_tilt_deg']):.5f}")
+    return out
 
 
 def _report(out_dir, cal) -> None:
@@ -71,12 +116,17 @@ def _report(out_dir, cal) -> None:
     from calib.atomic import write_json
     from stereodic.cli.show import write_report
     paths = write_report(cal.prvm, out_dir)
+    poses = {k: cal.prvm.meta[k] for k in ("poses", "stage_poses") if k in cal.prvm.meta}
+    if poses:
+        path = Path(out_dir) / "poses.json"
+        write_json(path, poses)
+        paths.append(path)
     if cal.intensity is not None:
         path = Path(out_dir) / "display_response.json"
         write_json(path, cal.intensity.response.to_json())
         paths.append(path)
     for p in paths:
-        print(p)
+        wrote(p)
 
 
 def _reduced(args, capture, smoother) -> int:
@@ -85,16 +135,16 @@ def _reduced(args, capture, smoother) -> int:
     from calib.errors import InputError
     from calib.reduced import undistort_map
     camera = default_camera(capture, args.camera)
-    zs = capture.z_positions(camera)
-    z = zs[0] if args.position is None else args.position
+    zs = capture.positions(camera)
+    z = zs[0] if args.position is None else (int(args.position) if capture.posed else args.position)
     if z not in zs:
-        raise InputError("--position", f"camera {camera!r} has no frames at z={z} mm (have {zs})")
+        raise InputError("--position", f"camera {camera!r} has no frames at {capture.label(z)} (have {zs})")
     from calib.calibration import AUTO, auto_smoother
     decoded = decode_position(capture, camera, z, intensity_matrix(capture, camera, z))
     umap = undistort_map(decoded.coord, decoded.valid, auto_smoother([decoded]) if smoother is AUTO else smoother)
-    umap.meta.update({"camera": camera, "dataset": str(capture.root), "z_mm": z})
+    umap.meta.update({"camera": camera, "dataset": str(capture.root), **capture.at(z)})
     umap.save(args.output)
-    print(f"{args.output}: undistortion map of {camera} at z={z} mm, {umap.valid.mean():.1%} of the output "
-          "image covered")
+    wrote(args.output, f"undistortion map of {camera} at {capture.label(z)}, {umap.valid.mean():.1%} of the "
+                       "output image covered")
     return 0
 

@@ -1,9 +1,196 @@
-"""Small helpers shared by the sub-command modules."""
+"""What the sub-command modules share: one spelling per option, paths checked before any work, one line
+per output written, and small argument parsers.
+
+Options: `SPELLINGS` is the one spelling of each option that more than one command has (the test
+tests/stereodic/test_cli_options.py walks every sub-parser and fails on a second spelling of one meaning;
+`SYNONYMS` are the spellings it refuses). Paths: a command declares each path option with `add_input` or
+`add_output` (what it is: an image, a PRVM file, a folder, ...); `check_paths`, called by
+`stereodic.cli.main` before the command runs, stops with one line (exit status 2) on a path that cannot
+work - a missing input, a directory where a file is expected or the reverse, a parent that is a file, a
+folder without write permission, an output that would overwrite an input - so that no command fails
+after its work, or half-way. Outputs: `wrote(path, summary)` prints the one line per file written.
+"""
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+SPELLINGS = {  # argparse dest -> its option strings, wherever a command has it
+    "output": ("-o", "--output"),
+    "camera": ("--camera",),
+    "subset": ("--subset",),
+    "step": ("--step",),
+    "roi": ("--roi",),
+    "mask": ("--mask",),
+    "shape": ("--shape",),
+    "min_zncc": ("--min-zncc",),
+    "search": ("--search",),
+    "strain_window": ("--strain-window",),
+    "incremental": ("--incremental",),
+    "model": ("--model",),
+    "size": ("--size",),
+    "pitch": ("--pitch",),
+    "plane_z": ("--plane-z",),
+    "format": ("--format",),
+    "no_intensity": ("--no-intensity",),
+    "report": ("--report",),
+    "state": ("--state",),
+    "periods": ("--periods",),
+    "steps": ("--steps",),
+    "positions": ("--positions",),
+    "flat_levels": ("--flat-levels",),
+    "low": ("--low",),
+    "high": ("--high",),
+    "lens": ("--lens",),
+    "width": ("--width",),
+    "height": ("--height",),
+    "noise": ("--noise", "--no-noise"),
+    "supersample": ("--supersample",),
+}
+SYNONYMS = {  # second spellings of those meanings, refused by the test
+    "--out": "output", "--outdir": "output", "--output-dir": "output", "--out-dir": "output", "-O": "output",
+    "--cam": "camera", "--subset-size": "subset", "--window-size": "subset", "--grid-step": "step",
+    "--spacing": "step", "--region": "roi", "--zncc": "min_zncc", "--min-cc": "min_zncc",
+    "--flats": "flat_levels", "--levels": "flat_levels", "--period": "periods", "--phase-steps": "steps",
+    "--nsteps": "steps", "--stage-positions": "positions", "--z": "positions", "--lens-family": "lens",
+    "--resolution": "size", "--image-size": "size", "--reference-z": "plane_z",
+}
+
+INPUT_KINDS = ("file", "dir", "dataset", "pattern")
+OUTPUT_KINDS = ("file", "dir", "any")
+
+
+@dataclass(frozen=True)
+class PathOption:
+    """A declared path option: argparse dest, its name in messages, input or output, kind (file, dir,
+    dataset = a folder holding capture.json or the manifest itself) and what it holds ("image", "PRVM")."""
+
+    dest: str
+    name: str  # the option (-o/--output) or the positional's metavar (REF_IMG)
+    output: bool
+    kind: str
+    what: str
+
+
+def _declare(p: argparse.ArgumentParser, option: PathOption) -> None:
+    declared = p.get_default("_paths")
+    if declared is None:
+        declared = []
+        p.set_defaults(_paths=declared)
+    declared.append(option)
+
+
+def add_input(p: argparse.ArgumentParser, *flags: str, kind: str = "file", what: str = "", **kwargs):
+    """Add a path argument (positional: one name; option: its flags) that the command reads; kind is
+    'file', 'dir', 'dataset' or 'pattern' (files, each named or given as a shell-style pattern that the
+    program expands: `calib.image_files.expand`); `what` names its content in messages ("image", "PRVM",
+    "rig"). Returns the argparse action."""
+    assert kind in INPUT_KINDS, kind
+    action = p.add_argument(*flags, **kwargs)
+    name = "/".join(action.option_strings) if action.option_strings else (action.metavar or action.dest)
+    _declare(p, PathOption(action.dest, name, False, kind, what))
+    return action
+
+
+def add_output(p: argparse.ArgumentParser, *flags: str, kind: str = "file", what: str = "", **kwargs):
+    """Add a path option that the command writes (default flags -o/--output, required); kind is 'file',
+    'dir' (a folder the command fills; it may exist) or 'any' (either, by another option: the command
+    checks which). Returns the argparse action."""
+    assert kind in OUTPUT_KINDS, kind
+    flags = flags or SPELLINGS["output"]
+    if flags == SPELLINGS["output"]:
+        kwargs.setdefault("required", "default" not in kwargs)
+    action = p.add_argument(*flags, **kwargs)
+    _declare(p, PathOption(action.dest, "/".join(action.option_strings), True, kind, what))
+    return action
+
+
+def _values(args, option: PathOption) -> list[str]:
+    value = getattr(args, option.dest, None)
+    if value is None:
+        return []
+    return [os.fspath(v) for v in value] if isinstance(value, (list, tuple)) else [os.fspath(value)]
+
+
+def _a(noun: str) -> str:
+    return ("an " if noun[:1].lower() in "aeiou" else "a ") + noun
+
+
+def _check_input(path: Path, option: PathOption) -> None:
+    from calib.errors import InputError
+    what = f"{option.what} " if option.what else ""
+    if option.kind == "dataset":
+        if not path.exists():
+            raise InputError(path, "dataset is missing (a folder holding capture.json, or the manifest itself)")
+    elif option.kind == "dir":
+        if path.is_file():
+            raise InputError(path, f"is a file; {option.name} expects a folder")
+        if not path.is_dir():
+            raise InputError(path, f"{what}folder is missing")
+    else:
+        if path.is_dir():
+            raise InputError(path, f"is a directory; {option.name} expects {_a(what + 'file')}")
+        if not path.exists():
+            raise InputError(path, f"{what}file is missing")
+    if not os.access(path, os.R_OK):
+        raise InputError(path, "cannot be read (no permission)")
+
+
+def _check_output(path: Path, option: PathOption, inputs: set[Path]) -> None:
+    from calib.errors import InputError
+    if option.kind == "file":
+        if path.is_dir():
+            raise InputError(path, f"is a directory; {option.name} expects a file name")
+        if path.resolve() in inputs:
+            raise InputError(path, f"is also an input; {option.name} would overwrite it")
+    elif option.kind == "dir" and path.exists() and not path.is_dir():
+        raise InputError(path, f"is a file; {option.name} expects a folder")
+    ancestor = path if option.kind == "dir" and path.is_dir() else path.parent
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise InputError(path, f"cannot be written: {ancestor} is a file, not a folder")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise InputError(path, f"cannot be written: no permission to write in {ancestor}")
+    if option.kind == "file" and path.exists() and not os.access(path, os.W_OK):
+        raise InputError(path, "exists and cannot be overwritten (no permission)")
+
+
+def check_paths(args: argparse.Namespace) -> None:
+    """InputError (one line, exit status 2) for the first declared path of `args` that cannot work:
+    inputs first (they must exist, as the kind declared), then outputs (their folder must be one and
+    writable; a file output must not be a directory, nor one of the inputs)."""
+    declared = getattr(args, "_paths", None) or []
+    inputs = set()
+    for option in declared:
+        if not option.output:
+            values = [Path(v) for v in _values(args, option)]
+            if option.kind == "pattern":
+                from calib.image_files import expand
+                values = [p for v in values for p in expand(v)]
+                option = PathOption(option.dest, option.name, False, "file", option.what)
+            for value in values:
+                _check_input(value, option)
+                inputs.add(value.resolve())
+    for option in declared:
+        if option.output:
+            for value in _values(args, option):
+                _check_output(Path(value), option, inputs)
+
+
+def wrote(path: str | os.PathLike, summary: str = "") -> None:
+    """Print the one line that reports an output: `wrote PATH` or `wrote PATH: summary`."""
+    print(f"wrote {os.fspath(path)}" + (f": {summary}" if summary else ""), flush=True)
+
+# The library's defaults, repeated here so that building the parser imports nothing heavy (`--help`
+# stays instant); tests/stereodic/test_cli.py checks that they equal stereodic.dic.sequence.SWITCH_ZNCC
+# and stereodic.strain_measures.MEASURES.
+SWITCH_ZNCC = 0.9
+STRAIN_MEASURES = ("green-lagrange", "euler-almansi", "log", "engineering")
 
 
 def planned(sub, name: str, help_text: str, issue: int) -> argparse.ArgumentParser:
@@ -26,7 +213,7 @@ def add_simulation_options(p: argparse.ArgumentParser, width: int, height: int, 
     """The options every `simulate` mode shares: --lens (unless `lens` is None: the mode names its lenses
     its own way), --width and --height (defaults in pixels), --seed (of what is `seeded`), --noise,
     --supersample (sub-samples per pixel side) and -o DIR."""
-    from scanners.sim.lenses import LENS_FAMILIES
+    from scanners.sim import LENS_FAMILIES
     if lens is not None:
         p.add_argument("--lens", choices=LENS_FAMILIES, default="brown", help=f"{lens} (default brown)")
     p.add_argument("--width", type=int, default=width, help=f"sensor width in pixels (default {width})")
@@ -36,7 +223,80 @@ def add_simulation_options(p: argparse.ArgumentParser, width: int, height: int, 
                    help="sensor noise (default on); --no-noise renders the expected images")
     p.add_argument("--supersample", type=int, default=supersample,
                    help=supersample_help or f"sub-samples per pixel side (default {supersample})")
-    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
+    add_output(p, kind="dir", metavar="DIR", help="output folder")
+
+
+def add_grid_options(p: argparse.ArgumentParser, image: str) -> None:
+    """The DIC grid's options (checked by `dic_grid`): --subset, --step, --roi, --mask, --seed; `image`
+    names the image whose pixels they refer to ("reference image", "left rectified image")."""
+    p.add_argument("--subset", type=int, default=21, help="subset side in pixels, odd (default 21)")
+    p.add_argument("--step", type=int, default=5, help="grid step in pixels (default 5)")
+    p.add_argument("--roi", metavar="X0,Y0,X1,Y1", help=f"region of interest in the {image} (inclusive pixel "
+                                                      "bounds)")
+    add_input(p, "--mask", what="mask image", metavar="PNG",
+              help=f"image of the {image}'s size: points where it is non-zero")
+    p.add_argument("--seed", action="append", default=[], metavar="X,Y",
+                   help=f"start point of the propagation in the {image} (repeatable; default: automatic)")
+
+
+def open_devices(stack, stage_url: str | None, display_spec: str | None, camera_specs: list[str],
+                 settle_s: float = 0.15, vsync: bool = False, still_z_mm: float | None = None):
+    """The stage (or None), the screen (or None) and the cameras (named cam0, cam1, ...) from their
+    command-line specs, each closed when `stack` (a contextlib.ExitStack) closes. A simulated camera sees
+    the simulated display at the emulated stage's true position along its true travel direction; without
+    a stage at stage position `still_z_mm` (None: it needs a stage)."""
+    from scanners.camera import open_camera
+    from scanners.display import open_screen
+    from scanners.stage_url import open_stage
+    stage = stack.enter_context(open_stage(stage_url)) if stage_url is not None else None
+    screen = stack.enter_context(open_screen(display_spec, settle_s, vsync)) if display_spec is not None else None
+    true_z, axis = (None if still_z_mm is None else (lambda: still_z_mm)), (0.0, 0.0, 1.0)
+    if stage is not None:
+        true_z = stage.emulator.true_position_mm if stage.emulator is not None else stage.position_mm
+        axis = stage.emulator.travel_axis if stage.emulator is not None else axis
+    cameras = [stack.enter_context(open_camera(spec, f"cam{i}", screen, true_z, axis))
+               for i, spec in enumerate(camera_specs)]
+    return stage, screen, cameras
+
+
+def display_pitch(screen, pitch_mm: list[float] | None) -> tuple[float, float]:
+    """The display's pixel pitch (x, y) in mm: the simulated display's own, else `--pitch-mm` (PX or
+    PX,PY); InputError when a real screen has none."""
+    from calib.errors import InputError
+    from scanners.display import SimScreen
+    if isinstance(screen, SimScreen):
+        return screen.pitch_mm
+    if not pitch_mm or len(pitch_mm) > 2 or min(pitch_mm) <= 0:
+        raise InputError("--pitch-mm", "give the display's pixel pitch in mm (PX or PX,PY)")
+    return tuple(float(p) for p in pitch_mm) * (2 // len(pitch_mm))
+
+
+def add_handheld_options(p: argparse.ArgumentParser) -> None:
+    """The options of a hand-held (stage-free) simulated capture: --handheld N and how it is held."""
+    p.add_argument("--handheld", type=int, default=None, metavar="N",
+                   help="hold the display by hand in N random poses instead of moving it on the stage (frames "
+                        "carry 'pose'; the truth is in the display's frame at pose 0)")
+    p.add_argument("--hold-distance", type=parse_floats, default=[300.0, 600.0], metavar="NEAR,FAR",
+                   help="with --handheld: range of the display's distance from the camera, mm (default 300,600)")
+    p.add_argument("--max-tilt", type=float, default=35.0, metavar="DEG",
+                   help="with --handheld: the largest tilt of the display, degrees (default 35)")
+    p.add_argument("--disturb", type=int, default=None, metavar="POSE",
+                   help="with --handheld: the display moves (0.2 mm, 0.1 deg) halfway through this pose's fringes")
+
+
+def handheld_from(args):
+    """The `scanners.sim.handheld.HandHeld` of the options of `add_handheld_options`, None without
+    --handheld; InputError naming the option for one that does not fit."""
+    from calib.errors import InputError
+    from scanners.sim.handheld import HandHeld
+    if args.handheld is None:
+        if args.disturb is not None:
+            raise InputError("--disturb", "needs --handheld")
+        return None
+    if len(args.hold_distance) != 2:
+        raise InputError("--hold-distance", f"expected NEAR,FAR in mm, got {args.hold_distance}")
+    return HandHeld(poses=args.handheld, distance_mm=tuple(args.hold_distance), max_tilt_deg=args.max_tilt,
+                    disturbed=args.disturb)
 
 
 def add_flaw_options(p: argparse.ArgumentParser, unseen: bool = True) -> None:
@@ -110,6 +370,31 @@ def parse_ints(text: str, n: int, what: str) -> list[int]:
     return vals
 
 
+def parse_roi(text: str | None, width: int, height: int, image: str) -> tuple[int, int, int, int] | None:
+    """The --roi option 'X0,Y0,X1,Y1' (inclusive pixel bounds) checked against a width x height `image`;
+    None without one; InputError naming --roi if it is not a region inside the image."""
+    from calib.errors import InputError
+    if not text:
+        return None
+    x0, y0, x1, y1 = parse_ints(text, 4, "--roi")
+    if not (0 <= x0 < x1 < width and 0 <= y0 < y1 < height):
+        raise InputError("--roi", f"{text} is not a region inside the {width}x{height} {image}")
+    return x0, y0, x1, y1
+
+
+def output_folder(path):
+    """The output folder `path` (a Path), created if needed; InputError naming it if it cannot be."""
+    from pathlib import Path
+
+    from calib.errors import InputError
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(path, f"cannot create the output folder ({exc.strerror})") from None
+    return path
+
+
 def dic_grid(args, width: int, height: int, image: str, source: str):
     """The DIC point grid and seeds from the options --subset, --step, --roi, --mask and --seed, for a
     reference image of width x height pixels (`image` names it in messages, `source` is the file blamed
@@ -122,12 +407,7 @@ def dic_grid(args, width: int, height: int, image: str, source: str):
         raise InputError("--subset", f"must be an odd number >= 5, got {args.subset}")
     if args.step < 1:
         raise InputError("--step", f"must be >= 1, got {args.step}")
-    roi = None
-    if args.roi:
-        x0, y0, x1, y1 = parse_ints(args.roi, 4, "--roi")
-        if not (0 <= x0 < x1 < width and 0 <= y0 < y1 < height):
-            raise InputError("--roi", f"{args.roi} is not a region inside the {width}x{height} {image}")
-        roi = (x0, y0, x1, y1)
+    roi = parse_roi(args.roi, width, height, image)
     mask = None
     if args.mask:
         mask = read_gray(args.mask) > 0
@@ -149,3 +429,20 @@ def dic_grid(args, width: int, height: int, image: str, source: str):
         raise InputError(args.roi and "--roi" or source,
                          f"no point of the grid has its {args.subset}-pixel subset inside the {image}")
     return grid, seeds
+
+
+def check_output(path) -> None:
+    """InputError naming the option's value unless `path` can be written as a file: not an existing folder,
+    and its nearest existing parent a writable folder (checked before any work starts)."""
+    import os
+    from pathlib import Path
+
+    from calib.errors import InputError
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(p, "is a folder; the output is a file")
+    parent = p.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK):
+        raise InputError(p, f"cannot be written ({parent} is not a writable folder)")

@@ -1,24 +1,30 @@
 """`stereodic dic2d`: 2D subset digital image correlation of one or more deformed images.
 
+Deformed images are files or shell-style patterns (quoted, expanded by the program in natural order).
 Writes one CSV row per point and deformed image: image (0-based index among the deformed images), x, y
 (the point in the reference image, pixels), u, v (displacement, pixels, u along x), zncc, converged
-(1/0), status (ok, no_texture, outside, diverged, low_zncc, unreached), iterations and, with
---strain-window, the Green-Lagrange strains exx, eyy, exy and strain_valid. u, v are NaN exactly
-where converged is 0; strains are NaN exactly where strain_valid is 0.
+(1/0), status (ok, no_texture, outside, diverged, low_zncc, unreached, inconsistent, low_texture),
+iterations, noise_px and, with --strain-window, the strain measure's exx, eyy, exy, principal strains,
+von Mises equivalent and strain_valid (stereodic.dic.output); or, with --columns dice, DICe's solution
+files OUT_<k>.csv. u, v are NaN exactly where converged is 0; strains are NaN exactly where
+strain_valid is 0. Results are written image by image: memory holds one image's results at a time.
 """
 
 from __future__ import annotations
 
+from stereodic.cli.common import add_grid_options, add_input, add_output
+
 
 def register(sub):
+    from stereodic.cli.common import STRAIN_MEASURES as MEASURES, SWITCH_ZNCC
     p = sub.add_parser("dic2d", help="2D subset digital image correlation",
                        description="2D subset DIC: displacements (and strains) of deformed images against a "
                                    "reference, on a grid of points.")
-    p.add_argument("ref", metavar="REF_IMG", help="reference image (8/16-bit PNG or TIFF)")
-    p.add_argument("defs", metavar="DEF_IMG", nargs="+", help="deformed images, in order")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.csv", help="CSV of the results")
-    p.add_argument("--subset", type=int, default=21, help="subset side in pixels, odd (default 21)")
-    p.add_argument("--step", type=int, default=5, help="grid step in pixels (default 5)")
+    add_input(p, "ref", what="image", metavar="REF_IMG", help="reference image (8/16-bit PNG or TIFF)")
+    add_input(p, "defs", kind="pattern", what="image", metavar="DEF_IMG_OR_PATTERN", nargs="+",
+              help="deformed images in order, or shell-style patterns (quote them; natural order)")
+    add_output(p, metavar="OUT.csv", help="CSV of the results")
+    add_grid_options(p, "reference image")
     p.add_argument("--shape", choices=["affine", "quadratic"], default="affine",
                    help="subset shape function (default affine)")
     p.add_argument("--interp", choices=["cubic", "quintic"], default="cubic",
@@ -26,19 +32,22 @@ def register(sub):
     p.add_argument("--prefilter", type=float, default=0.7, metavar="SIGMA",
                    help="Gaussian low-pass of both images before interpolation, pixels (default 0.7, 0 = "
                         "none); lowers the interpolation bias")
-    p.add_argument("--roi", metavar="X0,Y0,X1,Y1", help="region of interest (inclusive pixel bounds)")
-    p.add_argument("--mask", metavar="PNG", help="image of the reference's size: points where it is non-zero")
-    p.add_argument("--seed", action="append", default=[], metavar="X,Y",
-                   help="start point of the propagation (repeatable; default: automatic)")
     p.add_argument("--search", type=int, default=40, metavar="PIXELS",
                    help="search range of the seeds' integer displacement (default 40)")
     p.add_argument("--min-zncc", type=float, default=0.8, help="points below are flagged (default 0.8)")
+    p.add_argument("--switch-zncc", type=float, default=SWITCH_ZNCC, metavar="ZNCC",
+                   help=f"a point whose ZNCC against the reference falls below this switches to incremental "
+                        f"correlation, displacements still from the reference (default {SWITCH_ZNCC}; 0 = never)")
     p.add_argument("--incremental", action="store_true",
-                   help="register each image against the previous one and add up (large deformations)")
+                   help="register each image against the previous one for every point (large deformations)")
     p.add_argument("--strain-window", type=int, metavar="N",
-                   help="add Green-Lagrange strains fitted over N x N grid points (odd)")
-    p.add_argument("--npz", metavar="OUT.npz", help="also write the fields as arrays (n_images, ny, nx)")
-    p.add_argument("--plot", metavar="DIR", help="write PNG maps of u, v, zncc (and strains) per image")
+                   help="add strains fitted over N x N grid points (odd)")
+    p.add_argument("--measure", choices=MEASURES, default="green-lagrange",
+                   help="strain measure (default green-lagrange)")
+    p.add_argument("--columns", choices=["stereodic", "dice"], default="stereodic",
+                   help="dice: DICe's solution files OUT_<k>.csv (its column names and layout) instead of OUT.csv")
+    add_output(p, "--npz", metavar="OUT.npz", help="also write the fields as arrays (n_images, ny, nx)")
+    add_output(p, "--plot", kind="dir", metavar="DIR", help="write PNG maps of u, v, zncc (and strains) per image")
     p.set_defaults(func=run)
 
 
@@ -47,8 +56,9 @@ def _check_args(args) -> None:
     from calib.errors import InputError
     if args.strain_window is not None and (args.strain_window < 3 or args.strain_window % 2 == 0):
         raise InputError("--strain-window", f"must be an odd number >= 3, got {args.strain_window}")
-    if not 0 <= args.min_zncc <= 1:
-        raise InputError("--min-zncc", f"must be between 0 and 1, got {args.min_zncc}")
+    for name, value in (("--min-zncc", args.min_zncc), ("--switch-zncc", args.switch_zncc)):
+        if not 0 <= value <= 1:
+            raise InputError(name, f"must be between 0 and 1, got {value}")
     if args.search < 1:
         raise InputError("--search", f"must be >= 1 pixel, got {args.search}")
     if args.prefilter < 0:
@@ -56,19 +66,31 @@ def _check_args(args) -> None:
 
 
 def run(args) -> int:
+    import contextlib
+    import tempfile
+    from pathlib import Path
+
     import numpy as np
 
+    from calib.atomic import write_npz as save_npz
     from calib.errors import InputError
+    from calib.image_files import expand
     from calib.imageio import image_size, read_gray
-    from calib.progress import progress
-    from stereodic.cli.common import dic_grid
+    from calib.numbers import fixed
+    from calib.progress import note, progress
+    from stereodic.cli.common import dic_grid, wrote
     from stereodic.dic import DicSettings, correlate_sequence
-    from stereodic.dic.output import plot_fields, write_csv, write_npz
-    from stereodic.strain import strain_2d
+    from stereodic.dic.output import CsvWriter, image_arrays, plot_field, write_npz
+    if args.strain_window:  # strain (and its scipy) only when asked for
+        from stereodic.strain import strain_2d
+        from stereodic.strain_measures import measure_strain
+    if args.columns == "dice":
+        from stereodic.dice_columns import gauge_px, header, numbered, sigma_gamma, strain_columns, write_solution
 
     ref = read_gray(args.ref)
     height, width = ref.shape
-    for path in args.defs:  # every file checked before the (long) work starts
+    defs = [p for pattern in args.defs for p in expand(pattern)]
+    for path in defs:  # every file checked before the (long) work starts
         w, h = image_size(path)
         if (w, h) != (width, height):
             raise InputError(path, f"image is {w}x{h} but the reference {args.ref} is {width}x{height}")
@@ -76,28 +98,61 @@ def run(args) -> int:
     grid, seeds = dic_grid(args, width, height, "reference", args.ref)
     settings = DicSettings(subset=args.subset, shape=args.shape, order=3 if args.interp == "cubic" else 5,
                            prefilter_sigma=args.prefilter, min_zncc=args.min_zncc, search_radius=args.search)
+    out = Path(args.output)
 
     def images():
-        for path in args.defs:
+        for path in defs:
             img = read_gray(path)
             if img.shape != ref.shape:
                 raise InputError(path, f"image is {img.shape[1]}x{img.shape[0]} but the reference is "
                                        f"{width}x{height}")
             yield img
 
-    fields, strains = [], []
-    for k, f in enumerate(progress(correlate_sequence(ref, images(), grid, settings, seeds,
-                                                      args.incremental), "dic2d", total=len(args.defs))):
-        fields.append(f)
-        strains.append(strain_2d(grid.xs, grid.ys, f.u, f.v, args.strain_window)
-                       if args.strain_window else None)
-        n_ok = int(f.ok.sum())
-        print(f"image {k} ({args.defs[k]}): {n_ok}/{int(grid.active.sum())} points converged, "
-              f"mean u {np.nanmean(f.u) if n_ok else float('nan'):.4f} px, "
-              f"mean v {np.nanmean(f.v) if n_ok else float('nan'):.4f} px")
-    write_csv(args.output, fields, strains)
+    has_strain = bool(args.strain_window)
+    act = grid.active.ravel()
+    fields = correlate_sequence(ref, images(), grid, settings, seeds, args.incremental, switch_zncc=args.switch_zncc)
+    writer = CsvWriter(out, has_strain) if args.columns == "stereodic" else contextlib.nullcontext()
+    with tempfile.TemporaryDirectory(prefix=".dic2d-", dir=out.parent) as tmp, writer as csv:
+        for k, f in enumerate(progress(fields, "dic2d", total=len(defs), unit="image")):
+            m = None
+            if has_strain:
+                m = measure_strain(strain_2d(grid.xs, grid.ys, f.u, f.v, args.strain_window), args.measure)
+            if csv is not None:
+                csv.write(k, f, m)
+            else:
+                X, Y = grid.points()
+                cols = [("SUBSET_ID", np.arange(int(act.sum()))), ("COORDINATE_X", X[act]), ("COORDINATE_Y", Y[act]),
+                        ("DISPLACEMENT_X", f.u.ravel()[act]), ("DISPLACEMENT_Y", f.v.ravel()[act])]
+                cols += sigma_gamma(f.noise_px.ravel()[act], f.zncc.ravel()[act], f.ok.ravel()[act])
+                cols += [(name, a.ravel()[act]) for name, a in strain_columns(m)]
+                write_solution(numbered(out.with_suffix(""), k, len(defs), out.suffix or ".txt"),
+                               header(args.ref, str(defs[k]), args.subset, args.step, args.shape,
+                                      "true" if args.incremental else "false",
+                                      gauge_px(args.strain_window, args.step, args.subset)), cols)
+            if args.npz:
+                save_npz(Path(tmp) / f"{k}.npz", **image_arrays(f, m))
+            if args.plot:
+                plot_field(args.plot, k, f, m)
+            n_ok = int(f.ok.sum())
+            note(f"image {k} ({defs[k]}): {n_ok}/{int(grid.active.sum())} points converged, "
+                 f"mean u {fixed(np.nanmean(f.u) if n_ok else np.nan, 4)} px, "
+                 f"mean v {fixed(np.nanmean(f.v) if n_ok else np.nan, 4)} px")
+        if args.npz:
+            def values(key):
+                for k in range(len(defs)):
+                    with np.load(Path(tmp) / f"{k}.npz") as z:
+                        yield z[key]
+
+            write_npz(args.npz, grid, values, len(defs), has_strain, settings, [str(p) for p in defs],
+                      args.measure if has_strain else None)
+    n_points = int(act.sum())
+    if args.columns == "dice":
+        wrote(out.parent, f"DICe's solution files {out.stem}_<k>{out.suffix or '.txt'} ({n_points} points x "
+                          f"{len(defs)} deformed images)")
+    else:
+        wrote(out, f"{n_points * len(defs)} rows ({n_points} points x {len(defs)} deformed images)")
     if args.npz:
-        write_npz(args.npz, fields, strains, settings, args.defs)
+        wrote(args.npz, "the fields as arrays (n_images, ny, nx)")
     if args.plot:
-        plot_fields(args.plot, fields, strains)
+        wrote(args.plot, f"PNG maps of u, v, zncc{' and strains' if has_strain else ''} per deformed image")
     return 0

@@ -1,26 +1,45 @@
-"""`stereodic export`: a virtual camera's pinhole model for other software.
+"""`stereodic export`: a virtual camera's pinhole model, or a stereo rig, for other software.
 
-FILE is a virtual camera file (`stereodic undistort ... --save-virtual VCAM.npz`) or a calibrated
-camera's PRVM file (its default virtual pinhole camera, as `stereodic undistort` builds it, is
-exported). opencv: FileStorage YAML (camera_matrix, distortion_coefficients all zero, image size,
-rotation_matrix, translation_vector in mm); colmap: cameras.txt (PINHOLE); json: model, sensor plane
-and OpenCV intrinsics/pose. Rig files come with the rectified stereo pair.
+FILE is a virtual camera file (`stereodic undistort ... --save-virtual VCAM.npz`), a calibrated camera's
+PRVM file (its default virtual pinhole camera, as `stereodic undistort` builds it, is exported) or a
+stereo rig (`stereodic rig`: the rectified pair's two virtual pinhole cameras). Formats:
+  opencv  OpenCV FileStorage YAML: camera_matrix, distortion_coefficients (all zero: the virtual images
+          are distortion free), image size, rotation_matrix, translation_vector (mm); for a rig the
+          stereo_calib keys M1 D1 M2 D2 R T R1 R2 P1 P2 Q and the WCS pose of camera 1
+  colmap  COLMAP text model: cameras.txt (PINHOLE); for a rig a folder with cameras.txt, images.txt
+          (the two posed cameras) and points3D.txt
+  dice    DICe's camera system XML (DICe_xml_camera_system_file: CAMERA 0 and 1 with CX CY FX FY, no
+          lens distortion, rotation and TX TY TZ in the WCS, mm): a stereo rig only
+  json    everything: model, sensor plane, centre and OpenCV intrinsics/pose (also the telecentric and
+          model-less cameras that have no pinhole form)
+  vic3d   VIC-3D calibration XML (cx cy fx fy skew kappa1..3, Cardan-Bryant orientation)
+  mrcal   a .cameramodel (LENSMODEL_PINHOLE); for a rig a folder with left.cameramodel and
+          right.cameramodel
+Poses are in the world frame of the file (for one made by `stereodic import`: the calibration file's
+own world frame).
 """
 
 from __future__ import annotations
 
 import argparse
 
+from stereodic.cli.common import add_input, add_output, wrote
+
 
 def register(sub):
     p = sub.add_parser("export", help="a virtual camera's pinhole model for other software",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("file", metavar="FILE", help="virtual camera file (VCAM.npz) or camera PRVM file (CAM.npz)")
-    p.add_argument("--format", required=True, choices=["opencv", "colmap", "dice", "json"])
+    add_input(p, "file", what="camera or rig", metavar="FILE",
+              help="virtual camera file (VCAM.npz), camera PRVM file (CAM.npz) or stereo rig (RIG.npz)")
+    p.add_argument("--format", required=True, choices=["opencv", "colmap", "dice", "json", "vic3d", "mrcal"],
+                   help="opencv: FileStorage YAML; colmap: cameras.txt; dice: DICe's camera system XML (a rig "
+                        "only); json: everything, also the non-pinhole models; vic3d: VIC-3D calibration XML; "
+                        "mrcal: .cameramodel")
     p.add_argument("--model", choices=["pinhole", "telecentric", "modelless"], default="pinhole",
                    help="model of the default virtual camera of a PRVM file (json export only for the "
                         "non-pinhole ones)")
-    p.add_argument("-o", "--out", metavar="FILE", required=True)
+    add_output(p, kind="any", metavar="FILE", help="the file to write (a folder for a rig's colmap or mrcal "
+                                                   "model)")
     p.set_defaults(func=run)
 
 
@@ -31,12 +50,19 @@ def run(args) -> int:
     from calib.errors import InputError
     from calib.prvm_file import load_prvm
     from stereodic.export import export_text
+    from stereodic.rig import world_from_rig
     from stereodic.virtual import VirtualCamera, default_camera
     from stereodic.virtual_prvm import is_virtual
 
     from stereodic.export_rig import export_rig, is_rig_file
-    if is_rig_file(args.file):  # a stereo rig (RIG.npz): stereodic.export_rig, all four formats
-        export_rig(args.file, args.format, args.out)
+    rig = is_rig_file(args.file)
+    folder = rig and args.format in ("colmap", "mrcal")
+    if Path(args.output).is_dir() != folder and Path(args.output).exists():
+        raise InputError(args.output, f"is a file; the {args.format} export of a rig is a folder" if folder else
+                         "is a directory; -o/--output expects a file name")
+    if rig:  # a stereo rig (RIG.npz): stereodic.export_rig, every format
+        export_rig(args.file, args.format, args.output)
+        wrote(args.output, f"{args.format} stereo rig of {args.file}")
         return 0
     if args.format == "dice":
         raise InputError("--format", "dice export needs a stereo rig (RIG.npz), not a single camera")
@@ -45,8 +71,9 @@ def run(args) -> int:
         default_camera(prvm, args.model)
     name = prvm.meta.get("camera", Path(args.file).stem)
     try:
-        text = export_text({name: camera}, args.format)
+        text = export_text({name: camera}, args.format, world_from_rig(prvm.meta, args.file))
     except InputError as exc:
         raise InputError(args.file, exc.problem) from None
-    write_text(args.out, text)
+    write_text(args.output, text)
+    wrote(args.output, f"{args.format} {camera.model} camera {name}, {camera.sensor.width}x{camera.sensor.height}")
     return 0

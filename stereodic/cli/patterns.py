@@ -3,7 +3,7 @@ their manifest `patterns.json` (calib.patterns)."""
 
 from __future__ import annotations
 
-from stereodic.cli.common import parse_floats, parse_size
+from stereodic.cli.common import add_input, add_output, parse_floats, parse_size, wrote
 
 
 def register(sub):
@@ -20,10 +20,10 @@ def register(sub):
     p.add_argument("--high", type=float, default=240, help="brightest fringe code value (default 240)")
     p.add_argument("--flat-levels", type=parse_floats, default=[0, 32, 64, 96, 128, 160, 192, 224, 255],
                    help="grey levels of the flat frames for the intensity calibration ('' for none)")
-    p.add_argument("--response", metavar="FILE",
+    add_input(p, "--response", what="display response", metavar="FILE",
                    help="measured display response (display_response.json from `stereodic calibrate --report`): "
                         "pre-compensate the fringes so the emitted luminance follows the cosine")
-    p.add_argument("-o", "--output", required=True, metavar="DIR")
+    add_output(p, kind="dir", metavar="DIR", help="folder of the pattern images and patterns.json")
     p.set_defaults(func=run)
 
 
@@ -59,5 +59,5 @@ def run(args) -> int:
     seq = calibration_sequence(w, h, args.periods, args.steps, axes, args.low, args.high,
                                [int(v) for v in args.flat_levels], response)
     path = write_patterns(args.output, w, h, seq)
-    print(f"{len(seq)} patterns for a {w}x{h} display in {args.output} (manifest {path.name})")
+    wrote(path, f"{len(seq)} patterns for a {w}x{h} display, images in {args.output}")
     return 0

@@ -16,14 +16,14 @@ from __future__ import annotations
 
 import argparse
 
-from stereodic.cli.common import parse_size
+from stereodic.cli.common import add_input, add_output, parse_size, wrote
 
 
 def register(sub):
     p = sub.add_parser("rig", help="rectified virtual stereo pair from two PRVMs",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("left", metavar="LEFT.npz", help="left camera's PRVM file")
-    p.add_argument("right", metavar="RIGHT.npz", help="right camera's PRVM file")
+    add_input(p, "left", what="PRVM", metavar="LEFT.npz", help="left camera's PRVM file")
+    add_input(p, "right", what="PRVM", metavar="RIGHT.npz", help="right camera's PRVM file")
     p.add_argument("--model", choices=["pinhole", "telecentric", "modelless"], default="pinhole",
                    help="rays of the Virtual PRVMs: pinhole (default; EVM = real - pinhole) or modelless "
                         "(EVM zero); the rectified images are the same. telecentric pairs are not supported")
@@ -33,9 +33,9 @@ def register(sub):
     p.add_argument("--plane-z", type=float, metavar="MM",
                    help="the plane passes where the central rays cross z = MM (default: the left PRVM's "
                         "reference plane)")
-    p.add_argument("--register", nargs=2, metavar=("LEFT_REG.npz", "RIGHT_REG.npz"),
+    add_input(p, "--register", what="PRVM", nargs=2, metavar=("LEFT_REG.npz", "RIGHT_REG.npz"),
                    help="register separately calibrated cameras into the WCS of these calibrations")
-    p.add_argument("-o", "--out", metavar="RIG.npz", required=True, help="output rig file")
+    add_output(p, metavar="RIG.npz", help="output rig file")
     p.set_defaults(func=run)
 
 
@@ -59,12 +59,12 @@ def run(args) -> int:
             print(f"{names[k]}: registered with {reg.pixels} rays, RMS {reg.rms_mm * 1e3:.2f} um")
     width, height = args.size if args.size else (None, None)
     rig = build_rig(prvms[0], prvms[1], args.model, width, height, args.pitch, args.plane_z, tuple(names))
-    save_rig(args.out, rig)
+    save_rig(args.output, rig)
     s = rig.sensor
-    print(f"{args.out}: {s.width}x{s.height} virtual pixels of {s.pitch_mm[0] * 1e3:.1f} um, baseline "
-          f"{(rig.baseline ** 2).sum() ** 0.5:.2f} mm, working distance {rig.working_distance_mm:.1f} mm")
+    wrote(args.output, f"{s.width}x{s.height} virtual pixels of {s.pitch_mm[0] * 1e3:.1f} um, baseline "
+                       f"{(rig.baseline ** 2).sum() ** 0.5:.2f} mm, working distance {rig.working_distance_mm:.1f} mm")
     for side in ("left", "right"):
         blank = rig.camera(side).info["blank_pixels"]
         if blank:
-            print(f"{args.out}: note: {blank} virtual pixels are blank in the {side} camera (holes in its field)")
+            print(f"{args.output}: note: {blank} virtual pixels are blank in the {side} camera (holes in its field)")
     return 0

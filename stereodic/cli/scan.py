@@ -1,4 +1,4 @@
-"""`stereodic scan RIG.npz DATASET -o CLOUD.ply`: structured-light scan to a point cloud (scanners.scan).
+"""`stereodic scan RIG.npz DATASET -o CLOUD.ply`: structured-light scan to a point cloud (stereodic.scan).
 
 DATASET is a capture of kind "scan" (fringes projected along the projector's columns, several periods
 and steps, a top-level `projector` block with the panel's width_px); RIG.npz is the rectified pair of
@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import argparse
 
+from stereodic.cli.common import add_input, add_output, wrote
+
 
 def _pair(text: str) -> tuple[str, str]:
     names = [t.strip() for t in text.split(",")]
@@ -24,14 +26,14 @@ def _pair(text: str) -> tuple[str, str]:
 def register(sub):
     p = sub.add_parser("scan", help="structured-light scan to a point cloud",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("rig", metavar="RIG.npz", help="the rectified stereo rig (stereodic rig)")
-    p.add_argument("dataset", metavar="DATASET", help="scan dataset folder or its capture.json")
-    p.add_argument("-o", "--out", required=True, metavar="CLOUD.ply", help="output point cloud")
+    add_input(p, "rig", what="rig", metavar="RIG.npz", help="the rectified stereo rig (stereodic rig)")
+    add_input(p, "dataset", kind="dataset", metavar="DATASET", help="scan dataset folder or its capture.json")
+    add_output(p, metavar="CLOUD.ply", help="output point cloud (CLOUD_s<state>.ply per state if several)")
     p.add_argument("--state", type=int, action="append", metavar="N",
                    help="scan only this state (repeatable; default all)")
     p.add_argument("--cameras", type=_pair, metavar="LEFT,RIGHT",
                    help="dataset camera names of the rig's left and right camera (default: the rig's names)")
-    p.add_argument("--mesh", metavar="MESH.ply", help="also write a Poisson surface mesh")
+    add_output(p, "--mesh", metavar="MESH.ply", help="also write a Poisson surface mesh")
     p.add_argument("--no-evm", action="store_true",
                    help="triangulate with the pinhole rays (no EVM correction), for comparison")
     p.add_argument("--smooth", type=float, default=None, metavar="PX",
@@ -44,12 +46,12 @@ def register(sub):
 
 
 def run(args) -> int:
-    from scanners.scan import SMOOTH_PX, scan_to_files
+    from stereodic.scan import SMOOTH_PX, scan_to_files
     from stereodic.rig import load_rig
     rig = load_rig(args.rig)
-    written = scan_to_files(rig, args.dataset, args.out, args.state, args.cameras, args.mesh,
+    written = scan_to_files(rig, args.dataset, args.output, args.state, args.cameras, args.mesh,
                             corrected=not args.no_evm, neighbours=args.outlier_neighbours,
                             std_ratio=args.outlier_std, smooth_px=SMOOTH_PX if args.smooth is None else args.smooth)
-    for path, n in written:
-        print(f"{path}: {n} points")
+    for path, count, what in written:
+        wrote(path, f"{count} {what}")
     return 0

@@ -5,14 +5,20 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from stereodic.cli.common import add_input, add_output, wrote
+
 
 def register(sub):
     p = sub.add_parser("show", help="pictures of a result (distortion, residuals, uncertainty, error)",
-                       description="Write PNG pictures of a PRVM file: distortion.png, residual.png, "
-                                   "uncertainty.png, mask.png and, with --truth, error.png.")
-    p.add_argument("prvm", metavar="CAM.npz")
-    p.add_argument("--truth", metavar="TRUTH.npz", help="a simulated dataset's truth.npz: also draw the ray error")
-    p.add_argument("-o", "--output", required=True, metavar="DIR")
+                       description="Write PNG pictures of a PRVM file: distortion.png (each pixel's departure "
+                                   "from the best pinhole view, arrows with their scale), uncertainty.png, mask.png, "
+                                   "residual.png (with three or more stage positions: two give no line-fit "
+                                   "residual) and, with --truth, error.png (the ray error) and error_xy.png (its x "
+                                   "and y components, one panel each).")
+    add_input(p, "prvm", what="PRVM", metavar="CAM.npz", help="a camera's PRVM file (stereodic calibrate)")
+    add_input(p, "--truth", what="truth", metavar="TRUTH.npz",
+              help="the same camera's truth from a simulated dataset (truth.npz): also draw the ray error")
+    add_output(p, kind="dir", metavar="DIR", help="folder of the pictures")
     p.set_defaults(func=run)
 
 
@@ -20,8 +26,11 @@ def run(args) -> int:
     from calib.prvm_file import load_prvm
     prvm = load_prvm(args.prvm)
     truth = load_prvm(args.truth) if args.truth else None
+    if truth is not None:
+        from calib.evaluate import check_truth
+        check_truth(prvm, truth, args.prvm, args.truth)
     for path in write_report(prvm, args.output, truth):
-        print(path)
+        wrote(path)
     return 0
 
 
@@ -35,7 +44,19 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
+def _panel(fig, ax, data, title: str, label: str, cmap="viridis", vmin=None, vmax=None):
+    """One map with its own axes (camera pixels) and colour bar."""
+    im = ax.imshow(data, cmap=cmap, vmin=vmin, vmax=vmax, interpolation="nearest")
+    fig.colorbar(im, ax=ax, label=label, shrink=0.85)
+    ax.set_title(title, fontsize=10)
+    ax.set_xlabel("u (column, px)")
+    ax.set_ylabel("v (row, px)")
+    return im
+
+
 def _image(data, title: str, label: str, path: Path, cmap="viridis", vmax=None, quiver=None) -> Path:
+    """A map of `data` (0 to vmax, default its 99.5th percentile); quiver (u, v, du, dv): arrows on it,
+    magnified to be seen, with an arrow of a round length as the scale."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -44,14 +65,28 @@ def _image(data, title: str, label: str, path: Path, cmap="viridis", vmax=None, 
     finite = data[np.isfinite(data)]
     if vmax is None and finite.size:
         vmax = float(np.percentile(finite, 99.5))
-    im = ax.imshow(data, cmap=cmap, vmin=0 if cmap != "RdBu_r" else -vmax, vmax=vmax, interpolation="nearest")
-    fig.colorbar(im, ax=ax, label=label, shrink=0.85)
+    _panel(fig, ax, data, "" if quiver is not None else title, label, cmap, 0, vmax)
     if quiver is not None:
-        u, v, du, dv = quiver
-        ax.quiver(u, v, du, dv, color="white", angles="xy", scale_units="xy", scale=None, width=0.002)
-    ax.set_title(title)
-    ax.set_xlabel("u (column, px)")
-    ax.set_ylabel("v (row, px)")
+        from stereodic.virtual_plots import arrows
+        arrows(ax, *quiver, "px")
+        ax.set_title(title, fontsize=10, loc="left")
+    return _save(fig, path)
+
+
+def _signed_pair(x, y, title: str, label: str, path: Path) -> Path:
+    """The x and y components of a signed error side by side, each with its own axes and colour bar
+    (symmetric about zero, to its own 99.5th percentile)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    fig, axes = plt.subplots(1, 2, figsize=(12.5, 5.0), layout="constrained")
+    for ax, data, comp in zip(axes, (x, y), ("x", "y")):
+        finite = np.abs(data[np.isfinite(data)])
+        vmax = float(np.percentile(finite, 99.5)) if finite.size else 1.0
+        _panel(fig, ax, data, f"{comp} component (along display {'columns' if comp == 'x' else 'rows'})", label,
+               "RdBu_r", -vmax, vmax)
+    fig.suptitle(title)
     return _save(fig, path)
 
 
@@ -77,6 +112,7 @@ def write_report(prvm, out_dir, truth=None) -> list[Path]:
     import numpy as np
 
     from calib.evaluate import ErrorStats, footprint_mm, ray_error_px, working_plane
+    from calib.numbers import fixed
     from calib.phase import QUALITY_NAMES
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -88,8 +124,8 @@ def write_report(prvm, out_dir, truth=None) -> list[Path]:
     h, w = valid.shape
     step = max(h, w) // 24
     v, u = np.mgrid[step // 2:h:step, step // 2:w:step]
-    paths.append(_image(mag, f"distortion from the best pinhole view of z = {z0:g} mm",
-                        "displacement (px)", out / "distortion.png",
+    paths.append(_image(mag, f"distortion: departure from the best\npinhole view of the plane z = "
+                             f"{fixed(z0, 3)} mm", "displacement (camera px)", out / "distortion.png",
                         quiver=(u, v, d[0][v, u], d[1][v, u])))
     res = prvm.residual_mm
     if res is not None and np.isfinite(res).any():
@@ -99,7 +135,7 @@ def write_report(prvm, out_dir, truth=None) -> list[Path]:
     if unc is not None:
         fp = footprint_mm(prvm, z0)
         paths.append(_image(np.where(valid, unc[..., 0] / fp, np.nan),
-                            f"1-sigma ray uncertainty at z = {z0:g} mm (per axis)", "camera pixels",
+                            f"1-sigma ray uncertainty at z = {fixed(z0, 3)} mm (per axis)", "camera pixels",
                             out / "uncertainty.png", cmap="magma"))
     quality = prvm.extra.get("quality")
     if quality is not None or not valid.all():
@@ -107,15 +143,15 @@ def write_report(prvm, out_dir, truth=None) -> list[Path]:
     if truth is not None:
         err = ray_error_px(prvm, truth)
         s = ErrorStats.of(err)
-        paths.append(_image(err, f"ray error at z = {working_plane(truth):g} mm: RMS {s.rms:.4f} px, "
-                                 f"p99 {s.p99:.4f} px", "camera pixels", out / "error.png", cmap="magma"))
-        pts = prvm.at_z(working_plane(truth)) - truth.at_z(working_plane(truth))
-        fp = footprint_mm(truth, working_plane(truth))
-        signed = np.concatenate([np.where(valid, pts[..., 0] / fp, np.nan),
-                                 np.where(valid, pts[..., 1] / fp, np.nan)], axis=1)
-        vmax = float(np.nanpercentile(np.abs(signed), 99.5))
-        paths.append(_image(signed, "signed ray error: x (left), y (right)", "camera pixels",
-                            out / "error_xy.png", cmap="RdBu_r", vmax=vmax))
+        z = working_plane(truth)
+        paths.append(_image(err, f"ray error against the truth on the plane z = {fixed(z, 3)} mm\n"
+                                 f"RMS {fixed(s.rms, 4)} px, p99 {fixed(s.p99, 4)} px", "camera pixels",
+                            out / "error.png", cmap="magma"))
+        pts = prvm.at_z(z) - truth.at_z(z)
+        fp = footprint_mm(truth, z)
+        paths.append(_signed_pair(np.where(valid, pts[..., 0] / fp, np.nan), np.where(valid, pts[..., 1] / fp, np.nan),
+                                  f"signed ray error (calibration - truth) on the plane z = {fixed(z, 3)} mm",
+                                  "camera pixels", out / "error_xy.png"))
     return paths
 
 

@@ -10,7 +10,8 @@ from __future__ import annotations
 from stereodic.cli import simulate_dic as dic_mode
 from stereodic.cli import simulate_scan as scan_mode
 from stereodic.cli import simulate_stereo as stereo_mode
-from stereodic.cli.common import add_flaw_options, add_simulation_options, flaw_kwargs, parse_floats
+from stereodic.cli.common import (add_flaw_options, add_handheld_options, add_simulation_options, flaw_kwargs,
+                                   handheld_from, parse_floats, wrote)
 
 
 def register(sub):
@@ -37,6 +38,10 @@ def register(sub):
     c.add_argument("--cover-glass", type=parse_floats, default=None, metavar="THICK,INDEX",
                    help="display cover glass thickness (mm) and refractive index, e.g. 0.7,1.5")
     c.add_argument("--stage-error-um", type=float, default=3.0, help="RMS stage position error (default 3 um)")
+    c.add_argument("--bayer", choices=["RGGB", "BGGR", "GRBG", "GBRG"], default=None,
+                   help="a colour camera with this raw Bayer mosaic (per-colour response and lateral "
+                        "chromatic aberration); default monochrome")
+    add_handheld_options(c)
     c.add_argument("--chessboard", action="store_true", help="also render chessboards (OpenCV comparison)")
     add_flaw_options(c)
     c.set_defaults(func=run_calibration)
@@ -50,12 +55,14 @@ def run_calibration(args) -> int:
     from scanners.sim.calibration import DEFAULT_FLATS, simulate_calibration
     if args.cover_glass is not None and len(args.cover_glass) != 2:
         raise InputError("--cover-glass", f"expected THICKNESS_MM,INDEX, got {args.cover_glass}")
+    from scanners.sim.bayer import BayerSensor
     steps = args.steps[0] if len(args.steps) == 1 else args.steps
     cap = simulate_calibration(
         args.output, lens=args.lens, width=args.width, height=args.height, seed=args.seed,
         periods=args.periods, steps=steps, z_positions=args.positions,
         flat_levels=DEFAULT_FLATS if args.flat_levels is None else args.flat_levels, noise=args.noise,
         supersample=args.supersample, cover_glass=args.cover_glass, low=args.low, high=args.high,
-        chessboard=args.chessboard, stage_error_um=args.stage_error_um, **flaw_kwargs(args))
-    print(f"wrote {len(cap.frames)} frames, {cap.manifest_path} and {cap.root / 'truth.npz'}")
+        chessboard=args.chessboard, stage_error_um=args.stage_error_um, handheld=handheld_from(args),
+        bayer=None if args.bayer is None else BayerSensor(args.bayer), **flaw_kwargs(args))
+    wrote(cap.manifest_path, f"{len(cap.frames)} frames in {cap.root}, truth in {cap.root / 'truth.npz'}")
     return 0

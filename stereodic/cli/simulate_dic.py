@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from stereodic.cli.common import add_simulation_options
+from stereodic.cli.common import add_simulation_options, wrote
 
 
 def register(modes) -> None:
@@ -25,8 +25,10 @@ def register(modes) -> None:
 
 def run(args) -> int:
     from scanners.sim.dic import simulate_dic, standard_states
+    from stereodic.rig import rig_from_files, save_rig
     cap = simulate_dic(args.output, standard_states(args.strain, args.poisson, args.bulge), args.width, args.height,
                        args.seed, args.lens, args.supersample, args.noise, args.tilt)
-    print(f"wrote {len(cap.frames)} images of {len(cap.states('cam0'))} states, {cap.manifest_path}, "
-          f"{cap.root / 'truth.npz'} and {cap.root / 'rig.npz'}")
+    save_rig(cap.root / "rig.npz", rig_from_files(cap.root / "truth_cam0.npz", cap.root / "truth_cam1.npz"))
+    wrote(cap.manifest_path, f"{len(cap.frames)} images of {len(cap.states('cam0'))} states in {cap.root}, with "
+                             f"truth.npz and rig.npz")
     return 0

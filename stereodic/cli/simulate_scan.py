@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from stereodic.cli.common import add_simulation_options, parse_floats
+from stereodic.cli.common import add_simulation_options, parse_floats, wrote
 
 OBJECTS = ("sphere", "ballbar", "plane", "freeform")
 
@@ -31,6 +31,7 @@ def register(modes) -> None:
 def run(args) -> int:
     from calib.errors import InputError
     from scanners.sim.scan import DEFAULT_PERIODS, default_scan_rig, simulate_scan, standard_scenes
+    from stereodic.rig import rig_from_files, save_rig
     objects = [o.strip() for o in args.objects.split(",") if o.strip()]
     bad = sorted(set(objects) - set(OBJECTS))
     if bad or not objects:
@@ -41,6 +42,7 @@ def run(args) -> int:
     cap = simulate_scan(args.output, standard_scenes(objects), rig, args.periods or DEFAULT_PERIODS,
                         args.steps[0] if args.steps and len(args.steps) == 1 else args.steps,
                         args.seed, args.noise)
-    print(f"wrote {len(cap.frames)} frames of {len(cap.states('cam0'))} scan states, {cap.manifest_path}, "
-          f"{cap.root / 'truth.npz'} and {cap.root / 'rig.npz'}")
+    save_rig(cap.root / "rig.npz", rig_from_files(cap.root / "truth_cam0.npz", cap.root / "truth_cam1.npz"))
+    wrote(cap.manifest_path, f"{len(cap.frames)} frames of {len(cap.states('cam0'))} scan states in {cap.root}, "
+                             f"with truth.npz and rig.npz")
     return 0

@@ -3,11 +3,12 @@
 
 from __future__ import annotations
 
-from stereodic.cli.common import add_flaw_options, add_simulation_options, flaw_kwargs, parse_floats
+from stereodic.cli.common import (add_flaw_options, add_handheld_options, add_simulation_options, flaw_kwargs,
+                                   handheld_from, parse_floats, wrote)
 
 
 def register(modes) -> None:
-    from scanners.sim.lenses import LENS_FAMILIES
+    from scanners.sim import LENS_FAMILIES
     s = modes.add_parser(
         "stereo", help="stereo calibration dataset: two cameras, one display and stage",
         description="Render a calibration dataset of two cameras in one WCS (same display, same stage "
@@ -34,25 +35,32 @@ def register(modes) -> None:
                    help="phase steps per period, >= 3: one number, or one per period (default 3)")
     s.add_argument("--bit-depth", type=int, default=None,
                    help="camera bit depth: 8, 10, 12, 14, 16 (default 8; 12 with --real-bench)")
+    add_handheld_options(s)
     add_flaw_options(s, unseen=False)
     add_simulation_options(s, 1280, 1024, None, "lenses, poses, stage and noise", lens=None,
-                           supersample_help="sub-samples per pixel side (default max(3, 1280 / width): a "
-                                            "sub-sample below a display pixel)")
+                           supersample_help="sub-samples per pixel side (default max(3, 1280 / width, times "
+                                            "the farthest hand-held distance / 400 mm): a sub-sample below a "
+                                            "display pixel)")
     s.set_defaults(func=run)
 
 
 def run(args) -> int:
+    import numpy as np
+
     from scanners.sim.stereo import simulate_stereo
     left = args.lens or args.left
     right = args.lens or args.right
-    supersample = args.supersample or max(3, -(-1280 // args.width))
+    held = handheld_from(args)
+    # a sub-sample below a display pixel at the farthest display (the default rig's 400 mm, or a hand's)
+    reach = 1.0 if held is None else max(held.distance_mm) / 400.0
+    supersample = args.supersample or max(3, int(np.ceil(1280 / args.width * reach)))
     pixel_mm = args.pixel_mm if args.pixel_mm else 0.0053 * 1280 / args.width
     steps = args.steps[0] if len(args.steps) == 1 else args.steps
     out = simulate_stereo(args.output, left, right, args.width, args.height, args.seed, args.separate,
                           args.baseline, args.distance, {"pixel_mm": pixel_mm}, periods=args.periods,
                           z_positions=args.positions, noise=args.noise, supersample=supersample, steps=steps,
-                          **{k: v for k, v in flaw_kwargs(args).items() if k != "unseen"})
+                          handheld=held, **{k: v for k, v in flaw_kwargs(args).items() if k != "unseen"})
     what = "left/, right/ (own WCS each), register/ and registration_truth.json" if args.separate else \
         "capture.json (cam0, cam1), truth_cam0.npz, truth_cam1.npz"
-    print(f"wrote {out}: {what}")
+    wrote(out, what)
     return 0

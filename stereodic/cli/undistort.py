@@ -10,15 +10,15 @@ from __future__ import annotations
 
 import argparse
 
-from stereodic.cli.common import parse_size
+from stereodic.cli.common import add_input, add_output, parse_size, wrote
 
 
 def register(sub):
     p = sub.add_parser("undistort", help="distortion-free virtual images of one camera's images",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("camera", metavar="CAM.npz", help="camera PRVM file, or a virtual camera file")
-    p.add_argument("images", metavar="IMAGE", nargs="+", help="8- or 16-bit grayscale PNG/TIFF")
-    p.add_argument("-o", "--out", metavar="DIR", required=True, help="output folder")
+    add_input(p, "camera", what="camera", metavar="CAM.npz", help="camera PRVM file, or a virtual camera file")
+    add_input(p, "images", what="image", metavar="IMAGE", nargs="+", help="8- or 16-bit grayscale PNG/TIFF")
+    add_output(p, kind="dir", metavar="DIR", help="output folder")
     p.add_argument("--model", choices=["pinhole", "telecentric", "modelless"], default="pinhole",
                    help="ray model of the virtual camera (default pinhole; telecentric for telecentric "
                         "lenses); the images are the same, the saved Virtual PRVM and EVM differ")
@@ -34,7 +34,7 @@ def register(sub):
     kind.add_argument("--fixed-point", dest="fixed_point", action="store_true",
                       help="OpenCV fixed-point maps (1/32 pixel positions)")
     p.add_argument("--no-intensity", action="store_true", help="do not apply the camera's intensity matrix")
-    p.add_argument("--save-virtual", metavar="VCAM.npz",
+    add_output(p, "--save-virtual", metavar="VCAM.npz",
                    help="also write the virtual camera (Virtual PRVM + IMM + EVM) for `undistort`/`export`")
     p.set_defaults(func=run, fixed_point=False)
 
@@ -61,13 +61,16 @@ def run(args) -> int:
         if im is not None:
             setup.prvm.extra.update(im.to_arrays())
         save_virtual(args.save_virtual, setup)
-    out = Path(args.out)
+        wrote(args.save_virtual, f"virtual camera ({args.model}), {setup.imm.valid.shape[1]}x"
+                                 f"{setup.imm.valid.shape[0]}")
+    out = Path(args.output)
     names = [Path(f).name for f in args.images]
     if len(set(names)) != len(names):
-        raise InputError(args.out, "two input images have the same name; outputs are named after the inputs")
+        raise InputError(args.output, "two input images have the same name; outputs are named after the inputs")
     for path, name in progress(list(zip(args.images, names)), "undistort"):
         virtual = undistort_image(read_gray(path), setup.imm, im, args.fixed_point, where=path)
         write_gray(out / name, virtual)
+        wrote(out / name, f"{path} without distortion, {virtual.shape[1]}x{virtual.shape[0]}")
     return 0
 
 

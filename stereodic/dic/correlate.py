@@ -1,17 +1,16 @@
 """2D subset DIC between a reference image and one or more deformed images.
 
 `correlate_points` registers a list of points given initial warps (the building block, also for stereo
-matching); `correlate_pair` measures a whole grid from seeds found by ZNCC search and reliability-guided
-propagation; `correlate_sequence` runs a series of deformed images, each starting from the previous
-result, optionally updating the reference (incremental DIC) for large deformations.
+matching); `register_image` measures a whole grid in one deformed image from starting warps, seeds found
+by ZNCC search and reliability-guided propagation; `correlate_pair` runs it for one pair of images
+(`stereodic.dic.sequence` for a series of deformed images).
 Displacements in pixels, u along x (columns), v along y (rows), at points of the reference image.
 """
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
-from typing import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -22,7 +21,7 @@ from stereodic.dic.initial_guess import search_integer
 from stereodic.dic.interpolation import BSplineImage
 from stereodic.dic.outliers import inconsistent
 from stereodic.dic.propagation import guesses_from_lattice, propagate
-from stereodic.dic.texture import estimate_noise, predicted_noise
+from stereodic.dic.texture import estimate_noise, predicted_noise, sssig
 
 
 @dataclass(frozen=True)
@@ -84,13 +83,16 @@ class DicField:
     reference position (pixels, NaN where not OK; for incremental DIC, summed over the steps); `points`:
     this image's registration, flat in grid order (for incremental DIC, of the step from the previous
     image, with the subsets taken around the points' positions there); noise_px (ny, nx): the predicted
-    random error of each point (pixels, `texture.predicted_noise`, NaN where the subset leaves the image)."""
+    random error of each point (pixels, `texture.predicted_noise`, NaN where the subset leaves the image);
+    incremental (ny, nx) bool: the points registered from the previous image (`stereodic.dic.sequence`),
+    None for a single pair."""
 
     grid: Grid
     points: PointResult
     u: np.ndarray
     v: np.ndarray
     noise_px: np.ndarray
+    incremental: np.ndarray | None = None
 
     @property
     def zncc(self) -> np.ndarray:
@@ -155,6 +157,7 @@ class _PairSolver:
         self.warp, self.zncc, self.iters, self.status = _arrays(xs.size, settings.nparams)
         self.done = (~grid.active.ravel()).astype(np.int8)
         self.fit = quadratic_fit_matrix(settings.half)
+        self.seedable = np.ones(xs.size, bool)  # where automatic seeds may be tried
 
     def solve(self, idx: np.ndarray) -> None:
         """Solve points `idx` from the warps already in self.warp."""
@@ -232,8 +235,8 @@ class _PairSolver:
 
     def grow(self, seeds: Sequence[int], stride: int) -> None:
         """Propagate (every `stride` points) from what is solved, then from `seeds`, then from
-        automatic seeds among the pending points on the lattice (nearest to the centre of the pending
-        ones first), up to max_seeds attempts. Seeds without texture are flagged and skipped; if
+        automatic seeds among the pending seedable points on the lattice (nearest to the centre of the
+        pending ones first), up to max_seeds attempts. Seeds without texture are flagged and skipped; if
         points remain after the first seed, all pending points without texture are flagged so that
         seeds avoid them."""
         ny, nx = self.grid.shape
@@ -249,7 +252,7 @@ class _PairSolver:
                  for k in seeds] if lattice.size else []
         screened = False
         while attempts < self.s.max_seeds:
-            pending = np.flatnonzero((self.done == 0) & on_lattice)
+            pending = np.flatnonzero((self.done == 0) & on_lattice & (self.seedable | bool(queue)))
             if pending.size == 0:
                 break
             if queue:
@@ -302,92 +305,89 @@ def seed_indices(grid: Grid, seeds: Iterable[tuple[float, float]]) -> list[int]:
     return [int(act[np.argmin((X[act] - x) ** 2 + (Y[act] - y) ** 2)]) for x, y in seeds] if act.size else []
 
 
-def _with_bsplines(images: Iterable[np.ndarray], settings: DicSettings
-                   ) -> Iterator[tuple[np.ndarray, BSplineImage]]:
-    """Yield (image, its BSplineImage), preparing the next image's coefficients in a worker thread
-    while the caller works on the current one."""
-    def make(img):
-        return BSplineImage.from_image(img, settings.order, settings.prefilter_sigma)
+@dataclass
+class ImageRef:
+    """An image as the reference of a registration: its pixels, its B-spline and (computed on first use)
+    its white-noise estimate `sigma` (grey levels, `texture.estimate_noise`)."""
 
-    with ThreadPoolExecutor(1) as pool:
-        it = iter(images)
-        nxt = next(it, None)
-        job = pool.submit(make, nxt) if nxt is not None else None
-        while job is not None:
-            img = nxt
-            nxt = next(it, None)
-            bspline = job.result()
-            job = pool.submit(make, nxt) if nxt is not None else None
-            yield img, bspline
+    image: np.ndarray
+    bspline: BSplineImage
+    _sigma: float | None = field(default=None, repr=False, compare=False)
+    _sssig: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @classmethod
+    def prepare(cls, image: np.ndarray, settings: DicSettings = DicSettings(),
+                bspline: BSplineImage | None = None) -> "ImageRef":
+        """The reference data of `image` (its B-spline is computed unless given)."""
+        if bspline is None:
+            bspline = BSplineImage.from_image(image, settings.order, settings.prefilter_sigma)
+        return cls(image, bspline)
+
+    @property
+    def sigma(self) -> float:
+        if self._sigma is None:
+            self._sigma = estimate_noise(self.image)
+        return self._sigma
+
+    def noise(self, xs: np.ndarray, ys: np.ndarray, half: int) -> np.ndarray:
+        """`texture.predicted_noise` of subsets at (xs, ys) in this image (its SSSIG maps kept per size)."""
+        if half not in self._sssig:
+            self._sssig[half] = sssig(self.bspline, half)
+        return predicted_noise(self.bspline, xs, ys, half, self.sigma, self._sssig[half])
 
 
-def correlate_sequence(ref_img: np.ndarray, def_imgs: Iterable[np.ndarray], grid: Grid,
-                       settings: DicSettings = DicSettings(), seeds: Iterable[tuple[float, float]] = (),
-                       incremental: bool = False, search: Callable | None = None,
-                       start: PointResult | None = None) -> Iterable[DicField]:
-    """Yield one DicField per deformed image (a generator: images are read one at a time).
+def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid: Grid, xs: np.ndarray,
+                   ys: np.ndarray, settings: DicSettings = DicSettings(), *, seeds: Sequence[int] = (),
+                   search: Callable | None = None, start: PointResult | None = None,
+                   translation_only: bool = False, skip: np.ndarray | None = None,
+                   skip_status: np.ndarray | None = None) -> tuple[PointResult, np.ndarray]:
+    """Register the grid's points, whose subsets sit at (xs, ys) in the reference image (flat, grid
+    order, pixels), in the deformed image (`def_img` and its B-spline).
 
-    Each image starts from the previous image's warps where those were good (points that fail from
-    there, or reach less than the seed ZNCC, start again from their neighbours), then propagates into the
-    rest. With `incremental`, image k is registered against image k-1 (the subsets around the points'
-    current positions), and displacements are accumulated: suited to large deformations, at the cost
-    of adding up the per-step errors. A point lost once stays lost (its status is kept).
-    search: the seeds' integer search, `search_integer`'s signature (default: that 2-D search; a
-    rectified stereo pair uses `row_seed_search`); start: warps (grid order) for the first image to
-    start from, as if they were a previous image's result (its points with status OK)."""
+    start: warps to start from (points with status OK), e.g. the previous image's result (only its
+    translations with `translation_only`); points that fail from there, or end below the seed ZNCC,
+    start again from their neighbours. The others are reached by reliability-guided propagation from
+    these and from seeds (`seeds`: flat grid indices; `search`: the seeds' integer search, see
+    `correlate_sequence`); with a start that measured points, automatic seeds are tried only at those
+    (a point that failed in the previous image is reached from its neighbours, not searched for again at
+    every image). skip: (N,) bool points left alone, reported with `skip_status` (N,) int8 (default
+    UNREACHED). Returns the registration and the predicted random error (N,) of each point
+    (pixels, `texture.predicted_noise` at (xs, ys) in the reference)."""
     s = settings
     nb = s.nparams // 2
-    X, Y = grid.points()
-    seed_list = seed_indices(grid, seeds)
-    images = _with_bsplines(def_imgs, s)  # the first deformed image is prepared meanwhile
-    ref_b = BSplineImage.from_image(ref_img, s.order, s.prefilter_sigma)
-    ref_b.pixel_gradients()
-    prev: PointResult | None = start
-    cur_x, cur_y = X.copy(), Y.copy()  # where the points are in the current reference image
-    lost = np.zeros(X.size, bool)
-    lost_status = np.zeros(X.size, np.int8)
-    sigma = estimate_noise(ref_img)
-    for img, def_b in images:
-        solver = _PairSolver(ref_b, def_b, ref_img, img, grid, cur_x, cur_y, s, search)
-        if incremental:
-            solver.done[lost] = 1
-            solver.status[lost] = lost_status[lost]
-        if prev is not None:
-            carry = np.flatnonzero((prev.status == OK) & (solver.done == 0))
-            if incremental:  # the next step starts from the same translation as the last one
-                solver.warp[carry] = 0.0
-                solver.warp[carry, 0] = prev.warp[carry, 0]
-                solver.warp[carry, nb] = prev.warp[carry, nb]
-            else:
-                solver.warp[carry] = prev.warp[carry]
-            solver.solve(carry)
-            # a second chance from their neighbours for the failed points, and for those below the seed
-            # ZNCC: a stale start (a larger motion than the last image's) can end in a false optimum
-            redo = carry[(solver.status[carry] != OK) | ~(solver.zncc[carry] >= s.seed_zncc)]
-            solver.done[redo] = 0
-        solver.fill(seed_list)
-        noise = predicted_noise(ref_b, cur_x, cur_y, s.half, sigma)
-        solver.screen(noise)
-        res = solver.result()
-        ok = res.status == OK
-        if incremental:
-            new_x = np.where(ok, cur_x + res.warp[:, 0], np.nan)
-            new_y = np.where(ok, cur_y + res.warp[:, nb], np.nan)
-            newly_lost = ~ok & ~lost
-            lost_status[newly_lost] = res.status[newly_lost]
-            lost |= ~ok
-            total_u, total_v = new_x - X, new_y - Y
-            cur_x, cur_y = np.where(ok, new_x, cur_x), np.where(ok, new_y, cur_y)
-            ref_b, ref_img = def_b, img
-            sigma = estimate_noise(img)
+    solver = _PairSolver(ref.bspline, def_b, ref.image, def_img, grid, xs, ys, s, search)
+    if skip is not None:
+        solver.done[skip] = 1
+        solver.status[skip] = UNREACHED if skip_status is None else skip_status[skip]
+    if start is not None:
+        if (start.status == OK).any():
+            solver.seedable = start.status == OK
+        carry = np.flatnonzero((start.status == OK) & (solver.done == 0))
+        if translation_only:
+            solver.warp[carry] = 0.0
+            solver.warp[carry, 0] = start.warp[carry, 0]
+            solver.warp[carry, nb] = start.warp[carry, nb]
         else:
-            total_u, total_v = res.u, res.v
-        prev = res
-        yield DicField(grid, res, total_u.reshape(grid.shape), total_v.reshape(grid.shape), noise.reshape(grid.shape))
+            solver.warp[carry] = start.warp[carry]
+        solver.solve(carry)
+        # a second chance from their neighbours for the failed points, and for those below the seed
+        # ZNCC: a stale start (a larger motion than the last image's) can end in a false optimum
+        redo = carry[(solver.status[carry] != OK) | ~(solver.zncc[carry] >= s.seed_zncc)]
+        solver.done[redo] = 0
+    solver.fill(seeds)
+    noise = ref.noise(xs, ys, s.half)
+    solver.screen(noise)
+    return solver.result(), noise
 
 
 def correlate_pair(ref_img: np.ndarray, def_img: np.ndarray, grid: Grid,
                    settings: DicSettings = DicSettings(), seeds: Iterable[tuple[float, float]] = (),
                    search: Callable | None = None, start: PointResult | None = None) -> DicField:
-    """DIC of one deformed image against the reference on `grid` (see correlate_sequence)."""
-    return next(iter(correlate_sequence(ref_img, [def_img], grid, settings, seeds, search=search, start=start)))
+    """DIC of one deformed image against the reference on `grid`: `register_image` from `start` (full
+    warps), seeds near the (x, y) positions `seeds` and automatic ones."""
+    X, Y = grid.points()
+    ref = ImageRef.prepare(ref_img, settings)
+    def_b = BSplineImage.from_image(def_img, settings.order, settings.prefilter_sigma)
+    res, noise = register_image(ref, def_img, def_b, grid, X, Y, settings, seeds=seed_indices(grid, seeds),
+                                search=search, start=start)
+    return DicField(grid, res, res.u.reshape(grid.shape), res.v.reshape(grid.shape), noise.reshape(grid.shape))

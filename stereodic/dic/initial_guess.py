@@ -47,13 +47,16 @@ def search_integer(ref: np.ndarray, dfm: np.ndarray, x: int, y: int, half: int, 
 
 
 def row_search(ref: np.ndarray, dfm: np.ndarray, xs: np.ndarray, ys: np.ndarray, half: int,
-               dmin: int, dmax: int) -> tuple[np.ndarray, np.ndarray]:
+               dmin: int, dmax: int, rows: int = 0) -> tuple[np.ndarray, np.ndarray] | tuple[np.ndarray, ...]:
     """For each integer point (xs[k], ys[k]) of `ref`, the integer shift d in [dmin, dmax] along the same
     row of `dfm` (match at x + d) with the highest ZNCC of the subset of half-width `half`.
 
-    Returns (d, zncc) arrays; zncc = -1 where no shift of the range keeps the subset in the image."""
+    Returns (d, zncc) arrays; zncc = -1 where no shift of the range keeps the subset in the image. With
+    `rows` > 0 the search also covers that many rows above and below (a band about the row, for a rig
+    whose rows no longer line up exactly) and returns (d, dv, zncc), dv the row shift."""
     h, w = ref.shape
     d_out = np.zeros(len(xs), np.int64)
+    dv_out = np.zeros(len(xs), np.int64)
     z_out = np.full(len(xs), -1.0)
     ref32 = _as_f32(ref)
     def32 = _as_f32(dfm)
@@ -62,20 +65,26 @@ def row_search(ref: np.ndarray, dfm: np.ndarray, xs: np.ndarray, ys: np.ndarray,
             continue
         lo = max(x + dmin, half)
         hi = min(x + dmax, w - 1 - half)
+        top, bottom = max(y - rows, half), min(y + rows, h - 1 - half)
         if hi < lo:
             continue
         tpl = ref32[y - half:y + half + 1, x - half:x + half + 1]
-        strip = def32[y - half:y + half + 1, lo - half:hi + half + 1]
-        _, c, z = _best(cv2.matchTemplate(strip, tpl, cv2.TM_CCOEFF_NORMED))
+        band = def32[top - half:bottom + half + 1, lo - half:hi + half + 1]
+        r, c, z = _best(cv2.matchTemplate(band, tpl, cv2.TM_CCOEFF_NORMED))
         d_out[k] = lo + c - x
+        dv_out[k] = top + r - y
         z_out[k] = z
-    return d_out, z_out
+    return (d_out, z_out) if rows == 0 else (d_out, dv_out, z_out)
 
 
-def row_seed_search(dmin: int, dmax: int):
-    """A seed search with `search_integer`'s signature that looks along the row only, at shifts
-    dmin..dmax (its radius and centre are ignored): the seeds of a rectified stereo pair."""
+def row_seed_search(dmin: int, dmax: int, rows: int = 0):
+    """A seed search with `search_integer`'s signature that looks along the row only (or a band of `rows`
+    rows either side of it), at shifts dmin..dmax (its radius and centre are ignored): the seeds of a
+    rectified stereo pair."""
     def search(ref, dfm, x, y, half, radius, centre):
-        d, z = row_search(ref, dfm, [x], [y], half, dmin, dmax)
-        return int(d[0]), 0, float(z[0])
+        if rows == 0:
+            d, z = row_search(ref, dfm, [x], [y], half, dmin, dmax)
+            return int(d[0]), 0, float(z[0])
+        d, dv, z = row_search(ref, dfm, [x], [y], half, dmin, dmax, rows)
+        return int(d[0]), int(dv[0]), float(z[0])
     return search

@@ -29,14 +29,24 @@ def estimate_noise(image: np.ndarray) -> float:
     return float(np.sqrt(np.pi / 2) / 6.0 * np.mean(np.abs(r), dtype=np.float64))
 
 
-def predicted_noise(ref: BSplineImage, xs: np.ndarray, ys: np.ndarray, half: int, sigma: float) -> np.ndarray:
-    """(N,) predicted random error (pixels) of the subsets of half-width `half` at (xs, ys) (rounded to
-    pixels), max over u and v, for image noise `sigma` (grey levels); inf where a subset has no gradient,
-    NaN where it leaves the image."""
+def sssig(ref: BSplineImage, half: int) -> tuple[np.ndarray, np.ndarray]:
+    """The sum of squared subset intensity gradients (SSSIG, Pan et al. 2008) of the subset of half-width
+    `half` centred on every pixel: two (height, width) float32 maps, sum of (d/dx)^2 (for u) and of
+    (d/dy)^2 (for v), grey levels^2 (the interpolant's gradients; a subset crossing the border sums the
+    pixels inside)."""
     g = ref.pixel_gradients()
     side = 2 * half + 1
-    sums = [cv2.boxFilter(np.square(g[c], dtype=np.float32), cv2.CV_32F, (side, side), normalize=False,
-                          borderType=cv2.BORDER_CONSTANT) for c in (1, 2)]
+    sx, sy = (cv2.boxFilter(np.square(g[c], dtype=np.float32), cv2.CV_32F, (side, side), normalize=False,
+                            borderType=cv2.BORDER_CONSTANT) for c in (1, 2))
+    return sx, sy
+
+
+def predicted_noise(ref: BSplineImage, xs: np.ndarray, ys: np.ndarray, half: int, sigma: float,
+                    sums: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """(N,) predicted random error (pixels) of the subsets of half-width `half` at (xs, ys) (rounded to
+    pixels), max over u and v, for image noise `sigma` (grey levels); inf where a subset has no gradient,
+    NaN where it leaves the image. sums: `sssig(ref, half)` if already computed."""
+    sums = sssig(ref, half) if sums is None else sums
     ix = np.rint(np.asarray(xs)).astype(np.int64)
     iy = np.rint(np.asarray(ys)).astype(np.int64)
     inside = (ix >= 0) & (ix < ref.width) & (iy >= 0) & (iy < ref.height)

@@ -1,101 +1,167 @@
-"""Writing stereo DIC results: CSV rows, NPZ arrays and PNG maps (all atomic).
+"""Writing stereo DIC results: CSV rows, NPZ arrays and PNG maps, state by state (all atomic).
 
 CSV, one row per active grid point and state (x, y: the point in the LEFT rectified reference image,
 pixels; per camera the 2-D columns of `dic2d`, prefixed left_ / right_: u, v such that the point is at
 (x + u, y + v) in that camera's rectified image of the state (so right_u includes the disparity), zncc,
-converged, status; then X, Y, Z (WCS mm, the point in this state), dX, dY, dZ (mm, from state 0), gap_mm
-(distance between the two rays), converged (both cameras and the rays agree, and state 0 is measured),
-status (ok, left:<status>, right:<status>, ray_gap, no_reference) and, with a strain window, the
-Green-Lagrange strains exx, eyy, exy on the tangent plane and strain_valid). Camera columns are NaN
-exactly where that camera's converged is 0; X..gap_mm exactly where converged is 0; strains exactly
-where strain_valid is 0.
+converged, status; left_x0, left_y0, right_x0, right_y0: where the point is in each camera's original
+(unrectified) image of the state, pixels; then X, Y, Z (mm, the point in this state, in the rig's
+reporting frame), dX, dY, dZ (mm, from state 0), gap_mm (distance between the two rays), converged (both
+cameras and the rays agree, and state 0 is measured), status (ok, left:<status>, right:<status>,
+ray_gap, no_reference), incremental (1: the point is tracked state to state) and, with a strain window,
+the strain measure's exx, eyy, exy on the tangent plane, its principal strains e_major, e_minor, the
+major direction e_angle (degrees from e1) and the von Mises equivalent e_vm (`strain_measures`), and
+strain_valid). Camera columns are NaN exactly where that camera's converged is 0; X..gap_mm exactly where
+converged is 0; strains exactly where strain_valid is 0.
+
+The writers take the states as an iterable (each state is formatted and written, then dropped), so a
+sequence of thousands of states never needs more memory than one of them.
 """
 
 from __future__ import annotations
 
-import io
 import json
 import os
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Iterable
 
 import numpy as np
 
-from calib.atomic import write_npz as _write_npz, write_text
+from calib.atomic import atomic_output
+from calib.npz_stream import write_stacked_npz
 from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import STATUS_NAMES
-from stereodic.dic.output import save_map
-from stereodic.dic3d.stereo import StereoSettings, StereoState
+from stereodic.dic.output import STRAIN_COLUMNS, fmt, save_map
+from stereodic.dic3d.stereo import NO_REFERENCE, RAY_GAP, CameraMatch, StereoSettings, StereoState
+from stereodic.strain_measures import StrainMeasure
 
-
-def _fmt(a: np.ndarray, f: str) -> np.ndarray:
-    return np.char.mod(f, a)
-
-
-def write_csv(path: str | os.PathLike, grid: Grid, states: Sequence[StereoState]) -> None:
-    """The CSV of the module docstring."""
-    has_strain = any(s.strain is not None for s in states)
+def csv_columns(has_strain: bool) -> list[str]:
     cols = ["state", "x", "y"]
     for cam in ("left", "right"):
         cols += [f"{cam}_{c}" for c in ("u", "v", "zncc", "converged", "status")]
-    cols += ["X", "Y", "Z", "dX", "dY", "dZ", "gap_mm", "converged", "status"]
+    cols += ["left_x0", "left_y0", "right_x0", "right_y0"]
+    cols += ["X", "Y", "Z", "dX", "dY", "dZ", "gap_mm", "converged", "status", "incremental"]
     if has_strain:
-        cols += ["exx", "eyy", "exy", "strain_valid"]
-    out = io.StringIO()
-    out.write(",".join(cols) + "\n")
+        cols += [c for c, _, _ in STRAIN_COLUMNS] + ["strain_valid"]
+    return cols
+
+
+def csv_rows(grid: Grid, st: StereoState) -> str:
+    """The CSV rows (module docstring) of one state, newline-terminated."""
     names = np.array(STATUS_NAMES)
     act = grid.active.ravel()
     X, Y = grid.points()
-    for st in states:
-        parts = [np.full(act.sum(), str(st.state)), _fmt(X[act], "%g"), _fmt(Y[act], "%g")]
-        for m in (st.left, st.right):
-            parts += [_fmt(m.u.ravel()[act], "%.6f"), _fmt(m.v.ravel()[act], "%.6f"), _fmt(m.zncc.ravel()[act], "%.6f"),
-                      m.ok.ravel()[act].astype(int).astype(str), names[m.status.ravel()[act]]]
-        pts, disp = st.points.reshape(-1, 3)[act], st.displacement.reshape(-1, 3)[act]
-        parts += [_fmt(pts[:, i], "%.6f") for i in range(3)] + [_fmt(disp[:, i], "%.6f") for i in range(3)]
-        parts += [_fmt(st.gap_mm.ravel()[act], "%.6f"), st.converged.ravel()[act].astype(int).astype(str),
-                  st.status.ravel()[act].astype(str)]
-        if has_strain:
-            s = st.strain
-            parts += [_fmt(getattr(s, c).ravel()[act], "%.7f") for c in ("exx", "eyy", "exy")]
-            parts += [s.valid.ravel()[act].astype(int).astype(str)]
-        rows = parts[0]
-        for p in parts[1:]:
-            rows = np.char.add(np.char.add(rows, ","), p)
-        out.write("\n".join(rows.tolist()) + "\n")
-    write_text(path, out.getvalue())
+    flat = lambda a: np.asarray(a).reshape((-1,) + np.shape(a)[2:])[act]  # noqa: E731
+    ints = lambda a: flat(a).astype(int).astype(str).tolist()  # noqa: E731
+    cols = [[str(st.state)] * int(act.sum()), fmt("%g", X[act]), fmt("%g", Y[act])]
+    for m in (st.left, st.right):
+        cols += [fmt("%.6f", flat(m.u)), fmt("%.6f", flat(m.v)), fmt("%.6f", flat(m.zncc)), ints(m.ok),
+                 names[flat(m.status)].tolist()]
+    for m in (st.left, st.right):
+        real = flat(m.real)
+        cols += [fmt("%.6f", real[:, 0]), fmt("%.6f", real[:, 1])]
+    pts, disp = flat(st.points), flat(st.displacement)
+    cols += [fmt("%.6f", pts[:, i]) for i in range(3)] + [fmt("%.6f", disp[:, i]) for i in range(3)]
+    cols += [fmt("%.6f", flat(st.gap_mm)), ints(st.converged), flat(st.status).astype(str).tolist(),
+             ints(st.incremental)]
+    if st.measure is not None:
+        cols += [fmt(f, flat(getattr(st.measure, field))) for _, field, f in STRAIN_COLUMNS]
+        cols += [ints(st.measure.valid)]
+    return "".join(",".join(row) + "\n" for row in zip(*cols))
 
 
-def write_npz(path: str | os.PathLike, grid: Grid, states: Sequence[StereoState], settings: StereoSettings,
-              info: dict) -> None:
-    """Arrays x (nx,), y (ny,), active (ny, nx); per state (S, ny, nx): left_u, left_v, left_zncc,
-    left_status, right_* the same, gap_mm, converged [, exx, eyy, exy, strain_valid]; points and
-    displacement (S, ny, nx, 3) WCS mm; state (S,); meta: JSON with the settings, status names and
-    `info` (rig, dataset)."""
-    arrays = dict(x=grid.xs, y=grid.ys, active=grid.active, state=np.array([s.state for s in states]))
+def write_csv(path: str | os.PathLike, grid: Grid, states: Iterable[StereoState]) -> None:
+    """The CSV of the module docstring, written state by state."""
+    with atomic_output(path) as tmp, open(tmp, "w") as out:
+        header = False
+        for st in states:
+            if not header:
+                out.write(",".join(csv_columns(st.measure is not None)) + "\n")
+                header = True
+            out.write(csv_rows(grid, st))
+
+
+def npz_keys(has_strain: bool) -> list[str]:
+    """The per-state arrays of dic.npz (and of the run folder's state files), in the file's order."""
+    keys = ["state"] + [f"{c}_{k}" for c in ("left", "right") for k in ("u", "v", "zncc", "status")]
+    keys += ["points", "displacement", "gap_mm", "converged"]
+    if has_strain:
+        keys += ["exx", "eyy", "exy", "strain_valid"]
+    keys += [f"{c}_{k}" for c in ("left", "right") for k in ("x0", "y0", "noise_px")] + ["incremental"]
+    if has_strain:
+        keys += ["e_major", "e_minor", "e_angle", "e_vm"]
+    return keys
+
+
+_MEASURE = {c: f for c, f, _ in STRAIN_COLUMNS} | {"strain_valid": "valid"}
+
+
+_COMBINED = ("ok", RAY_GAP, NO_REFERENCE)  # status codes 0-2; 3: "left:<status>", 4: "right:<status>"
+
+
+def _status_code(st: StereoState) -> np.ndarray:
+    code = np.select([st.status == "ok", st.status == RAY_GAP, st.status == NO_REFERENCE,
+                      ~st.left.ok], [0, 1, 2, 3], 4).astype(np.int8)
+    return code
+
+
+def _status_strings(code: np.ndarray, left_status: np.ndarray, right_status: np.ndarray) -> np.ndarray:
+    names = np.array(STATUS_NAMES, dtype=object)
+    out = np.array(_COMBINED, dtype=object)[np.minimum(code, 2)]
+    out[code == 3] = "left:" + names[left_status[code == 3]]
+    out[code == 4] = "right:" + names[right_status[code == 4]]
+    return out
+
+
+def state_arrays(st: StereoState) -> dict[str, np.ndarray]:
+    """A state's arrays: those of dic.npz (`npz_keys`) and `status_code` (the combined status: 0 ok, 1
+    ray_gap, 2 no_reference, 3 the left camera's, 4 the right camera's)."""
+    out = {"state": np.array(st.state)}
     for cam in ("left", "right"):
-        for c in ("u", "v", "zncc", "status"):
-            arrays[f"{cam}_{c}"] = np.stack([getattr(getattr(s, cam), c) for s in states])
-    for c in ("points", "displacement", "gap_mm", "converged"):
-        arrays[c] = np.stack([getattr(s, c) for s in states])
-    if states[0].strain is not None:
-        for c in ("exx", "eyy", "exy"):
-            arrays[c] = np.stack([getattr(s.strain, c) for s in states])
-        arrays["strain_valid"] = np.stack([s.strain.valid for s in states])
-    meta = dict(format="stereodic.dic/1", status_names=list(STATUS_NAMES), units="pixels (rectified), WCS mm",
+        m = getattr(st, cam)
+        out.update({f"{cam}_{k}": getattr(m, k) for k in ("u", "v", "zncc", "status", "noise_px")})
+        out[f"{cam}_x0"], out[f"{cam}_y0"] = m.real[..., 0], m.real[..., 1]
+    out.update(points=st.points, displacement=st.displacement, gap_mm=st.gap_mm, converged=st.converged,
+               incremental=st.incremental, status_code=_status_code(st))
+    if st.measure is not None:
+        out.update({key: getattr(st.measure, f) for key, f in _MEASURE.items()})
+    return out
+
+
+def state_from_arrays(a, measure: str | None) -> StereoState:
+    """The StereoState of `state_arrays` (its strain fit is not kept: `strain` is None)."""
+    def cam(c):
+        return CameraMatch(*(np.array(a[f"{c}_{k}"]) for k in ("u", "v", "zncc", "status", "noise_px")),
+                           np.stack([a[f"{c}_x0"], a[f"{c}_y0"]], -1))
+
+    m = None
+    if "strain_valid" in a:
+        m = StrainMeasure(measure, *(np.array(a[key]) for key in _MEASURE))
+    return StereoState(int(a["state"]), cam("left"), cam("right"), np.array(a["points"]),
+                       np.array(a["displacement"]), np.array(a["gap_mm"]), np.array(a["converged"]),
+                       _status_strings(np.array(a["status_code"]), np.array(a["left_status"]),
+                                       np.array(a["right_status"])), None, np.array(a["incremental"]), m)
+
+
+def write_npz(path: str | os.PathLike, grid: Grid, values: Callable[[str], Iterable[np.ndarray]], count: int,
+              has_strain: bool, settings: StereoSettings, info: dict) -> None:
+    """Arrays x (nx,), y (ny,), active (ny, nx); per state (S, ny, nx): left_u, left_v, left_zncc,
+    left_status, right_* the same, gap_mm, converged [, exx, eyy, exy, strain_valid], left_x0, left_y0,
+    left_noise_px, right_* the same, incremental [, e_major, e_minor, e_angle, e_vm]; points and
+    displacement (S, ny, nx, 3) mm; state (S,); meta: JSON with the settings, status names and `info`
+    (rig, dataset, world_from_rig, ...). `values(key)` iterates one array's per-state values."""
+    meta = dict(format="stereodic.dic/1", status_names=list(STATUS_NAMES), units="pixels (rectified), mm",
                 settings={"dic": settings.dic.__dict__, **{k: v for k, v in settings.__dict__.items() if k != "dic"}},
                 **info)
-    _write_npz(path, meta=np.array(json.dumps(meta)), **arrays)
+    arrays = dict(meta=np.array(json.dumps(meta)), x=grid.xs, y=grid.ys, active=grid.active)
+    write_stacked_npz(path, arrays, {key: (lambda key=key: values(key)) for key in npz_keys(has_strain)}, count)
 
 
-def plot_states(folder: str | os.PathLike, grid: Grid, states: Sequence[StereoState]) -> None:
-    """PNG maps per state k: state{k}_{Z,dX,dY,dZ}.png [+ _exx, _eyy, _exy] (axes: left reference pixels)."""
+def plot_state(folder: str | os.PathLike, grid: Grid, st: StereoState) -> None:
+    """PNG maps of one state k: state{k}_{Z,dX,dY,dZ}.png [+ _exx, _eyy, _exy] (axes: left reference pixels)."""
     folder = Path(folder)
-    for st in states:
-        maps = {"Z": (st.points[..., 2], "mm"), "dX": (st.displacement[..., 0], "mm"),
-                "dY": (st.displacement[..., 1], "mm"), "dZ": (st.displacement[..., 2], "mm")}
-        if st.strain is not None:
-            maps.update({c: (getattr(st.strain, c) * 1e6, "microstrain") for c in ("exx", "eyy", "exy")})
-        for name, (arr, unit) in maps.items():
-            save_map(folder / f"state{st.state}_{name}.png", arr, grid, f"state {st.state}: {name}",
-                     f"{name} ({unit})")
+    maps = {"Z": (st.points[..., 2], "mm"), "dX": (st.displacement[..., 0], "mm"),
+            "dY": (st.displacement[..., 1], "mm"), "dZ": (st.displacement[..., 2], "mm")}
+    if st.measure is not None:
+        maps.update({c: (getattr(st.measure, c) * 1e6, "microstrain") for c in ("exx", "eyy", "exy")})
+    for name, (arr, unit) in maps.items():
+        save_map(folder / f"state{st.state}_{name}.png", arr, grid, f"state {st.state}: {name}", f"{name} ({unit})")

@@ -6,37 +6,53 @@ grid of points lies in the LEFT image of the reference state 0. Per state s:
   (`row_seed_search`; the rectified pair puts a scene point on one row of both images), then IC-GN with
   the affine (or quadratic) subset shape - the right subset is foreshortened differently - and
   reliability-guided propagation (the 2-D engine, `stereodic.dic`);
-- temporal match left_0 -> left_s (the 2-D engine's sequence, optionally incremental);
+- temporal match left_0 -> left_s (the 2-D engine's tracking, `stereodic.dic.sequence`);
 - cross match left_0 -> right_s, starting from the previous state's cross warps moved by the left
   camera's change of displacement (DICe's and VIC-3D's scheme): every state compares the SAME reference
   subset in both cameras, so each camera measures the same material patch and errors do not add up
-  over states. With `incremental` (large deformations, where the reference subset no longer resembles
-  the deformed images) the left track is incremental and the stereo match is redone at every state,
-  left_s -> right_s, with subsets around the tracked left positions, from the previous state's warps;
+  over states;
+- incremental points (large deformations, where the reference subset no longer resembles the deformed
+  images): a point whose ZNCC against the reference - left or cross - falls below `switch_zncc` (or whose
+  match fails in a way an updated reference can cure) switches for good, if that matches it better: its
+  left track goes image to image (left_{s-1} -> left_s, its displacement still counted from its reference
+  position) and its stereo match is redone at every state, left_s -> right_s, with the subset around
+  its tracked left position, starting from its previous stereo warp (at the switch: the previous cross
+  warp composed with the inverse of the previous temporal warp). With `incremental` every point is
+  incremental from state 1;
 - triangulation of (left position, right position) with the EVM-corrected rays (`triangulate`,
   corrected=True; the right match may sit a fraction of a pixel off the row after IC-GN: passed as
   row_right); a ray gap above `max_gap_px` virtual pixels means a wrong match and is flagged;
-- 3D displacement X_s - X_0 (WCS mm), Green-Lagrange strain on the local tangent plane (`strain_3d`).
+- 3D points and displacements X_s - X_0 in the rig's reporting frame (`Rig.to_world`: the rig's WCS
+  unless it carries a world_from_rig transform), strain on the local tangent plane (`strain_3d`).
 A point is `converged` in a state only if both cameras' matches are OK there, the rays meet, and its
 state-0 point is measured; positions, displacements and strains are NaN exactly where it is not.
+
+The unit of work is one state: `solve_state(run, k, pair, carry, previous)` -> (its result, the carry
+for state k + 1), where `run` is the per-run data (`StereoRun`: rig, grid, settings, the reference
+image's B-spline, the reference points), `pair` the state's rectified images (`PreparedPair`) and
+`carry` (`StereoCarry`) what the previous state leaves the next: the warps every state starts from.
+`StereoDic.run` chains the states in memory; `stereodic.dic3d.run` chains them through files on disk.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Iterator, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Iterable, Iterator, Sequence
 
 import numpy as np
 
-from stereodic.dic import BSplineImage, DicSettings, PointResult, correlate_pair, correlate_points, \
-    correlate_sequence, row_seed_search
-from stereodic.dic.correlate import subset_status
+from stereodic.dic import BSplineImage, DicSettings, ImageRef, PointResult, correlate_points, row_seed_search
+from stereodic.dic.correlate import register_image, seed_indices, subset_status
 from stereodic.dic.grid import Grid
-from stereodic.dic.icgn import OK, STATUS_NAMES, UNREACHED
+from stereodic.dic.icgn import OK, OUTSIDE, STATUS_NAMES, UNREACHED
+from stereodic.dic.sequence import (DECORRELATED, SWITCH_ZNCC, TrackCarry, merge_track, prefetch, register_direct,
+                                    register_steps, switch_candidates)
 from stereodic.rig import Rig
 from stereodic.strain import Strain, strain_3d
+from stereodic.strain_measures import StrainMeasure, measure_strain
 from stereodic.triangulate import triangulate
 
+CROSS_DECORRELATED = tuple(c for c in DECORRELATED if c != OUTSIDE)
 RAY_GAP = "ray_gap"        # combined statuses beyond the 2-D engine's
 NO_REFERENCE = "no_reference"
 
@@ -45,26 +61,38 @@ NO_REFERENCE = "no_reference"
 class StereoSettings:
     """dic: the 2-D engine's settings (subset, shape, ...); disparity: (dmin, dmax) pixels of the row
     search of the seeds (x_right - x_left), None = half the image width either way; strain_window: grid
-    points per side of the strain fit (odd), None = no strain; incremental: see the module docstring;
-    max_gap_px: largest distance between the two rays, in virtual pixel pitches, of a trusted point."""
+    points per side of the strain fit (odd), None = no strain; incremental: every point incremental from
+    state 1 (module docstring); switch_zncc: a point whose ZNCC against the reference falls below
+    switches to incremental (0 = never); max_gap_px: largest distance between the two rays, in virtual
+    pixel pitches, of a trusted point; strain_measure: one of `strain_measures.MEASURES`;
+    vertical_search: rows above and below the row that the seed search also covers (0: the row only; more
+    for a rig whose calibration no longer fits its images, whose matches sit off the row)."""
 
     dic: DicSettings = DicSettings()
     disparity: tuple[int, int] | None = None
     strain_window: int | None = 5
     incremental: bool = False
     max_gap_px: float = 1.0
+    switch_zncc: float = SWITCH_ZNCC
+    strain_measure: str = "green-lagrange"
+    vertical_search: int = 0
 
 
 @dataclass
 class CameraMatch:
     """One camera's match of the grid in one state, (ny, nx) arrays: u, v (pixels: the point is at
     (x + u, y + v) in this camera's rectified image of the state; NaN where status is not OK), zncc,
-    status (the 2-D engine's codes)."""
+    status (the 2-D engine's codes), noise_px (the match's predicted random error, pixels,
+    `texture.predicted_noise`), real (ny, nx, 2): where the point is in the camera's original
+    (unrectified) image of the state, (column, row) pixels - the real position its rectified position
+    samples (the rig's IMM) - NaN where not OK."""
 
     u: np.ndarray
     v: np.ndarray
     zncc: np.ndarray
     status: np.ndarray
+    noise_px: np.ndarray
+    real: np.ndarray | None = None
 
     @property
     def ok(self) -> np.ndarray:
@@ -73,9 +101,11 @@ class CameraMatch:
 
 @dataclass
 class StereoState:
-    """The result of one state: left and right matches; points (ny, nx, 3) WCS mm and displacement from
-    state 0 (ny, nx, 3) mm; gap_mm (ny, nx) the rays' distance; converged (ny, nx); status (ny, nx)
-    str (STATUS_NAMES, prefixed 'left:' or 'right:', or ray_gap, no_reference); strain or None."""
+    """The result of one state: left and right matches; points (ny, nx, 3) and displacement from state 0
+    (ny, nx, 3) in the rig's reporting frame, mm; gap_mm (ny, nx) the rays' distance; converged (ny, nx);
+    status (ny, nx) str (STATUS_NAMES, prefixed 'left:' or 'right:', or ray_gap, no_reference); strain (the
+    fit, Green-Lagrange) and measure (the settings' strain measure, principal strains, von Mises), or None
+    without a strain window; incremental (ny, nx) bool: the points tracked state to state in this state."""
 
     state: int
     left: CameraMatch
@@ -86,9 +116,93 @@ class StereoState:
     converged: np.ndarray
     status: np.ndarray
     strain: Strain | None
+    incremental: np.ndarray
+    measure: StrainMeasure | None = None
 
 
-def _match(grid: Grid, res: PointResult, xs: np.ndarray, ys: np.ndarray) -> CameraMatch:
+@dataclass
+class PreparedPair:
+    """One state's rectified images and their B-splines (the 2-D engine's interpolants)."""
+
+    left: np.ndarray
+    right: np.ndarray
+    left_b: BSplineImage
+    right_b: BSplineImage
+
+    @classmethod
+    def prepare(cls, left: np.ndarray, right: np.ndarray, settings: DicSettings) -> "PreparedPair":
+        return cls(left, right, *(BSplineImage.from_image(img, settings.order, settings.prefilter_sigma)
+                                  for img in (left, right)))
+
+    def left_ref(self) -> ImageRef:
+        return ImageRef(self.left, self.left_b)
+
+
+@dataclass
+class StereoRun:
+    """Per-run data: the rig, the grid, the settings, seed positions (left rectified reference pixels)
+    and their grid indices, the left reference image prepared (`ImageRef`), and once state 0 is solved
+    its points (ny, nx, 3) reporting frame mm (`with_reference`)."""
+
+    rig: Rig
+    grid: Grid
+    settings: StereoSettings
+    seeds: list
+    seed_idx: list
+    ref: ImageRef
+    ref_points: np.ndarray | None = None
+
+    @classmethod
+    def prepare(cls, rig: Rig, grid: Grid, settings: StereoSettings, seeds: Sequence[tuple[float, float]],
+                reference: PreparedPair) -> "StereoRun":
+        return cls(rig, grid, settings, list(seeds), seed_indices(grid, seeds), reference.left_ref())
+
+    def with_reference(self, state0: StereoState) -> "StereoRun":
+        return replace(self, ref_points=state0.points)
+
+    @property
+    def disparity(self) -> tuple[int, int]:
+        w = self.rig.sensor.width
+        return self.settings.disparity or (-(w // 2), w // 2)
+
+    @property
+    def max_gap_mm(self) -> float:
+        return self.settings.max_gap_px * float(np.max(self.rig.sensor.pitch_mm))
+
+
+CROSS_KEYS = ("warp", "zncc", "iterations", "status")
+
+
+@dataclass
+class StereoCarry:
+    """What state k + 1 needs from state k (flat, grid order): left: the left track (`TrackCarry`);
+    cross: the last direct cross registration left_0 -> right (warps about the grid points); stereo: the
+    last stereo match left_s -> right_s of the incremental points (warps about their left positions);
+    prev_u, prev_v: the left displacements the cross warps were last moved by."""
+
+    left: TrackCarry
+    cross: PointResult
+    stereo: PointResult
+    prev_u: np.ndarray
+    prev_v: np.ndarray
+    state: int = 0
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Arrays for an npz file; `from_arrays` reads them back exactly."""
+        out = self.left.to_arrays("left_")
+        for name in ("cross", "stereo"):
+            out.update({f"{name}_{k}": getattr(getattr(self, name), k) for k in CROSS_KEYS})
+        out.update(prev_u=self.prev_u, prev_v=self.prev_v, state=np.array(self.state))
+        return out
+
+    @classmethod
+    def from_arrays(cls, a) -> "StereoCarry":
+        res = lambda name: PointResult(*(np.array(a[f"{name}_{k}"]) for k in CROSS_KEYS))  # noqa: E731
+        return cls(TrackCarry.from_arrays(a, "left_"), res("cross"), res("stereo"), np.array(a["prev_u"]),
+                   np.array(a["prev_v"]), int(a["state"]))
+
+
+def _match(grid: Grid, res: PointResult, xs: np.ndarray, ys: np.ndarray, noise: np.ndarray) -> CameraMatch:
     """A CameraMatch from a registration of points at (xs, ys) (flat, grid order)."""
     X, Y = grid.points()
     ok = res.status == OK
@@ -96,7 +210,8 @@ def _match(grid: Grid, res: PointResult, xs: np.ndarray, ys: np.ndarray) -> Came
     u = np.where(ok, xs + res.warp[:, 0] - X, np.nan)
     v = np.where(ok, ys + res.warp[:, nb] - Y, np.nan)
     return CameraMatch(u.reshape(grid.shape), v.reshape(grid.shape),
-                       np.where(ok, res.zncc, np.nan).reshape(grid.shape), res.status.reshape(grid.shape))
+                       np.where(ok, res.zncc, np.nan).reshape(grid.shape), res.status.reshape(grid.shape),
+                       noise.reshape(grid.shape))
 
 
 def _shifted(res: PointResult, du: np.ndarray, dv: np.ndarray) -> PointResult:
@@ -107,6 +222,25 @@ def _shifted(res: PointResult, du: np.ndarray, dv: np.ndarray) -> PointResult:
     warp[good, 0] += du[good]
     warp[good, nb] += dv[good]
     return PointResult(warp, res.zncc, res.iterations, np.where(good, OK, res.status).astype(np.int8))
+
+
+def _composed(cross: PointResult, temporal: PointResult | None, du: np.ndarray, dv: np.ndarray, nparams: int
+              ) -> np.ndarray:
+    """(N, nparams) stereo warps left -> right about the points' left positions, from a cross warp
+    (reference -> right) and the temporal warp (reference -> left; None = identity) about the grid
+    points, (du, dv) the temporal translation: translation = cross - temporal, gradient = the affine part
+    of M_c M_t^-1 - I = (G_c - G_t) (I + G_t)^-1 (higher-order terms zero)."""
+    nb = nparams // 2
+    n = cross.warp.shape[0]
+    out = np.zeros((n, nparams))
+    out[:, 0] = cross.warp[:, 0] - du
+    out[:, nb] = cross.warp[:, nb] - dv
+    g = lambda w: np.stack([w[:, [1, 2]], w[:, [nb + 1, nb + 2]]], axis=1)  # noqa: E731  (N, 2, 2)
+    gc = g(cross.warp)
+    gt = np.zeros_like(gc) if temporal is None else g(temporal.warp)
+    gs = (gc - gt) @ np.linalg.inv(np.eye(2) + gt)
+    out[:, [1, 2]], out[:, [nb + 1, nb + 2]] = gs[:, 0], gs[:, 1]
+    return out
 
 
 def _combine(left: CameraMatch, right: CameraMatch, gap_ok: np.ndarray, ref_ok: np.ndarray):
@@ -120,87 +254,172 @@ def _combine(left: CameraMatch, right: CameraMatch, gap_ok: np.ndarray, ref_ok: 
     return status == "ok", status
 
 
-class StereoDic:
-    """The pipeline over the states of one experiment (module docstring). `rig` gives the rays; images
-    are the rectified ones (`rectify_pair`), all of the rig's virtual size."""
+def stereo_match(run: StereoRun, pair: PreparedPair) -> tuple[PointResult, np.ndarray]:
+    """left -> right on the grid of one pair: row-search seeds, IC-GN, propagation (the state-0 match);
+    returns it and its predicted random error (N,) pixels."""
+    X, Y = run.grid.points()
+    return register_image(run.ref if pair.left is run.ref.image else pair.left_ref(), pair.right, pair.right_b,
+                          run.grid, X, Y, run.settings.dic, seeds=run.seed_idx, search=row_seed_search(*run.disparity, rows=run.settings.vertical_search))
 
-    def __init__(self, rig: Rig, grid: Grid, settings: StereoSettings = StereoSettings(),
-                 seeds: Sequence[tuple[float, float]] = ()):
-        self.rig, self.grid, self.s, self.seeds = rig, grid, settings, list(seeds)
-        w = rig.sensor.width
-        self.disparity = settings.disparity or (-(w // 2), w // 2)
-        self.max_gap_mm = settings.max_gap_px * float(np.max(rig.sensor.pitch_mm))
+
+def _reference_state(run: StereoRun, pair: PreparedPair) -> tuple[StereoState, StereoCarry]:
+    g, s = run.grid, run.settings.dic
+    X, Y = g.points()
+    stereo, noise = stereo_match(run, pair)
+    ref_st = subset_status(run.ref.bspline, X, Y, s)
+    ref_st[~g.active.ravel()] = UNREACHED
+    zero = np.where(ref_st == OK, 0.0, np.nan).reshape(g.shape)
+    left_noise = run.ref.noise(X, Y, s.half).reshape(g.shape)
+    left = CameraMatch(zero, zero.copy(), np.where(ref_st == OK, 1.0, np.nan).reshape(g.shape),
+                       ref_st.reshape(g.shape), left_noise)
+    right = _match(g, stereo, X, Y, noise)
+    carry = StereoCarry(TrackCarry.initial(g, run.settings.incremental), stereo, stereo, np.zeros(X.size),
+                        np.zeros(X.size), 0)
+    return _state(run, 0, left, right, np.zeros(g.shape, bool)), carry
+
+
+def solve_state(run: StereoRun, k: int, pair: PreparedPair, carry: StereoCarry | None = None,
+                previous: PreparedPair | None = None) -> tuple[StereoState, StereoCarry]:
+    """State k (module docstring): the reference (k = 0, no carry) or a deformed state from the carry of
+    state k - 1, whose images `previous` are needed when points are tracked incrementally. Returns the
+    state's result and the carry for state k + 1. A pure function of its arguments: the same inputs give
+    bit-identical results."""
+    if k == 0:
+        return _reference_state(run, pair)
+    if run.ref_points is None:
+        raise ValueError("solve_state: the run has no reference points (StereoRun.with_reference)")
+    g, st = run.grid, run.settings
+    s = st.dic
+    X, Y = g.points()
+    lc = carry.left
+    ldir, ldn = register_direct(run.ref, pair.left, pair.left_b, g, lc, s, seeds=run.seed_idx)
+    cdir = cdn = None
+    prev_u, prev_v = carry.prev_u, carry.prev_v
+    if ldir is not None:
+        lu, lv = ldir.u, ldir.v
+        start = _shifted(carry.cross, lu - prev_u, lv - prev_v)
+        cdir, cdn = register_image(run.ref, pair.right, pair.right_b, g, X, Y, s, seeds=run.seed_idx, start=start,
+                                   skip=lc.incremental)
+        prev_u, prev_v = np.where(np.isfinite(lu), lu, prev_u), np.where(np.isfinite(lv), lv, prev_v)
+    cand = switch_candidates(ldir, lc, st.switch_zncc, pair.left.shape, s.half)
+    if cdir is not None and st.switch_zncc > 0:   # a right subset outside the right image stays outside
+        low = ((cdir.status == OK) & ~(cdir.zncc >= st.switch_zncc)) | np.isin(cdir.status, CROSS_DECORRELATED)
+        cand |= low & lc.ok & ~lc.incremental
+    cand &= carry.cross.status == OK              # the stereo match of a switching point starts from it
+    prev_ref = run.ref if previous is None else previous.left_ref()
+    lsteps, lsn = register_steps(prev_ref, pair.left, pair.left_b, g, lc, ldir, cand, s, seeds=run.seed_idx)
+    stereo, snoise = carry.stereo, None
+    if lsteps is not None:
+        nb = s.nparams // 2
+        incr = lc.incremental | cand
+        start = PointResult(carry.stereo.warp.copy(), carry.stereo.zncc, carry.stereo.iterations,
+                            carry.stereo.status.copy())
+        if cand.any():
+            comp = _composed(carry.cross, lc.direct, lc.x - X, lc.y - Y, s.nparams)
+            start.warp[cand] = comp[cand]
+            start.status[cand] = OK
+        step_ok = lsteps.status == OK
+        xs = np.where(incr & step_ok, X + (lc.x + lsteps.warp[:, 0] - X), np.nan)
+        ys = np.where(incr & step_ok, Y + (lc.y + lsteps.warp[:, nb] - Y), np.nan)
+        stereo, snoise = _stereo_at(pair, s, xs, ys, start)
+    switched = np.zeros_like(cand)
+    if cand.any():
+        old = np.fmin(ldir.zncc, cdir.zncc)
+        new = np.fmin(lsteps.zncc, stereo.zncc)
+        switched = cand & (lsteps.status == OK) & (stereo.status == OK) & (
+            (ldir.status != OK) | (cdir.status != OK) | (new > old))
+    field_, left_carry = merge_track(g, lc, ldir, ldn, lsteps, lsn, switched)
+    incr = left_carry.incremental
+    left = CameraMatch(field_.u, field_.v, np.where(field_.ok, field_.zncc, np.nan), field_.status, field_.noise_px)
+    if lsteps is not None:
+        lu, lv = field_.u.ravel(), field_.v.ravel()
+        xs_t, ys_t = X + lu, Y + lv
+        tracked = _match(g, stereo, np.where(np.isfinite(xs_t), xs_t, 0.0), np.where(np.isfinite(ys_t), ys_t, 0.0),
+                         snoise)
+    if cdir is None:
+        right = tracked
+    else:
+        direct = _match(g, cdir, X, Y, cdn)
+        right = direct if lsteps is None or not incr.any() else _pick(direct, tracked, incr.reshape(g.shape))
+    nxt = StereoCarry(left_carry, cdir if cdir is not None else carry.cross, stereo, prev_u, prev_v, k)
+    return _state(run, k, left, right, incr.reshape(g.shape)), nxt
+
+
+def _pick(a: CameraMatch, b: CameraMatch, take_b: np.ndarray) -> CameraMatch:
+    """Per point, b's match where take_b, else a's."""
+    return CameraMatch(*(np.where(take_b, getattr(b, f), getattr(a, f)) for f in ("u", "v", "zncc", "status",
+                                                                                   "noise_px")))
+
+
+def _stereo_at(pair: PreparedPair, s: DicSettings, xs: np.ndarray, ys: np.ndarray, prev: PointResult
+               ) -> tuple[PointResult, np.ndarray]:
+    """left_s -> right_s with subsets around the tracked left positions (xs, ys) (NaN: not tracked), each
+    from its warp in `prev` (points not OK there are not tracked and keep their status); returns the
+    match and its predicted random error (N,)."""
+    track = np.isfinite(xs) & np.isfinite(ys) & (prev.status == OK)
+    res = PointResult(prev.warp.copy(), np.full(xs.size, np.nan), np.zeros(xs.size, np.int32),
+                      np.where(track, UNREACHED, prev.status).astype(np.int8))
+    noise = np.full(xs.size, np.nan)
+    if track.any():
+        r = correlate_points(pair.left_b, pair.right_b, xs[track], ys[track], res.warp[track], s)
+        res.warp[track], res.zncc[track], res.iterations[track], res.status[track] = (
+            r.warp, r.zncc, r.iterations, r.status)
+        noise[track] = pair.left_ref().noise(xs[track], ys[track], s.half)
+    return res, noise
+
+
+def _state(run: StereoRun, k: int, left: CameraMatch, right: CameraMatch, incremental: np.ndarray) -> StereoState:
+    g, rig = run.grid, run.rig
+    X, Y = g.points()
+    for side, m in (("left", left), ("right", right)):
+        m.real = rig.camera(side).imm.real_position(X.reshape(g.shape) + m.u, Y.reshape(g.shape) + m.v)
+    both = (left.ok & right.ok).ravel()
+    pts = np.full((X.size, 3), np.nan)
+    gap = np.full(X.size, np.nan)
+    if both.any():
+        t = triangulate(rig, X[both] + left.u.ravel()[both], X[both] + right.u.ravel()[both],
+                        Y[both] + left.v.ravel()[both], Y[both] + right.v.ravel()[both], corrected=True)
+        pts[both], gap[both] = rig.to_world(t.points), t.gap_mm
+    gap_ok = ~(gap > run.max_gap_mm).reshape(g.shape)
+    ref_points = run.ref_points if k > 0 else None
+    ref_ok = np.ones(g.shape, bool) if ref_points is None else np.isfinite(ref_points).all(-1)
+    converged, status = _combine(left, right, gap_ok, ref_ok)
+    pts = np.where(converged[..., None], pts.reshape(g.shape + (3,)), np.nan)
+    disp = pts - (pts if ref_points is None else ref_points)
+    strain = measure = None
+    if run.settings.strain_window:
+        base = pts if ref_points is None else ref_points
+        strain = strain_3d(base, disp, run.settings.strain_window)
+        measure = measure_strain(strain, run.settings.strain_measure)
+    return StereoState(k, left, right, pts, disp, np.where(converged, gap.reshape(g.shape), np.nan),
+                       converged, status, strain, incremental, measure)
+
+
+@dataclass
+class StereoDic:
+    """The pipeline over the states of one experiment in memory (module docstring). `rig` gives the rays;
+    images are the rectified ones (`rectify_pair`), all of the rig's virtual size."""
+
+    rig: Rig
+    grid: Grid
+    settings: StereoSettings = StereoSettings()
+    seeds: Sequence[tuple[float, float]] = field(default_factory=tuple)
 
     def stereo_match(self, left: np.ndarray, right: np.ndarray) -> PointResult:
         """left -> right on the grid: row-search seeds, IC-GN, propagation (state 0)."""
-        f = correlate_pair(left, right, self.grid, self.s.dic, self.seeds, search=row_seed_search(*self.disparity))
-        return f.points
+        pair = PreparedPair.prepare(left, right, self.settings.dic)
+        return stereo_match(StereoRun.prepare(self.rig, self.grid, self.settings, self.seeds, pair), pair)[0]
 
-    def run(self, pairs: Sequence[tuple[np.ndarray, np.ndarray]]) -> Iterator[StereoState]:
-        """Yield one StereoState per rectified (left, right) pair, state 0 (the reference) first."""
-        g, s = self.grid, self.s
-        X, Y = g.points()
-        left0, right0 = pairs[0]
-        ref_b = BSplineImage.from_image(left0, s.dic.order, s.dic.prefilter_sigma)
-        stereo = self.stereo_match(left0, right0)
-        ref_st = subset_status(ref_b, X, Y, s.dic)
-        ref_st[~g.active.ravel()] = UNREACHED
-        zero = np.where(ref_st == OK, 0.0, np.nan).reshape(g.shape)
-        left = CameraMatch(zero, zero.copy(), np.where(ref_st == OK, 1.0, np.nan).reshape(g.shape),
-                           ref_st.reshape(g.shape))
-        right = _match(g, stereo, X, Y)
-        first = self._state(0, left, right, None)
-        yield first
-        if len(pairs) == 1:
-            return
-        temporal = correlate_sequence(left0, (p[0] for p in pairs[1:]), g, s.dic, self.seeds, s.incremental)
-        cross, prev_u, prev_v = stereo, np.zeros(X.size), np.zeros(X.size)
-        for k, field in enumerate(temporal, start=1):
-            left = CameraMatch(field.u, field.v, np.where(field.ok, field.zncc, np.nan), field.status)
-            lu, lv = field.u.ravel(), field.v.ravel()
-            if s.incremental:
-                right, cross = self._stereo_at(pairs[k], X + lu, Y + lv, cross)
-            else:
-                start = _shifted(cross, lu - prev_u, lv - prev_v)
-                cross = correlate_pair(left0, pairs[k][1], g, s.dic, self.seeds, start=start).points
-                right = _match(g, cross, X, Y)
-                prev_u, prev_v = np.where(np.isfinite(lu), lu, prev_u), np.where(np.isfinite(lv), lv, prev_v)
-            yield self._state(k, left, right, first.points)
-
-    def _stereo_at(self, pair, xs, ys, prev: PointResult) -> tuple[CameraMatch, PointResult]:
-        """Incremental mode: left_s -> right_s with subsets around the tracked left positions (xs, ys),
-        each from its previous stereo warp; the right match as a CameraMatch about the grid points."""
-        s = self.s.dic
-        lb = BSplineImage.from_image(pair[0], s.order, s.prefilter_sigma)
-        rb = BSplineImage.from_image(pair[1], s.order, s.prefilter_sigma)
-        track = np.isfinite(xs) & np.isfinite(ys) & (prev.status == OK)
-        warp = prev.warp.copy()
-        res = PointResult(warp, np.full(xs.size, np.nan), np.zeros(xs.size, np.int32),
-                          np.where(track, UNREACHED, prev.status).astype(np.int8))
-        if track.any():
-            r = correlate_points(lb, rb, xs[track], ys[track], warp[track], s)
-            res.warp[track], res.zncc[track], res.iterations[track], res.status[track] = (
-                r.warp, r.zncc, r.iterations, r.status)
-        return _match(self.grid, res, np.where(track, xs, 0.0), np.where(track, ys, 0.0)), res
-
-    def _state(self, k: int, left: CameraMatch, right: CameraMatch, ref_points: np.ndarray | None) -> StereoState:
-        g = self.grid
-        X, Y = g.points()
-        both = (left.ok & right.ok).ravel()
-        pts = np.full((X.size, 3), np.nan)
-        gap = np.full(X.size, np.nan)
-        if both.any():
-            t = triangulate(self.rig, X[both] + left.u.ravel()[both], X[both] + right.u.ravel()[both],
-                            Y[both] + left.v.ravel()[both], Y[both] + right.v.ravel()[both], corrected=True)
-            pts[both], gap[both] = t.points, t.gap_mm
-        gap_ok = ~(gap > self.max_gap_mm).reshape(g.shape)
-        ref_ok = np.ones(g.shape, bool) if ref_points is None else np.isfinite(ref_points).all(-1)
-        converged, status = _combine(left, right, gap_ok, ref_ok)
-        pts = np.where(converged[..., None], pts.reshape(g.shape + (3,)), np.nan)
-        disp = pts - (pts if ref_points is None else ref_points)
-        strain = None
-        if self.s.strain_window:
-            base = pts if ref_points is None else ref_points
-            strain = strain_3d(base, disp, self.s.strain_window)
-        return StereoState(k, left, right, pts, disp, np.where(converged, gap.reshape(g.shape), np.nan),
-                           converged, status, strain)
+    def run(self, pairs: Iterable[tuple[np.ndarray, np.ndarray]]) -> Iterator[StereoState]:
+        """Yield one StereoState per rectified (left, right) pair, state 0 (the reference) first; pairs are
+        read one at a time (the next one is prepared while the current one is solved)."""
+        s = self.settings.dic
+        run = carry = previous = None
+        for k, (_, pair) in enumerate(prefetch(pairs, lambda p: PreparedPair.prepare(p[0], p[1], s))):
+            if run is None:
+                run = StereoRun.prepare(self.rig, self.grid, self.settings, self.seeds, pair)
+            state, carry = solve_state(run, k, pair, carry, previous)
+            if k == 0:
+                run = run.with_reference(state)
+            previous = pair
+            yield state

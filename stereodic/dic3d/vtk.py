@@ -1,17 +1,17 @@
 """VTK XML PolyData (.vtp) of a stereo DIC state, and a ParaView collection (.pvd) of the states.
 
-Each state's file holds the measured surface: the converged points (WCS mm, their position in that
-state), quads between grid neighbours whose four corners converged, and point data: displacement (3
-components, mm), exx, eyy, exy (NaN where not valid), zncc_left, zncc_right, gap_mm. ASCII, written
-atomically; open the .pvd in ParaView to step through the states (warp by `displacement` on state 0 to
-see the deformation).
+Each state's file holds the measured surface: the converged points (mm, the rig's reporting frame, their
+position in that state), quads between grid neighbours whose four corners converged, and point data:
+displacement (3 components, mm), exx, eyy, exy (the run's strain measure, NaN where not valid),
+zncc_left, zncc_right, gap_mm. ASCII, written atomically; open the .pvd in ParaView to step through the
+states (warp by `displacement` on state 0 to see the deformation).
 """
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Sequence
+from typing import Iterable
 
 import numpy as np
 
@@ -34,8 +34,8 @@ def polydata(state: StereoState) -> str:
     conn = np.stack([index[:-1, :-1][quad], index[:-1, 1:][quad], index[1:, 1:][quad], index[1:, :-1][quad]], -1)
     data = [_array("displacement", state.displacement[ok], 3), _array("zncc_left", state.left.zncc[ok]),
             _array("zncc_right", state.right.zncc[ok]), _array("gap_mm", state.gap_mm[ok])]
-    if state.strain is not None:
-        data += [_array(c, getattr(state.strain, c)[ok]) for c in ("exx", "eyy", "exy")]
+    if state.measure is not None:
+        data += [_array(c, getattr(state.measure, c)[ok]) for c in ("exx", "eyy", "exy")]
     ints = lambda name, a: (f'<DataArray type="Int64" Name="{name}" format="ascii">'  # noqa: E731
                             f'{" ".join(map(str, np.asarray(a).ravel()))}</DataArray>')
     return ('<?xml version="1.0"?>\n<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian">\n<PolyData>\n'
@@ -46,17 +46,18 @@ def polydata(state: StereoState) -> str:
             "</Piece>\n</PolyData>\n</VTKFile>\n")
 
 
-def write_states(folder: str | os.PathLike, states: Sequence[StereoState]) -> Path:
-    """Write folder/state{k:03d}.vtp per state and folder/states.pvd (time = state index); returns the
-    .pvd path."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    entries = []
-    for st in states:
-        name = f"state{st.state:03d}.vtp"
-        write_text(folder / name, polydata(st))
-        entries.append(f'<DataSet timestep="{st.state}" part="0" file="{name}"/>')
-    pvd = folder / "states.pvd"
+def write_state(folder: str | os.PathLike, state: StereoState) -> Path:
+    """Write folder/state{k:03d}.vtp of one state; returns its path."""
+    path = Path(folder) / f"state{state.state:03d}.vtp"
+    write_text(path, polydata(state))
+    return path
+
+
+def write_collection(folder: str | os.PathLike, states: Iterable[int]) -> Path:
+    """Write folder/states.pvd, the collection of the states' .vtp files (time = state index); returns
+    its path."""
+    entries = [f'<DataSet timestep="{k}" part="0" file="state{k:03d}.vtp"/>' for k in states]
+    pvd = Path(folder) / "states.pvd"
     write_text(pvd, '<?xml version="1.0"?>\n<VTKFile type="Collection" version="1.0">\n<Collection>\n'
                + "\n".join(entries) + "\n</Collection>\n</VTKFile>\n")
     return pvd

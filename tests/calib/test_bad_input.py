@@ -4,7 +4,6 @@ import json
 
 import numpy as np
 
-from calib.imageio import read_gray, write_gray
 from calib.prvm_file import load_prvm
 from stereodic.cli import main
 from synth_capture import make_capture
@@ -70,3 +69,45 @@ def test_unsafe_period_ratio(tmp_path, capsys):
     make_capture(tmp_path / "d", periods=(480, 8), noise=6.0)
     status, err, out = _run(tmp_path, capsys, tmp_path / "d")
     assert status == 2 and "period ratio" in err and not out.exists()
+
+
+def _posed(tmp_path):
+    """A small stage-free capture (3 poses of a tilted display) and its manifest as a dict."""
+    from test_handheld import BIG, PERIODS, synthetic_poses
+    manifest, _ = make_capture(tmp_path / "d", periods=PERIODS, display=BIG, poses=synthetic_poses(3))
+    return manifest, json.loads(manifest.read_text())
+
+
+def test_capture_mixing_poses_and_stage_positions(tmp_path, capsys):
+    manifest, d = _posed(tmp_path)
+    del d["frames"][5]["pose"]
+    d["frames"][5]["z_mm"] = 0.0
+    manifest.write_text(json.dumps(d))
+    status, err, out = _run(tmp_path, capsys, tmp_path / "d")
+    assert status == 2 and "capture.json" in err and "mixes stage positions and display poses" in err
+    assert len(err.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_pose_with_a_missing_fringe_set(tmp_path, capsys):
+    manifest, d = _posed(tmp_path)
+    d["frames"] = [f for f in d["frames"] if not (f["pose"] == 2 and f["file"].startswith("z2/y_P15_"))]
+    manifest.write_text(json.dumps(d))
+    status, err, out = _run(tmp_path, capsys, tmp_path / "d")
+    assert status == 2 and "capture.json" in err and "pose 2" in err and "y fringe set of period 15" in err
+    assert not out.exists()
+
+
+def test_fewer_poses_than_the_model_needs(tmp_path, capsys):
+    manifest, d = _posed(tmp_path)
+    d["frames"] = [f for f in d["frames"] if f["pose"] != 2]
+    manifest.write_text(json.dumps(d))
+    status, err, out = _run(tmp_path, capsys, tmp_path / "d")
+    assert status == 2 and "capture.json" in err and "2 display pose(s); at least 3" in err and not out.exists()
+
+
+def test_frame_with_both_a_pose_and_a_stage_position(tmp_path, capsys):
+    manifest, d = _posed(tmp_path)
+    d["frames"][0]["z_mm"] = 0.0
+    manifest.write_text(json.dumps(d))
+    status, err, out = _run(tmp_path, capsys, tmp_path / "d")
+    assert status == 2 and "frame 0" in err and "both 'z_mm' and 'pose'" in err and not out.exists()

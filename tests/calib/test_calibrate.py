@@ -9,7 +9,7 @@ from calib.capture import CoverGlass, load_capture
 from calib.calibration import calibrate_camera
 from calib.errors import InputError
 from calib.evaluate import ErrorStats, ray_error_px
-from calib.prvm_file import PRVM, load_prvm
+from calib.prvm_file import load_prvm
 from calib.regularise import Smoother
 from stereodic.cli import main
 from synth_capture import make_capture

@@ -15,7 +15,7 @@ def test_opencv_recovers_an_exact_brown_camera():
         rel = (p - centre) / (p - centre)[:, 2:3]
         r2 = (rel[:, :2] ** 2).sum(1, keepdims=True)
         dist = rel[:, :2] * (1 - 0.1 * r2)
-        uv = dist * 800 + [319.5, 239.5]
+        uv = dist * k[0, 0] + k[:2, 2]
         keep = (uv >= 0).all(1) & (uv[:, 0] < 640) & (uv[:, 1] < 480)
         pts.append(p[keep])
         img.append(uv[keep])

@@ -12,7 +12,7 @@ from scanners.acquire import Settings, calibration_plan, dic_plan, open_writer, 
 from scanners.camera import SaturatedError, SimulatedCamera
 from scanners.display import SimScreen
 from scanners.errors import HardwareError
-from scanners.stage import open_stage
+from scanners.stage_url import open_stage
 from stereodic.cli import main
 
 POSITIONS = (0.0, 50.0)
@@ -21,7 +21,7 @@ FLATS = (0, 128, 240)
 PER_POSITION = len(FLATS) + 2 * len(PERIODS) * 3
 STAGE = "emulated:zaber?speed=5000&timeout=0.5"
 CLI = ["--display", "sim", "--camera", "sim:brown?size=96x80", "--positions", "0,50", "--periods", "120,1920",
-       "--flats", "0,128,240", "--settle-ms", "0"]
+       "--flat-levels", "0,128,240", "--settle-ms", "0"]
 
 
 def test_calibration_plan_order():

@@ -12,6 +12,8 @@ from calib.patterns import fringe_image
 from scanners.camera import Camera, FolderCamera, SaturatedError, SimulatedCamera, capture, open_camera
 from scanners.display import SimScreen
 from scanners.errors import HardwareError
+from scanners.sim.aim import true_alignment
+from scanners.sim.lenses import make_lens
 
 
 class Scripted(Camera):
@@ -97,6 +99,30 @@ def test_simulated_camera_noise_depends_only_on_what_it_sees():
     assert not np.array_equal(cams[0].grab(), first)  # elsewhere: another image
 
 
+def test_simulated_camera_aimed_at_known_tilts_on_a_tilted_stage():
+    screen = SimScreen()
+    axis = (0.01, -0.02, 1.0)
+    cam = open_camera("sim:freeform?size=64x48&pixel_um=106&tilt=1.5,-2.5&roll=0.7", "cam0", screen, lambda: 20.0,
+                      axis)
+    assert cam.sim.lens.pixel_mm == pytest.approx(0.106)
+    truth = true_alignment(cam.sim.lens, screen.sim, cam.true_pose())
+    assert (truth["tilt_x_deg"], truth["tilt_y_deg"], truth["roll_deg"]) == pytest.approx((1.5, -2.5, 0.7))
+    assert np.allclose(cam.true_pose().t, [0.2, -0.4, 20.0]) and cam.true_pose().is_staged()
+    plain = open_camera("sim:freeform?size=64x48&pixel_um=106", "cam0", screen, lambda: 20.0)
+    assert np.allclose(plain.sim.lens.rotation, make_lens("freeform", 64, 48, 0, pixel_mm=0.106).rotation)  # seeded
+
+
+def test_simulated_camera_sees_a_colour_picture_as_its_grey():
+    screen = SimScreen()
+    cam = SimulatedCamera("cam0", screen, lambda: 0.0, size=(48, 40), noise=False)
+    cam.set_exposure(240, 0.0)
+    grey = fringe_image(1920, 1080, "x", 60, 0.0)
+    screen.show(grey)
+    want = cam.grab()
+    screen.show(np.repeat(grey[:, :, None], 3, axis=2))        # the same grey as an RGB picture
+    assert np.array_equal(screen.image, grey) and np.array_equal(cam.grab(), want)
+
+
 def test_simulated_camera_needs_the_simulated_rig():
     with pytest.raises(InputError, match="needs --display sim"):
         open_camera("sim", "cam0", screen=None, true_z_mm=None)
@@ -105,10 +131,12 @@ def test_simulated_camera_needs_the_simulated_rig():
 @pytest.mark.parametrize("spec, says", [
     ("usb:0", "unknown camera"), ("cv:first", "cv:INDEX"), ("cv:0?fps=30", "unknown option"),
     ("folder:/tmp?size=4k", "WIDTHxHEIGHT"), ("cv:0?exposure_ms=long", "exposure_ms must be a number"),
+    ("sim?tilt=1,2,3", "tilt must be 2 comma-separated"), ("sim?roll=up", "roll must be 1 comma-separated"),
+    ("sim?pixel_um=0", "pixel_um must be positive"), ("sim?tilt=40,0", r"within \+-30 degrees"),
 ])
 def test_bad_camera_specs(spec, says):
     with pytest.raises(InputError, match=says):
-        open_camera(spec, "cam0")
+        open_camera(spec, "cam0", SimScreen(), lambda: 0.0)
 
 
 def test_missing_opencv_device():

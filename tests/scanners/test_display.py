@@ -1,11 +1,7 @@
 """Pattern display: the file sink, the simulated screen and, on a virtual X screen (Xvfb), the real
 full-screen window read back pixel for pixel through the X server."""
 
-import os
-import shutil
-import subprocess
-import time
-
+import cv2
 import numpy as np
 import pytest
 
@@ -14,6 +10,7 @@ from calib.imageio import read_gray
 from calib.patterns import fringe_image
 from scanners.display import FileScreen, SimScreen, open_screen
 from scanners.errors import HardwareError
+from tests.scanners.xvfb import read_back, virtual_screen
 
 W, H = 320, 200
 
@@ -27,6 +24,21 @@ def test_file_screen_writes_what_it_shows(tmp_path):
     assert sorted(p.name for p in (tmp_path / "shown").iterdir()) == ["00000.png", "00001.png"]
     assert np.array_equal(read_gray(tmp_path / "shown" / "00001.png"), b)
     assert FileScreen(tmp_path / "shown", (64, 48))._next == 2     # a second run continues the numbering
+
+
+def test_colour_pictures(tmp_path):
+    picture = np.random.default_rng(2).integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    screen = FileScreen(tmp_path, (64, 48))
+    screen.show(picture)
+    assert np.array_equal(cv2.imread(str(tmp_path / "00000.png"))[:, :, ::-1], picture)
+    sim = SimScreen()
+    rgb = np.zeros((1080, 1920, 3), np.uint8)
+    rgb[..., 0], rgb[..., 1], rgb[..., 2] = 200, 100, 50
+    sim.show(rgb)
+    assert sim.image.shape == (1080, 1920) and (sim.image == round(0.299 * 200 + 0.587 * 100 + 0.114 * 50)).all()
+    with pytest.raises(ValueError, match="needs uint8 64x48"):
+        screen.show(np.zeros((48, 64, 4), np.uint8))
+    assert screen.pressed() == []
 
 
 def test_wrong_pattern_size_is_refused(tmp_path):
@@ -56,46 +68,9 @@ def test_bad_display_specs(spec, says):
 
 @pytest.fixture(scope="module")
 def xvfb():
-    """A virtual X screen of W x H pixels, 24-bit; DISPLAY points at it for this module."""
-    pytest.importorskip("pygame")
-    pytest.importorskip("Xlib")
-    if shutil.which("Xvfb") is None:
-        pytest.skip("Xvfb is not installed (./run test installs it)")
-    for n in range(91, 120):
-        if not os.path.exists(f"/tmp/.X11-unix/X{n}") and not os.path.exists(f"/tmp/.X{n}-lock"):
-            break
-    proc = subprocess.Popen(["Xvfb", f":{n}", "-screen", "0", f"{W}x{H}x24", "-nolisten", "tcp"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 10
-    while not os.path.exists(f"/tmp/.X11-unix/X{n}"):
-        if proc.poll() is not None or time.monotonic() > deadline:
-            proc.kill()
-            pytest.skip(f"Xvfb could not start on :{n}")
-        time.sleep(0.05)
-    old = os.environ.get("DISPLAY")
-    os.environ["DISPLAY"] = f":{n}"
-    yield f":{n}"
-    if old is None:
-        del os.environ["DISPLAY"]
-    else:
-        os.environ["DISPLAY"] = old
-    proc.terminate()
-    proc.wait(timeout=5)
-
-
-def read_back(display: str) -> np.ndarray:
-    """The whole X screen as (H, W, 3) RGB, read through the X server (XGetImage on the root window)."""
-    from Xlib import X
-    from Xlib import display as xdisplay
-    d = xdisplay.Display(display)
-    try:
-        scr = d.screen()
-        w, h = scr.width_in_pixels, scr.height_in_pixels
-        raw = scr.root.get_image(0, 0, w, h, X.ZPixmap, 0xFFFFFFFF)
-        bgrx = np.frombuffer(raw.data, np.uint8).reshape(h, w, 4)
-        return bgrx[:, :, 2::-1]
-    finally:
-        d.close()
+    """A virtual X screen of W x H pixels for this module."""
+    with virtual_screen(W, H) as display:
+        yield display
 
 
 @pytest.mark.display
@@ -119,3 +94,13 @@ def test_full_screen_pixel_for_pixel(xvfb, vsync):
 def test_missing_monitor(xvfb):
     with pytest.raises(HardwareError, match=r"screen:3: there are 1 monitor\(s\)"):
         open_screen("screen:3")
+
+
+def test_no_monitor_is_refused_not_faked(monkeypatch):
+    """Without an X display SDL falls back to an off-screen driver (a 1024x768 'desktop' nobody sees):
+    patterns shown there would be lost, so the screen refuses to open."""
+    pytest.importorskip("pygame")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with pytest.raises(HardwareError, match="screen:0: "):
+        open_screen("screen:0")

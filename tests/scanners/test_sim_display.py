@@ -103,7 +103,7 @@ def test_viewing_angle_lowers_the_luminance_and_changes_the_gamma():
     np.testing.assert_allclose(got, expected, rtol=1e-5)
     with pytest.raises(ValueError, match="sin2"):
         d.luminance_at(img, np.full(3, 1.0), np.full(3, 1.0))
-    o, dirn = np.zeros((1, 3)), np.array([[np.sin(0.3), 0.0, np.cos(0.3)]])
+    dirn = np.array([[np.sin(0.3), 0.0, np.cos(0.3)]])
     assert d.sin2_view(dirn, DisplayPose(rotation("y", 0.1))) == pytest.approx(np.sin(0.2) ** 2)
 
 

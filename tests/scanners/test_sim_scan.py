@@ -72,8 +72,7 @@ def test_sphere_shadows_the_plate_behind_it():
 
 def test_simulated_scan_dataset_is_complete(tmp_path):
     rig = default_scan_rig(64, 48, supersample=1)
-    cap = simulate_scan(tmp_path, standard_scenes(("plane",))[:2], rig, periods=(1280, 160, 32), steps=4,
-                        build_rig=False)
+    cap = simulate_scan(tmp_path, standard_scenes(("plane",))[:2], rig, periods=(1280, 160, 32), steps=4)
     cap = load_capture(tmp_path)
     assert cap.kind == "scan" and cap.states("cam0") == [0, 1]
     assert len(cap.frames) == 2 * 2 * 3 * 4
@@ -87,8 +86,7 @@ def test_steps_may_differ_per_period(tmp_path):
     from calib.errors import InputError
     from scanners.sim.scan import steps_per_period
     rig = default_scan_rig(48, 32, supersample=1)
-    cap = simulate_scan(tmp_path, standard_scenes(("plane",))[:1], rig, periods=(1280, 160, 32), steps=[3, 4, 6],
-                        build_rig=False)
+    cap = simulate_scan(tmp_path, standard_scenes(("plane",))[:1], rig, periods=(1280, 160, 32), steps=[3, 4, 6])
     per = {p: sum(1 for f in cap.frames if f.camera == "cam0" and f.pattern.period_px == p) for p in (1280, 160, 32)}
     assert per == {1280: 3, 160: 4, 32: 6} and cap.extra["projector"]["steps"] == [3, 4, 6]
     assert steps_per_period((1280, 120, 8), None) == [3, 3, 16]

@@ -2,11 +2,13 @@
 
 import re
 
+import numpy as np
 import pytest
 
 from calib.errors import InputError
 from scanners.errors import HardwareError
-from scanners.stage import ManualStage, StageUrl, open_stage, parse_stage_url
+from scanners.stage import ManualStage
+from scanners.stage_url import StageUrl, open_stage, parse_stage_url
 
 
 @pytest.mark.parametrize("text, want", [
@@ -37,7 +39,19 @@ def test_bad_stage_urls(text, says):
         parse_stage_url(text)
 
 
+def test_emulated_travel_direction():
+    with open_stage("emulated:grbl?speed=5000&axis_deg=0.5,-1.0") as st:
+        ax, ay, az = st.emulator.travel_axis
+        assert st.emulator.axis == "X"                          # the motor's letter is another thing
+    assert ax ** 2 + ay ** 2 + az ** 2 == pytest.approx(1.0)
+    assert ax / az == pytest.approx(np.tan(np.radians(0.5))) and ay / az == pytest.approx(np.tan(np.radians(-1.0)))
+    with open_stage("emulated:zaber?speed=5000") as st:
+        assert st.emulator.travel_axis == (0.0, 0.0, 1.0)
+
+
 @pytest.mark.parametrize("text, says", [
+    ("emulated:zaber?axis_deg=1", "axis_deg must be AX,AY in degrees"),
+    ("emulated:zaber?axis_deg=60,0", "each within +-45"),
     ("emulated:zaber?device=one", "device='one' is not a valid int"),
     ("emulated:grbl?axis=A", "axis must be X, Y or Z"),
     ("emulated:zaber?home=maybe", "home must be auto, yes or no"),

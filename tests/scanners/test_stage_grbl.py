@@ -6,7 +6,7 @@ from dataclasses import replace
 import pytest
 
 from scanners.errors import HardwareError
-from scanners.stage import open_stage
+from scanners.stage_url import open_stage
 from scanners.stage_grbl import GrblStatus, parse_status
 
 FAST = "speed=5000&feed=300000&retries=2"

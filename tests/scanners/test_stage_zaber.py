@@ -7,7 +7,7 @@ from dataclasses import replace
 import pytest
 
 from scanners.errors import HardwareError
-from scanners.stage import open_stage
+from scanners.stage_url import open_stage
 from scanners.stage_zaber import ZaberReply, parse_reply
 
 FAST = "speed=5000&retries=2"
@@ -120,6 +120,16 @@ def test_stall_fault(stage):
     with pytest.raises(HardwareError, match=r"fault FS \(stalled and stopped\)"):
         stage.move_to(50.0)
     assert stage.emulator.true_position_mm() == pytest.approx(30.0, abs=1e-4)   # stopped half way
+
+
+def test_slipping_carriage_reports_the_move_but_stays(stage):
+    stage.move_to(10.0)
+    stage.emulator.inject("slip")
+    assert stage.move_to(50.0) == pytest.approx(50.0, abs=1e-3)    # the controller is content
+    assert stage.position_mm() == pytest.approx(50.0, abs=1e-3)
+    assert stage.emulator.true_position_mm() == pytest.approx(10.0, abs=1e-4)
+    stage.move_to(60.0)                                          # later moves work, 40 mm short
+    assert stage.emulator.true_position_mm() == pytest.approx(20.0, abs=1e-4)
 
 
 def test_dropped_line(stage):

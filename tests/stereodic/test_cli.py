@@ -8,7 +8,7 @@ import pytest
 from stereodic.cli import COMMANDS, main
 
 DESIGN_COMMANDS = ["demo", "simulate", "patterns", "calibrate", "undistort", "rig", "rectify", "scan",
-                   "dic2d", "dic", "export", "bench", "acquire", "show"]
+                   "dic2d", "dic", "strain", "speckle", "import", "export", "bench", "acquire", "show"]
 
 
 def test_all_design_commands_exist():
@@ -32,3 +32,11 @@ def test_bad_usage_exits_2(capsys):
 def test_console_script_runs():
     out = subprocess.run([sys.executable, "-m", "stereodic", "--version"], capture_output=True, text=True)
     assert out.returncode == 0 and out.stdout.startswith("stereodic ")
+
+
+def test_the_parsers_defaults_are_the_librarys():
+    """cli.common repeats two library constants so that --help imports nothing heavy."""
+    from stereodic.cli import common
+    from stereodic.dic.sequence import SWITCH_ZNCC
+    from stereodic.strain_measures import MEASURES
+    assert common.SWITCH_ZNCC == SWITCH_ZNCC and common.STRAIN_MEASURES == MEASURES

@@ -59,3 +59,13 @@ def test_search_integer_and_row_search():
     assert d.tolist() == [-9, -9, -9] and (z > 0.95).all()
     flat = np.full_like(ref, 100)
     assert search_integer(flat, dfm, 60, 50, 10, 12)[2] == -1.0
+
+
+@pytest.mark.parametrize("order", [3, 5])
+@pytest.mark.parametrize("shape", [(40, 50), (7, 300), (300, 6)])
+def test_bspline_coefficients_are_scipys(order, shape):
+    # the compiled prefilter (stereodic/dic/src/bspline.c) against scipy's, mirrored borders, float32 out
+    img = np.random.default_rng(3).random(shape) * 255
+    coef = BSplineImage.from_image(img, order).coef
+    expected = np.pad(ndimage.spline_filter(img, order=order, mode="mirror", output=np.float32), 4, mode="reflect")
+    assert np.abs(coef - expected).max() <= 1e-6 * np.abs(expected).max()  # equal but for a few float32 ulps

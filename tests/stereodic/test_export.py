@@ -48,13 +48,14 @@ def test_virtual_file_round_trip(tmp_path):
     assert np.allclose(bilinear(prvm.direction, back.imm.map_x, back.imm.map_y), back.prvm.direction)
 
 
-def test_exports_carry_the_same_pinhole(tmp_path):
+def test_exports_carry_the_same_pinhole(tmp_path, capsys):
     prvm = opencv_camera()[-1]
     prvm.save(tmp_path / "cam.npz")
     cam = default_camera(prvm)
     p = pinhole_of(cam)
     for fmt in ("opencv", "colmap", "json"):
         assert main(["export", str(tmp_path / "cam.npz"), "--format", fmt, "-o", str(tmp_path / fmt)]) == 0
+        assert capsys.readouterr().out.startswith(f"wrote {tmp_path / fmt}: {fmt} pinhole camera")
     y = read_opencv_yaml(tmp_path / "opencv")
     assert np.allclose(y.K, p.K) and np.array_equal(y.dist, np.zeros(5)) and np.allclose(y.R, p.R)
     assert np.allclose(y.centre, cam.centre)

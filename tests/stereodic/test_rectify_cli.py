@@ -5,7 +5,9 @@ import cv2
 import numpy as np
 
 from calib.imageio import read_gray, write_gray
+from scanners.sim.speckle import make_speckle, render
 from stereodic.cli import main
+from stereodic.rectify import row_alignment
 from tests.stereodic.rig_cases import pair
 
 
@@ -24,7 +26,7 @@ def _photo(rig, lens):
     return np.rint(_texture(rig, o + t[..., None] * d)).astype(np.uint16)
 
 
-def test_rig_and_rectify_commands(tmp_path):
+def test_rig_and_rectify_commands(tmp_path, capsys):
     ll, lr, pl, pr, rig = pair("brown", "freeform")
     pl.save(tmp_path / "L.npz")
     pr.save(tmp_path / "R.npz")
@@ -34,6 +36,9 @@ def test_rig_and_rectify_commands(tmp_path):
     out = tmp_path / "rect"
     assert main(["rectify", str(tmp_path / "rig.npz"), str(tmp_path / "l_000.png"), str(tmp_path / "r_000.png"),
                  "-o", str(out)]) == 0
+    written = [line.split(":")[0] for line in capsys.readouterr().out.splitlines() if line.startswith("wrote")]
+    assert written[-3:] == [f"wrote {out / 'left' / 'l_000.png'}", f"wrote {out / 'right' / 'r_000.png'}",
+                            f"wrote {out / 'overlay.png'}"]
     left, right = read_gray(out / "left" / "l_000.png"), read_gray(out / "right" / "r_000.png")
     assert left.shape == right.shape == (rig.sensor.height, rig.sensor.width) and left.dtype == np.uint16
     truth = _texture(rig, rig.sensor.grid())
@@ -41,4 +46,24 @@ def test_rig_and_rectify_commands(tmp_path):
         assert np.sqrt(np.mean((img - truth) ** 2)) < 100          # of 20000: bilinear resampling only
     assert np.sqrt(np.mean((left.astype(float) - right) ** 2)) < 100
     overlay = cv2.imread(str(out / "overlay.png"))
-    assert overlay.shape == (rig.sensor.height, 2 * rig.sensor.width, 3)
+    assert overlay.shape[0] > 300 and overlay.shape[1] > 600
+
+
+def test_row_alignment_measures_a_known_vertical_disparity():
+    """Features of a speckle pair whose right image is the left moved by (-23, dy) pixels: the measured
+    vertical disparity is dy (the renderer integrates the dots analytically: an exact sub-pixel shift)."""
+    sp = make_speckle(320, 240, seed=7)
+    left = render(sp, noise_sigma=1.0, seed=1)
+    for dy in (0.0, 0.35, -1.6):
+        right = render(sp, (-23.0, dy), noise_sigma=1.0, seed=2)
+        m = row_alignment(left, right)
+        assert m.dy.size >= 30
+        assert abs(np.mean(m.dy) - dy) < 0.01 and m.rms == np.sqrt(np.mean(m.dy ** 2))
+        assert np.abs(m.dy - dy).max() < 0.05 and np.abs(m.x_right - m.x + 23).max() < 0.05
+
+
+def test_row_alignment_of_stripes_finds_nothing():
+    """Vertical stripes carry no row information: no feature may be reported."""
+    x = np.arange(320)
+    stripes = np.tile((128 + 100 * np.sin(2 * np.pi * x / 17)).astype(np.uint8), (240, 1))
+    assert row_alignment(stripes, np.roll(stripes, 5, axis=1)).dy.size == 0

@@ -23,13 +23,15 @@ def cam(tmp_path):
     return path
 
 
-def test_undistort_writes_one_virtual_image_per_input(tmp_path, cam):
+def test_undistort_writes_one_virtual_image_per_input(tmp_path, cam, capsys):
     img8, img16 = smooth_texture(), smooth_texture(seed=2).astype(np.uint16) * 257
     cv2.imwrite(str(tmp_path / "a.png"), img8)
     cv2.imwrite(str(tmp_path / "b.tif"), img16)
     out = tmp_path / "out"
     assert main(["undistort", str(cam), str(tmp_path / "a.png"), str(tmp_path / "b.tif"), "-o", str(out),
                  "--save-virtual", str(tmp_path / "vcam.npz")]) == 0
+    written = [line.split(":")[0] for line in capsys.readouterr().out.splitlines()]
+    assert written == [f"wrote {tmp_path / 'vcam.npz'}", f"wrote {out / 'a.png'}", f"wrote {out / 'b.tif'}"]
     a, b = read_gray(out / "a.png"), read_gray(out / "b.tif")
     assert a.dtype == np.uint8 and b.dtype == np.uint16 and a.shape == b.shape == (H, W)
     setup = load_virtual(tmp_path / "vcam.npz")

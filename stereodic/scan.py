@@ -273,10 +273,10 @@ def scan_state(rig: Rig, capture: Capture, state: int, cameras: tuple[str, str] 
 def scan_to_files(rig: Rig, dataset: str | os.PathLike, out: str | os.PathLike, states=None,
                   cameras: tuple[str, str] | None = None, mesh: str | os.PathLike | None = None,
                   corrected: bool = True, neighbours: int = 20, std_ratio: float = 3.0,
-                  smooth_px: float = SMOOTH_PX) -> list[tuple[Path, int]]:
+                  smooth_px: float = SMOOTH_PX) -> list[tuple[Path, int, str]]:
     """Scan every state of `dataset` (or those listed) into PLY clouds: `out` for a single state, else
     `<out stem>_s<state>.ply` per state; with `mesh`, also a Poisson mesh per state named the same way.
-    Returns [(file, point count)]."""
+    Returns [(file, count, what is counted: "points" or, for a mesh, "vertices")]."""
     from calib.progress import progress
     from stereodic.cloud import make_cloud, poisson_mesh, write_cloud, write_mesh
     capture = load_capture(dataset)
@@ -297,9 +297,11 @@ def scan_to_files(rig: Rig, dataset: str | os.PathLike, out: str | os.PathLike, 
                               neighbours, std_ratio)
         name = out if len(states) == 1 else out.with_name(f"{out.stem}_s{s:03d}{out.suffix or '.ply'}")
         write_cloud(name, cloud)
-        written.append((name, len(cloud.point.positions)))
+        written.append((name, len(cloud.point.positions), "points"))
         if mesh is not None:
             m = Path(mesh)
-            write_mesh(m if len(states) == 1 else m.with_name(f"{m.stem}_s{s:03d}{m.suffix or '.ply'}"),
-                       poisson_mesh(cloud))
+            m = m if len(states) == 1 else m.with_name(f"{m.stem}_s{s:03d}{m.suffix or '.ply'}")
+            surface = poisson_mesh(cloud)
+            write_mesh(m, surface)
+            written.append((m, len(surface.vertices), "vertices"))
     return written

@@ -9,13 +9,13 @@ import pytest
 
 from calib.capture import load_capture
 from calib.errors import InputError
-from scanners.scan import scan_state
+from stereodic.scan import scan_state
 from scanners.sim.scan import TARGET, default_scan_rig, load_truth, simulate_scan, standard_scenes
 from scanners.sim.scan_scene import Plane, Scene, Sphere, surface_from_dict
 from stereodic.cli import main
 from stereodic.fit import fit_plane, fit_sphere, trimmed_range
 from stereodic.matching import match_rows
-from stereodic.rig import load_rig
+from stereodic.rig import load_rig, rig_from_files, save_rig
 
 PERIODS = (1280, 160, 32)       # a 320-pixel camera sees ~7 pixels per 32-px fringe
 
@@ -27,6 +27,7 @@ def dataset(tmp_path_factory):
     scenes = standard_scenes(("sphere",))[:1] + standard_scenes(("plane",))[:1]
     scenes.append(Scene([Sphere(centre=TARGET + [500.0, 0, 0], radius_mm=25.0)], "outside"))
     simulate_scan(out, scenes, default_scan_rig(320, 256), PERIODS)
+    save_rig(out / "rig.npz", rig_from_files(out / "truth_cam0.npz", out / "truth_cam1.npz"))
     return out
 
 
@@ -35,6 +36,7 @@ def noise_free(tmp_path_factory):
     out = tmp_path_factory.mktemp("clean")
     simulate_scan(out, [Scene([Plane(centre=TARGET, normal=(0.2, 0.1, -1), size_mm=(180, 120))], "plate")],
                   default_scan_rig(320, 256), PERIODS, noise=False)
+    save_rig(out / "rig.npz", rig_from_files(out / "truth_cam0.npz", out / "truth_cam1.npz"))
     return out
 
 
@@ -129,10 +131,11 @@ def test_cli_writes_float32_ply_with_normals_and_quality(dataset, tmp_path):
     assert np.median(n @ plane.normal) > 0.99 or np.median(n @ plane.normal) < -0.99
 
 
-def test_object_outside_the_common_field_is_a_clear_error(dataset, capsys):
-    assert main(["scan", str(dataset / "rig.npz"), str(dataset), "--state", "2", "-o", "/dev/null/x.ply"]) == 2
+def test_object_outside_the_common_field_is_a_clear_error(dataset, capsys, tmp_path):
+    assert main(["scan", str(dataset / "rig.npz"), str(dataset), "--state", "2", "-o", str(tmp_path / "x.ply")]) == 2
     err = capsys.readouterr().err
     assert str(dataset) in err and "common field of view" in err and err.count("\n") == 1
+    assert not (tmp_path / "x.ply").exists()
 
 
 def _edited(dataset, tmp_path, edit):
@@ -169,7 +172,7 @@ def test_wrong_inputs_exit_2(dataset, tmp_path, capsys):
     assert main(["scan", str(dataset / "truth_cam0.npz"), str(dataset), "-o", str(tmp_path / "c.ply")]) == 2
     assert "truth_cam0.npz" in capsys.readouterr().err
     with pytest.raises(InputError, match="no state 7"):
-        from scanners.scan import scan_to_files
+        from stereodic.scan import scan_to_files
         scan_to_files(load_rig(dataset / "rig.npz"), dataset, tmp_path / "c.ply", states=[7])
 
 

@@ -1,0 +1,369 @@
+"""Parametric camera models of other calibration software, exactly: projection, its exact inverse, and the
+per-pixel rays (PRVM) they imply.
+
+A `CameraModel` is one camera of another program's calibration file, in that file's own world frame:
+  x_cam = R x_world + t                        (world -> camera, mm; camera x right, y down, z forward)
+  (x, y) = (X_cam / Z_cam, Y_cam / Z_cam)      normalised coordinates
+  (x_d, y_d) = distort(x, y)                   the lens model, below
+  u = fx x_d + skew y_d + cx,  v = fy y_d + cy pixels; integers at pixel centres (OpenCV's convention)
+The skew term is K[0, 1] in pixels, as VIC-3D and DICe write it (OpenCV's cv2.projectPoints and
+cv2.undistortPoints ignore K[0, 1]; here it is part of the model, so a skewed camera's rays are right).
+
+Lens models (`lens`, with `coefficients`):
+- "opencv": OpenCV's full model, coefficients (k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4, tau_x, tau_y)
+  (any of OpenCV's lengths 0, 4, 5, 8, 12, 14; missing ones are zero): rational radial, tangential, thin
+  prism, then the tilted sensor (tau_x, tau_y in radians; OpenCV's computeTiltProjectionMatrix). It is
+  also VIC-3D's kappa model x_d = x (1 + kappa1 r^2 + kappa2 r^4 + kappa3 r^6) (k1, k2, 0, 0, k3), mrcal's
+  LENSMODEL_OPENCV4/5/8/12 and Kalibr's radtan (k1, k2, p1, p2).
+- "radial": DICe's radial polynomials r_d = r (1 + k1 r^a + k2 r^b + k3 r^c) with the powers (a, b, c) of
+  `powers`: DICe's K1R1_K2R2_K3R3 is powers (0, 1, 2), K1R2_K2R4_K3R6 (1, 3, 5), K1R3_K2R5_K3R7 (2, 4, 6)
+  (DICe_Camera.cpp, sensor_to_image).
+- "equidistant": the fisheye model of Kalibr (pinhole-equi) and OpenCV's cv2.fisheye: theta = the angle
+  from the optical axis, theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8),
+  (x_d, y_d) = theta_d (cos phi, sin phi); valid beyond 90 degrees from the axis.
+
+The inverse (`unproject`) is Newton's method on the model itself, to 1e-10 pixel; a pixel whose
+distortion has no inverse (beyond a fold of the polynomial, where the model's Jacobian changes sign) is
+reported invalid rather than given a wrong ray.
+
+Rays and frames (`prvms_of`): DESIGN.md's ray convention needs every ray to travel towards +z. Files whose
+cameras look along -z (VIC-3D's usual world frame) are therefore turned into an internal frame, the file's
+frame rotated 180 degrees about x (or, where neither fits, rotated so that the cameras' mean optical axis
+is +z); `world_from_internal` (4, 4) is the rigid transform from the internal frame back to the file's
+world frame, recorded in the PRVM meta (and the rig) as "world_from_rig".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib.errors import InputError
+from calib.prvm_file import PRVM
+
+LENSES = ("opencv", "radial", "equidistant")
+OPENCV_LENGTHS = (0, 4, 5, 8, 12, 14)
+FLIP_X = np.diag([1.0, -1.0, -1.0, 1.0])   # the rotation of 180 degrees about x, as a 4x4 transform
+TOL_PX = 1e-10                              # Newton's target on the re-projection of an inverted pixel
+VALID_PX = 1e-7                             # an inverse that does not re-project this well is not one
+
+
+@dataclass
+class CameraModel:
+    """One camera of a calibration file (module docstring): intrinsics fx, fy, cx, cy, skew (pixels),
+    lens model and its coefficients (and `powers` for the "radial" lens), the world-to-camera pose R (3, 3)
+    and t (3,) mm in the file's world frame, image width and height (pixels; None where the file does not
+    say), and the camera's name in the file."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    skew: float = 0.0
+    lens: str = "opencv"
+    coefficients: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    R: np.ndarray = field(default_factory=lambda: np.eye(3))
+    t: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    width: int | None = None
+    height: int | None = None
+    name: str = "cam0"
+    powers: tuple[float, float, float] = (2, 4, 6)
+
+    def __post_init__(self):
+        if self.lens not in LENSES:
+            raise ValueError(f"unknown lens model {self.lens!r} (known: {', '.join(LENSES)})")
+        self.fx, self.fy, self.cx, self.cy, self.skew = (float(v) for v in (self.fx, self.fy, self.cx, self.cy,
+                                                                             self.skew))
+        c = np.asarray(self.coefficients, np.float64).ravel()
+        if self.lens == "opencv":
+            if c.size not in OPENCV_LENGTHS:
+                raise ValueError(f"OpenCV distortion has {', '.join(map(str, OPENCV_LENGTHS))} coefficients, "
+                                 f"got {c.size}")
+            c = np.concatenate([c, np.zeros(14 - c.size)])
+        elif c.size > (3 if self.lens == "radial" else 4):
+            raise ValueError(f"the {self.lens} lens has at most {3 if self.lens == 'radial' else 4} coefficients")
+        else:
+            c = np.concatenate([c, np.zeros((3 if self.lens == "radial" else 4) - c.size)])
+        self.coefficients = c
+        self.R = np.asarray(self.R, np.float64).reshape(3, 3)
+        self.t = np.asarray(self.t, np.float64).reshape(3)
+        if self.width is not None:
+            self.width, self.height = int(self.width), int(self.height)
+
+    @property
+    def K(self) -> np.ndarray:
+        """(3, 3) camera matrix [[fx, skew, cx], [0, fy, cy], [0, 0, 1]]."""
+        return np.array([[self.fx, self.skew, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def centre(self) -> np.ndarray:
+        """(3,) the optical centre in the file's world frame, mm: -R^T t."""
+        return -self.R.T @ self.t
+
+    def to_dict(self) -> dict:
+        """The model as JSON data (recorded in the PRVM meta of an imported camera)."""
+        d = {"name": self.name, "lens": self.lens, "fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy,
+             "skew": self.skew, "coefficients": self.coefficients.tolist(), "R": self.R.tolist(),
+             "t": self.t.tolist(), "width": self.width, "height": self.height}
+        if self.lens == "radial":
+            d["powers"] = list(self.powers)
+        return d
+
+
+# ------------------------------------------------------------------------------------------- lenses
+
+def _tilt(tau_x: float, tau_y: float) -> np.ndarray:
+    """OpenCV's tilt projection matrix (computeTiltProjectionMatrix): the sensor tilted by tau_x about x,
+    then tau_y about y, projected back along the optical axis."""
+    cx, sx, cy, sy = np.cos(tau_x), np.sin(tau_x), np.cos(tau_y), np.sin(tau_y)
+    rot_x = np.array([[1, 0, 0], [0, cx, sx], [0, -sx, cx]])
+    rot_y = np.array([[cy, 0, -sy], [0, 1, 0], [sy, 0, cy]])
+    rxy = rot_y @ rot_x
+    proj_z = np.array([[rxy[2, 2], 0, -rxy[0, 2]], [0, rxy[2, 2], -rxy[1, 2]], [0, 0, 1]])
+    return proj_z @ rxy
+
+
+def distort(cam: CameraModel, xy: np.ndarray) -> np.ndarray:
+    """(N, 2) distorted normalised coordinates (x_d, y_d) of normalised coordinates `xy` (N, 2); for the
+    equidistant lens `xy` may also be (N, 3) camera-frame directions (to reach beyond 90 degrees)."""
+    c = cam.coefficients
+    if cam.lens == "equidistant":
+        if xy.shape[1] == 3:
+            rho, z = np.hypot(xy[:, 0], xy[:, 1]), xy[:, 2]
+            theta, a, b = np.arctan2(rho, z), xy[:, 0], xy[:, 1]
+        else:
+            rho = np.hypot(xy[:, 0], xy[:, 1])
+            theta, a, b = np.arctan(rho), xy[:, 0], xy[:, 1]
+        t2 = theta * theta
+        theta_d = theta * (1 + t2 * (c[0] + t2 * (c[1] + t2 * (c[2] + t2 * c[3]))))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            s = np.where(rho > 0, theta_d / np.where(rho > 0, rho, 1.0), 1.0)
+        return np.stack([a * s, b * s], axis=-1)
+    x, y = xy[:, 0], xy[:, 1]
+    r2 = x * x + y * y
+    if cam.lens == "radial":
+        r = np.sqrt(r2)
+        s = 1 + sum(k * r ** p for k, p in zip(c, cam.powers) if k != 0)
+        return np.stack([x * s, y * s], axis=-1)
+    k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4, tx, ty = c
+    radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x) + s1 * r2 + s2 * r2 * r2
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y + s3 * r2 + s4 * r2 * r2
+    if tx != 0 or ty != 0:
+        m = _tilt(tx, ty)
+        w = m[2, 0] * xd + m[2, 1] * yd + m[2, 2]
+        xd, yd = (m[0, 0] * xd + m[0, 1] * yd + m[0, 2]) / w, (m[1, 0] * xd + m[1, 1] * yd + m[1, 2]) / w
+    return np.stack([xd, yd], axis=-1)
+
+
+def to_pixels(cam: CameraModel, xy_d: np.ndarray) -> np.ndarray:
+    """(N, 2) pixels of distorted normalised coordinates (N, 2): u = fx x_d + skew y_d + cx, v = fy y_d + cy."""
+    return np.stack([cam.fx * xy_d[:, 0] + cam.skew * xy_d[:, 1] + cam.cx, cam.fy * xy_d[:, 1] + cam.cy], -1)
+
+
+def from_pixels(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
+    """(N, 2) distorted normalised coordinates of pixels `uv` (N, 2): the exact inverse of `to_pixels`."""
+    yd = (uv[:, 1] - cam.cy) / cam.fy
+    return np.stack([(uv[:, 0] - cam.cx - cam.skew * yd) / cam.fx, yd], axis=-1)
+
+
+def project(cam: CameraModel, points: np.ndarray) -> np.ndarray:
+    """(N, 2) pixels of world points (N, 3) (the file's world frame, mm); NaN behind the camera (or, for the
+    equidistant lens, at the camera's centre)."""
+    p = np.asarray(points, np.float64).reshape(-1, 3) @ cam.R.T + cam.t
+    if cam.lens == "equidistant":
+        return to_pixels(cam, distort(cam, p))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        xy = p[:, :2] / np.where(p[:, 2:] > 0, p[:, 2:], np.nan)
+    return to_pixels(cam, distort(cam, xy))
+
+
+def _jacobian(cam: CameraModel, xy: np.ndarray, h: float = 1e-7) -> np.ndarray:
+    """(N, 2, 2) d distort / d xy by central differences."""
+    jx = (distort(cam, xy + [h, 0]) - distort(cam, xy - [h, 0])) / (2 * h)
+    jy = (distort(cam, xy + [0, h]) - distort(cam, xy - [0, h])) / (2 * h)
+    return np.stack([jx, jy], axis=-1)
+
+
+def _solve_polynomial(cam: CameraModel, target: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised (x, y) with distort(x, y) = target (N, 2), by damped Newton steps; and whether each
+    converged (to TOL_PX in pixels) on the model's first sheet (Jacobian determinant > 0)."""
+    scale = max(abs(cam.fx), abs(cam.fy))
+    xy = target.copy()
+    err = np.linalg.norm(distort(cam, xy) - target, axis=1) * scale
+    active = np.isfinite(err) & (err > TOL_PX)
+    for _ in range(iterations):
+        if not active.any():
+            break
+        a = np.nonzero(active)[0]
+        j = _jacobian(cam, xy[a])
+        r = distort(cam, xy[a]) - target[a]
+        det = j[:, 0, 0] * j[:, 1, 1] - j[:, 0, 1] * j[:, 1, 0]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            step = np.stack([j[:, 1, 1] * r[:, 0] - j[:, 0, 1] * r[:, 1],
+                             j[:, 0, 0] * r[:, 1] - j[:, 1, 0] * r[:, 0]], axis=-1) / det[:, None]
+        lam = np.ones(len(a))
+        for _halving in range(12):     # damping: accept a step only where it lowers the residual
+            trial = xy[a] - lam[:, None] * step
+            e = np.linalg.norm(distort(cam, trial) - target[a], axis=1) * scale
+            better = np.isfinite(e) & (e < err[a])
+            if better.all():
+                break
+            lam = np.where(better, lam, lam / 2)
+        good = np.isfinite(e) & (e < err[a])
+        xy[a[good]] = trial[good]
+        err[a[good]] = e[good]
+        active[a[~good]] = False   # no progress: converged to rounding, or no inverse here
+        active[a[good]] = e[good] > TOL_PX
+    j = _jacobian(cam, xy)
+    det = j[:, 0, 0] * j[:, 1, 1] - j[:, 0, 1] * j[:, 1, 0]
+    return xy, (err < VALID_PX) & (det > 0)
+
+
+def _solve_equidistant(cam: CameraModel, target: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
+    """Camera-frame unit directions whose equidistant image is `target` (N, 2) (Newton on theta), and
+    whether each converged on the rising branch of theta_d(theta) below 180 degrees."""
+    k = cam.coefficients
+    theta_d = np.hypot(target[:, 0], target[:, 1])
+    phi = np.arctan2(target[:, 1], target[:, 0])
+
+    def f(t):
+        t2 = t * t
+        return t * (1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3])))), \
+            1 + t2 * (3 * k[0] + t2 * (5 * k[1] + t2 * (7 * k[2] + t2 * 9 * k[3])))
+
+    theta = theta_d.copy()
+    for _ in range(iterations):
+        val, der = f(theta)
+        theta = theta - (val - theta_d) / der
+    val, der = f(theta)
+    scale = max(abs(cam.fx), abs(cam.fy))
+    ok = (np.abs(val - theta_d) * scale < VALID_PX) & (der > 0) & (theta >= 0) & (theta < np.pi)
+    d = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], axis=-1)
+    return d, ok
+
+
+def unproject(cam: CameraModel, uv: np.ndarray, iterations: int = 60) -> tuple[np.ndarray, np.ndarray]:
+    """Camera-frame unit directions (N, 3) of pixels `uv` (N, 2), the exact inverse of the model (module
+    docstring), and valid (N,) bool: False where the model has no inverse (beyond a fold)."""
+    target = from_pixels(cam, np.asarray(uv, np.float64).reshape(-1, 2))
+    if cam.lens == "equidistant":
+        return _solve_equidistant(cam, target, iterations)
+    xy, ok = _solve_polynomial(cam, target, iterations)
+    d = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
+    return d / np.linalg.norm(d, axis=1, keepdims=True), ok
+
+
+# ------------------------------------------------------------------------------------- rays, frames
+
+def pixel_grid(width: int, height: int) -> np.ndarray:
+    """(H * W, 2) every pixel centre (u, v), row by row."""
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    return np.stack([u.ravel(), v.ravel()], axis=-1)
+
+
+def transform(m: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(..., 3) points moved by the 4x4 rigid transform m."""
+    return points @ m[:3, :3].T + m[:3, 3]
+
+
+def invert(m: np.ndarray) -> np.ndarray:
+    """The inverse of a 4x4 rigid transform."""
+    out = np.eye(4)
+    out[:3, :3] = m[:3, :3].T
+    out[:3, 3] = -m[:3, :3].T @ m[:3, 3]
+    return out
+
+
+def world_rays(cam: CameraModel, *, step: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit directions (H', W', 3) in the file's world frame of the pixels of every `step`-th row and
+    column, their validity (H', W') and the camera centre (3,)."""
+    v, u = np.mgrid[0:cam.height:step, 0:cam.width:step].astype(np.float64)
+    d, ok = unproject(cam, np.stack([u.ravel(), v.ravel()], axis=-1))
+    return (d @ cam.R).reshape(v.shape + (3,)), ok.reshape(v.shape), cam.centre
+
+
+def internal_frame(cams: list[CameraModel]) -> np.ndarray:
+    """world_from_internal (4, 4) for a set of cameras of one file: identity if every ray already travels
+    towards +z, else the 180-degree rotation about x if that makes them all do so, else the rotation that
+    takes the cameras' mean optical axis to +z (module docstring)."""
+    dirs = np.concatenate([d[ok] for d, ok, _ in (world_rays(c, step=max(1, min(c.width, c.height) // 16))
+                                                  for c in cams)])
+    if len(dirs) == 0:
+        return np.eye(4)
+    if (dirs[:, 2] > 0).all():
+        return np.eye(4)
+    if (dirs[:, 2] < 0).all():
+        return FLIP_X.copy()
+    axis = sum(c.R[2] for c in cams)
+    axis /= np.linalg.norm(axis)
+    # the rotation taking `axis` to +z about axis x +z (Rodrigues), world <- internal is its inverse
+    v = np.cross(axis, [0.0, 0.0, 1.0])
+    s, co = np.linalg.norm(v), axis[2]
+    if s < 1e-12:
+        rot = np.eye(3) if co > 0 else FLIP_X[:3, :3]
+    else:
+        k = v / s
+        kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        rot = np.eye(3) + s * kx + (1 - co) * kx @ kx
+    out = np.eye(4)
+    out[:3, :3] = rot.T
+    return out
+
+
+def convergence_z(cams: list[CameraModel], world_from_internal: np.ndarray) -> float:
+    """z (internal frame, mm) of the point where the first two cameras' optical axes pass closest (the
+    working point of a stereo rig), if it lies in front of both; else ten baselines in front of them."""
+    inner = invert(world_from_internal)
+    c = [transform(inner, cam.centre) for cam in cams[:2]]
+    a = [inner[:3, :3] @ cam.R[2] for cam in cams[:2]]
+    w = c[0] - c[1]
+    b = a[0] @ a[1]
+    den = 1 - b * b
+    if den > 1e-9:
+        s = (b * (a[1] @ w) - a[0] @ w) / den
+        t = ((a[1] @ w) - b * (a[0] @ w)) / den
+        if s > 0 and t > 0:
+            return float(((c[0] + s * a[0]) + (c[1] + t * a[1]))[2] / 2)
+    ahead = 10 * np.linalg.norm(w) * (a[0] + a[1]) / 2
+    return float(((c[0] + c[1]) / 2 + ahead)[2])
+
+
+def prvm_of(cam: CameraModel, *, world_from_internal: np.ndarray | None = None, reference_z_mm: float = 0.0,
+            where=None, dataset: str = "") -> PRVM:
+    """The PRVM of `cam` (every pixel's ray through its optical centre) in the internal frame given by
+    `world_from_internal` (identity: the file's world frame), origins on z = reference_z_mm. Pixels where
+    the model has no inverse are not valid. InputError naming `where` if no pixel is valid or a ray does
+    not travel towards +z (it would not meet the display side)."""
+    if cam.width is None or cam.height is None:
+        raise InputError(where, f"camera {cam.name!r} has no image size")
+    wfi = np.eye(4) if world_from_internal is None else np.asarray(world_from_internal, np.float64)
+    inner = invert(wfi)
+    d, ok = unproject(cam, pixel_grid(cam.width, cam.height))
+    d = d @ cam.R @ inner[:3, :3].T        # camera -> world -> internal
+    c = transform(inner, cam.centre)
+    if not ok.any():
+        raise InputError(where, f"camera {cam.name!r}: its lens model has no ray for any pixel")
+    if (d[ok, 2] <= 1e-9).any():
+        bad = int((d[ok, 2] <= 1e-9).sum())
+        raise InputError(where, f"camera {cam.name!r}: {bad} pixels' rays do not meet the display side (they do "
+                                f"not travel towards +z in any frame that keeps the others doing so)")
+    d = np.where(ok[:, None], d, np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        origin = c + ((reference_z_mm - c[2]) / d[:, 2])[:, None] * d
+    shape = (cam.height, cam.width)
+    meta = {"camera": cam.name, "reference_z_mm": float(reference_z_mm), "dataset": dataset,
+            "model": cam.to_dict(), "world_from_rig": wfi.tolist()}
+    return PRVM(origin.reshape(shape + (3,)), d.reshape(shape + (3,)), ok.reshape(shape), None, meta)
+
+
+def prvms_of(cams: list[CameraModel], *, where=None, dataset: str = "") -> list[PRVM]:
+    """The PRVMs of the cameras of one file in one internal frame (`internal_frame`), origins on the plane
+    through their working point (`convergence_z`; z = 0 of the internal frame for a single camera)."""
+    for cam in cams:
+        if cam.width is None or cam.height is None:
+            raise InputError(where, f"camera {cam.name!r} has no image size")
+    wfi = internal_frame(cams)
+    z = convergence_z(cams, wfi) if len(cams) > 1 else 0.0
+    return [prvm_of(c, world_from_internal=wfi, reference_z_mm=z, where=where, dataset=dataset) for c in cams]

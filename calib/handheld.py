@@ -1,0 +1,173 @@
+"""Calibration without a stage: the display held still in several unknown poses (the seed's tip 2.3,
+DESIGN.md's stage-free captures, frames with `pose`).
+
+1. Every pose decoded as on a stage (`calib.calibration.decode_all`: the intensity matrix from the
+   flats, which may be at one pose only, then display coordinates per pixel).
+2. Starting poses from a central camera fitted to block means of the correspondences
+   (`calib.pose_init`), in that camera's frame (its z along the optical axis: the working frame).
+3. The poses refined together with a generic ray per pixel (`calib.poses`, variable projection with
+   pose 0 fixed). A pose whose residual is out of family (its display moved while its fringes were
+   shown) is reported and left out, and the others refined again, as long as `MIN_POSES` remain.
+4. Every pixel's ray fitted through its points at the refined poses (`calib.prvm.fit_posed_lines`, in
+   the working frame), expressed in the WCS: the display's frame at pose 0 (x along its columns, y along
+   its rows, z away from the camera); then regularised and given its uncertainty as on a stage
+   (`calib.calibration.regularise_lines`), on two planes z = const of the WCS spanning where the
+   displays were.
+
+The per-pose report (`PoseReport`, the PRVM's `meta.poses`): each pose in the WCS, its 1-sigma
+uncertainty (from the Jacobian and the residual), the RMS distance of its points from the rays, its
+out-of-family statistic, and whether it was out of family (and left out).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib.capture import MIN_POSES, Capture
+from calib.errors import InputError
+from calib.pose_init import central_start
+from calib.poses import OUT_OF_FAMILY, PoseFit, log_so3, pose_sample, refine_poses
+
+# the planes of the regularisation and the uncertainty: these quantiles of the WCS z of the displays'
+# points
+PLANE_QUANTILES = (0.05, 0.95)
+
+
+@dataclass
+class PoseReport:
+    """The estimated display poses of a stage-free calibration, in the WCS (the display at pose 0).
+
+    poses: the pose numbers; rotation (M, 3, 3), translation (M, 3): X_wcs = R q + t for display-frame
+    points q; sd_rotation_deg, sd_translation_um (M, 3): 1-sigma of the rotation vector and of the
+    translation of `centre_mm` (M, 3), the centroid of the display area the camera saw; rms_um (M,): RMS
+    distance of the pose's points from the rays; chi (M,): how far its points are from one rigid display
+    (`calib.poses.PoseFit.chi`); out_of_family (M,) bool: chi above `calib.poses.OUT_OF_FAMILY`; used
+    (M,) bool: its points went into the rays (an out-of-family pose is left out, but for pose 0, the
+    WCS); start_rms_px: the central starting model's reprojection error.
+    """
+
+    poses: list[int]
+    rotation: np.ndarray
+    translation: np.ndarray
+    centre_mm: np.ndarray
+    sd_rotation_deg: np.ndarray
+    sd_translation_um: np.ndarray
+    rms_um: np.ndarray
+    chi: np.ndarray
+    out_of_family: np.ndarray
+    used: np.ndarray
+    start_rms_px: float
+
+    def to_json(self) -> list[dict]:
+        return [{"pose": int(n), "rotation_deg": np.degrees(log_so3(self.rotation[k])).tolist(),
+                 "translation_mm": self.translation[k].tolist(), "centre_mm": self.centre_mm[k].tolist(),
+                 "sd_rotation_deg": self.sd_rotation_deg[k].tolist(),
+                 "sd_translation_um": self.sd_translation_um[k].tolist(), "rms_um": float(self.rms_um[k]),
+                 "chi": float(self.chi[k]), "out_of_family": bool(self.out_of_family[k]),
+                 "used": bool(self.used[k])} for k, n in enumerate(self.poses)]
+
+
+def _refine(sample, start, active: np.ndarray) -> PoseFit:
+    """Refine the poses of the `active` ones (pose 0 among them) from the central start."""
+    idx = np.flatnonzero(active)
+    return refine_poses(sample.subset(idx), start.rotation[idx], start.translation[idx])
+
+
+def estimate_poses(capture: Capture, camera: str, coords: list[np.ndarray],
+                   weights: list[np.ndarray]) -> tuple[PoseFit, np.ndarray, np.ndarray, object]:
+    """The refined poses (working frame) of the poses kept, which poses those are ((M,) bool), the
+    out-of-family statistic of every pose when it was last refined ((M,)), and the central start.
+    InputError naming the manifest when the central model cannot be fitted."""
+    w, h = capture.cameras[camera]
+    sample = pose_sample(coords, weights, capture.display.pitch_mm)
+    try:
+        start = central_start(sample.points, sample.weights, sample.pixels, w, h)
+    except ValueError as exc:
+        raise InputError(capture.manifest_path, f"camera {camera!r}: no starting poses: {exc}") from None
+    m = len(coords)
+    active = np.ones(m, bool)
+    chi = np.zeros(m)
+    while True:
+        fit = _refine(sample, start, active)
+        idx = np.flatnonzero(active)
+        chi[idx] = fit.chi
+        bad = [k for j, k in enumerate(idx) if k != 0 and fit.out_of_family[j]]
+        if not bad or active.sum() - 1 < MIN_POSES:
+            return fit, active, chi, start
+        active[max(bad, key=lambda k: chi[k])] = False
+
+
+def _wcs_z(coord: np.ndarray, pitch: np.ndarray, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+    """WCS z of display coordinates (2, ...) at a pose."""
+    return coord[0] * pitch[0] * rotation[2, 0] + coord[1] * pitch[1] * rotation[2, 1] + translation[2]
+
+
+def _report(poses: list[int], fit: PoseFit, active: np.ndarray, chi: np.ndarray, start_rms_px: float,
+            rms_mm: np.ndarray) -> PoseReport:
+    """The poses kept, in the WCS (the working frame's pose 0 undone; their covariance rotated alike);
+    NaN for those left out."""
+    m = len(poses)
+    r0, t0 = fit.rotation[0], fit.translation[0]
+    rot, trans, centre = np.full((m, 3, 3), np.nan), np.full((m, 3), np.nan), np.full((m, 3), np.nan)
+    sd_rot, sd_t, rms = np.full((m, 3), np.nan), np.full((m, 3), np.nan), np.full(m, np.nan)
+    turn = np.kron(np.eye(2), r0.T)
+    for j, k in enumerate(np.flatnonzero(active)):
+        rot[k] = r0.T @ fit.rotation[j]
+        trans[k] = r0.T @ (fit.translation[j] - t0)
+        centre[k] = r0.T @ (fit.centre[j] - t0)
+        sd = np.sqrt(np.maximum(np.diag(turn @ fit.covariance[j] @ turn.T), 0))
+        sd_rot[k], sd_t[k] = np.degrees(sd[:3]), 1000 * sd[3:]
+        rms[k] = 1000 * rms_mm[j]
+    return PoseReport(poses, rot, trans, centre, sd_rot, sd_t, rms, chi, chi > OUT_OF_FAMILY, active.copy(),
+                      start_rms_px)
+
+
+def calibrate_handheld(capture: Capture, camera: str, smoother, z_ref: float = 0.0):
+    """Calibrate one camera of a stage-free capture (module docstring); a `calib.calibration.Calibration`
+    whose `poses` is the `PoseReport`."""
+    from calib.calibration import (Calibration, decode_all, dropped_quality, point_weights, ray_meta, ray_prvm,
+                                   regularise_lines, _coverage_notes)
+    from calib.prvm import fit_posed_lines
+    poses = capture.poses(camera)
+    if len(poses) < MIN_POSES:
+        raise InputError(capture.manifest_path, f"camera {camera!r} has frames at {len(poses)} display pose(s); "
+                                                f"a stage-free calibration needs at least {MIN_POSES}")
+    positions, im, notes = decode_all(capture, camera)
+    coords = [p.coord for p in positions]
+    weights = [point_weights(p) for p in positions]
+    fit, active, chi, start = estimate_poses(capture, camera, coords, weights)
+    out = [k for k in range(len(poses)) if not active[k]]
+    if out:
+        notes.append(f"camera {camera!r}: pose(s) {', '.join(str(poses[k]) for k in out)} left out: their points "
+                     f"do not lie on one rigid display seen along the others' rays (smooth residual "
+                     f"{', '.join(f'{chi[k]:.0f}' for k in out)}x the median pose's; did the display move "
+                     f"while their fringes were shown?)")
+    if chi[0] > OUT_OF_FAMILY:
+        notes.append(f"camera {camera!r}: pose {poses[0]} (the WCS) does not lie on one rigid display seen along "
+                     f"the others' rays (smooth residual {chi[0]:.0f}x the median pose's); hold the display "
+                     f"still and capture it again")
+    idx = np.flatnonzero(active)
+    r0, t0 = fit.rotation[0], fit.translation[0]                 # pose 0 in the working frame
+    posed = fit_posed_lines([coords[k] for k in idx], [weights[k] for k in idx], fit.rotation, fit.translation,
+                            capture.display.pitch_mm, glass=capture.display.cover_glass, to_output=(r0.T, -r0.T @ t0),
+                            z_ref=z_ref)
+    raw = posed.lines
+    quality = dropped_quality([positions[k] for k in idx])
+    if not raw.valid.any():
+        raise InputError(capture.manifest_path, f"camera {camera!r}: no pixel was decoded at 2 or more poses")
+    notes += _coverage_notes(camera, quality, raw.valid)
+
+    report = _report(poses, fit, active, chi, start.rms_px, posed.rms_mm)
+    pitch = np.asarray(capture.display.pitch_mm)
+    z = np.concatenate([_wcs_z(coords[k][:, ::16, ::16], pitch, report.rotation[k], report.translation[k])
+                        [weights[k][::16, ::16] > 0] for k in idx])
+    z_a, z_b = (float(v) for v in np.quantile(z, PLANE_QUANTILES))
+    used_positions = [positions[k] for k in idx]
+    lines, sigma, regularisation = regularise_lines(capture, camera, raw, used_positions, smoother, z_a, z_b, z_ref)
+    meta = ray_meta(capture, camera, used_positions, im, regularisation, z_a, z_b, z_ref, notes)
+    meta.update({"poses": report.to_json(), "wcs_definition": "the display's frame at pose "
+                 f"{poses[0]}: x along its columns, y along its rows, z away from the camera (mm)"})
+    prvm = ray_prvm(raw, lines, sigma, quality, im, meta)
+    return Calibration(prvm, raw, lines, positions, quality, im, notes, report)

@@ -1,0 +1,63 @@
+"""Stacked `.npz` arrays written and read one slice at a time.
+
+A long sequence's results are arrays of shape (S, ...) - one slice per state - that need not fit in
+memory together. `write_stacked_npz` writes such a file from iterators of slices, `iter_slices` reads one
+array back slice by slice. The files are ordinary uncompressed `.npz` files, byte for byte what
+`np.savez` writes for the same arrays (np.load reads them); writing is atomic (`calib.atomic`).
+"""
+
+from __future__ import annotations
+
+import os
+import zipfile
+from typing import Callable, Iterable, Iterator
+
+import numpy as np
+
+from calib.atomic import atomic_output
+
+
+def write_stacked_npz(path: str | os.PathLike, arrays: dict[str, np.ndarray],
+                      stacked: dict[str, Callable[[], Iterable[np.ndarray]]], count: int) -> None:
+    """Write `arrays` as they are, then each `stacked[name]()` (an iterable of `count` slices of one shape
+    and dtype) as the array `name` of shape (count,) + slice shape, in that order."""
+    with atomic_output(path, suffix=".npz") as tmp:
+        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
+            for name, value in arrays.items():
+                with zf.open(name + ".npy", "w", force_zip64=True) as f:
+                    np.lib.format.write_array(f, np.asanyarray(value), allow_pickle=False)
+            for name, slices in stacked.items():
+                it = iter(slices())
+                first = np.asarray(next(it))
+                header = {"descr": np.lib.format.dtype_to_descr(first.dtype), "fortran_order": False,
+                          "shape": (count,) + first.shape}
+                with zf.open(name + ".npy", "w", force_zip64=True) as f:
+                    np.lib.format.write_array_header_1_0(f, header)
+                    n = 0
+                    for sl in _chain(first, it):
+                        sl = np.asarray(sl)
+                        if sl.shape != first.shape or sl.dtype != first.dtype:
+                            raise ValueError(f"{name}: slice {n} is {sl.shape} {sl.dtype}, expected "
+                                             f"{first.shape} {first.dtype}")
+                        f.write(np.ascontiguousarray(sl).tobytes())
+                        n += 1
+                if n != count:
+                    raise ValueError(f"{name}: {n} slices, expected {count}")
+
+
+def _chain(first, rest) -> Iterator:
+    yield first
+    yield from rest
+
+
+def iter_slices(path: str | os.PathLike, name: str) -> Iterator[np.ndarray]:
+    """The slices (along the first axis) of array `name` of an uncompressed `.npz`, one at a time."""
+    with zipfile.ZipFile(path) as zf, zf.open(name + ".npy") as f:
+        version = np.lib.format.read_magic(f)
+        read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        shape, fortran, dtype = read(f)
+        if fortran or not shape:
+            raise ValueError(f"{name}: not a C-ordered stacked array")
+        size = int(np.prod(shape[1:], dtype=np.int64)) * dtype.itemsize
+        for _ in range(shape[0]):
+            yield np.frombuffer(f.read(size), dtype).reshape(shape[1:]).copy()

@@ -1,0 +1,85 @@
+"""`stereodic strain DIC_RESULT [--window N] [--measure M] -o DIR`: strain recomputed from saved DIC results.
+
+DIC_RESULT is a `stereodic dic` output folder (or its dic.npz) or a `stereodic dic2d --npz` file. Writes
+DIR/strain.csv (state - or image for 2-D results -, x, y, exx, eyy, exy, e_major, e_minor, e_angle,
+e_vm, strain_valid: one row per active point and state), DIR/strain.npz (x, y, active and per state
+(S, ny, nx) the same arrays) and DIR/maps/ (PNG maps of exx, eyy, exy, e_vm per state), one state in
+memory at a time (stereodic.strain_results).
+"""
+
+from __future__ import annotations
+
+
+def register(sub):
+    from stereodic.cli.common import STRAIN_MEASURES as MEASURES
+    p = sub.add_parser("strain", help="strain recomputed from saved DIC results",
+                       description="Strain of saved DIC results (a `dic` output folder or a `dic2d` NPZ) with "
+                                   "another window or measure, without correlating again.")
+    p.add_argument("result", metavar="DIC_RESULT", help="a `stereodic dic` output folder or dic.npz, or a dic2d NPZ")
+    p.add_argument("--window", type=int, metavar="N",
+                   help="strain fitted over N x N grid points, odd (default: the run's own, else 5)")
+    p.add_argument("--measure", choices=MEASURES, default="green-lagrange",
+                   help="strain measure (default green-lagrange)")
+    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--no-plot", action="store_true", help="skip the PNG maps")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import json
+
+    import numpy as np
+
+    from calib.atomic import atomic_output
+    from calib.errors import InputError
+    from calib.npz_stream import write_stacked_npz
+    from calib.progress import progress
+    from stereodic.cli.common import output_folder
+    from stereodic.dic.output import STRAIN_COLUMNS, fmt, save_map
+    from stereodic.strain_results import open_result, strains
+
+    result = open_result(args.result)
+    own = (result.meta.get("settings", {}).get("strain_window") if result.kind == "dic" else None)
+    window = args.window or own or 5
+    if window < 3 or window % 2 == 0:
+        raise InputError("--window", f"must be an odd number >= 3, got {window}")
+    out = output_folder(args.output)
+    g = result.grid
+    act = g.active.ravel()
+    X, Y = g.points()
+    label = "state" if result.kind == "dic" else "image"
+    keys = [c for c, _, _ in STRAIN_COLUMNS] + ["strain_valid"]
+    fields = {c: f for c, f, _ in STRAIN_COLUMNS} | {"strain_valid": "valid"}
+    tmp_dir = out / ".strain-states"
+    tmp_dir.mkdir(exist_ok=True)
+    try:
+        with atomic_output(out / "strain.csv") as tmp, open(tmp, "w") as csv:
+            csv.write(",".join([label, "x", "y"] + keys) + "\n")
+            for k, m in enumerate(progress(strains(result, window, args.measure), "strain", total=result.states,
+                                           unit="state")):
+                cols = [[str(k)] * int(act.sum()), fmt("%g", X[act]), fmt("%g", Y[act])]
+                cols += [fmt(f, getattr(m, field).ravel()[act]) for _, field, f in STRAIN_COLUMNS]
+                cols += [m.valid.ravel()[act].astype(int).astype(str).tolist()]
+                csv.write("".join(",".join(row) + "\n" for row in zip(*cols)))
+                np.savez(tmp_dir / f"{k}.npz", **{key: getattr(m, fields[key]) for key in keys})
+                if not args.no_plot:
+                    for c in ("exx", "eyy", "exy", "von_mises"):
+                        name = "e_vm" if c == "von_mises" else c
+                        save_map(out / "maps" / f"{label}{k}_{name}.png", getattr(m, c) * 1e6, g,
+                                 f"{label} {k}: {name} ({args.measure})", f"{name} (microstrain)")
+
+        def values(key):
+            for k in range(result.states):
+                with np.load(tmp_dir / f"{k}.npz") as z:
+                    yield z[key]
+
+        meta = {"format": "stereodic.strain/1", "source": str(result.path), "window": window,
+                "measure": args.measure}
+        write_stacked_npz(out / "strain.npz", dict(meta=np.array(json.dumps(meta)), x=g.xs, y=g.ys, active=g.active),
+                          {key: (lambda key=key: values(key)) for key in keys}, result.states)
+    finally:
+        for p in tmp_dir.glob("*.npz"):
+            p.unlink()
+        tmp_dir.rmdir()
+    print(f"{out}: {args.measure} strain of {result.states} {label}s of {result.path}, window {window} points")
+    return 0

@@ -1,0 +1,421 @@
+/* Inverse-compositional Gauss-Newton (IC-GN) sub-pixel registration of square subsets with the
+ * zero-normalised SSD criterion (Pan, Li & Tong, "Fast, robust and accurate digital image correlation
+ * calculation without redundant computations", Exp. Mech. 53, 2013; the quadratic shape function after
+ * Gao et al., Opt. Lasers Eng. 65, 2015).
+ *
+ * Warp parameters of one point, relative to its reference position (x0, y0), local offsets (dx, dy):
+ *   affine (6):     p = (u, ux, uy, v, vx, vy)
+ *   quadratic (12): p = (u, ux, uy, uxx, uxy, uyy, v, vx, vy, vxx, vxy, vyy)
+ *   x' = x0 + dx + sum_i p[i] phi_i(dx, dy),  y' = y0 + dy + sum_i p[nb + i] phi_i(dx, dy)
+ *   with phi = (1, dx, dy) or (1, dx, dy, dx^2/2, dx dy, dy^2/2), nb = number of phi; pixels.
+ * The reference side of a subset (values, steepest-descent images, Hessian) is computed once; each
+ * iteration samples the deformed image only. */
+#include <math.h>
+#include <stdlib.h>
+
+#include "icgn.h"
+
+int work_alloc(Work *w, int half, int nparams)
+{
+    const size_t m = (size_t)(2 * half + 1) * (size_t)(2 * half + 1), n = (size_t)nparams;
+    w->J = malloc(sizeof(double) * (m * n + m + n * n + 5 * n));
+    if (!w->J)
+        return -1;
+    w->fc = w->J + m * n;
+    w->H = w->fc + m;
+    w->JS = w->H + n * n;
+    w->JF = w->JS + n;
+    w->SJg = w->JF + n;
+    w->rhs = w->SJg + n;
+    w->dp = w->rhs + n;
+    return 0;
+}
+
+void work_free(Work *w)
+{
+    free(w->J);
+    w->J = NULL;
+}
+
+/* Displacement component whose coefficients start at p[0], at local offset (dx, dy). */
+static inline double displacement(const double *p, int nb, double dx, double dy)
+{
+    double d = p[0] + p[1] * dx + p[2] * dy;
+    if (nb == 6)
+        d += 0.5 * p[3] * dx * dx + p[4] * dx * dy + 0.5 * p[5] * dy * dy;
+    return d;
+}
+
+void shift_warp(const double *p, int n, double ox, double oy, double *out)
+{
+    const int nb = n / 2;
+    for (int c = 0; c < 2; ++c) {
+        const double *q = p + c * nb;
+        double *o = out + c * nb;
+        const double d = displacement(q, nb, ox, oy);
+        if (nb == 3) {
+            o[0] = d;
+            o[1] = q[1];
+            o[2] = q[2];
+        } else {
+            const double d1 = q[1] + q[3] * ox + q[4] * oy, d2 = q[2] + q[4] * ox + q[5] * oy;
+            o[0] = d;
+            o[1] = d1;
+            o[2] = d2;
+            o[3] = q[3];
+            o[4] = q[4];
+            o[5] = q[5];
+        }
+    }
+}
+
+/* Cholesky factor of the n x n matrix H in its lower triangle; 0 if H is not clearly positive definite. */
+static int cholesky(double *H, int n)
+{
+    double dmax = 0.0;
+    for (int i = 0; i < n; ++i)
+        dmax = fmax(dmax, H[i * n + i]);
+    if (dmax <= 0.0)
+        return 0;
+    for (int j = 0; j < n; ++j) {
+        double s = H[j * n + j];
+        for (int k = 0; k < j; ++k)
+            s -= H[j * n + k] * H[j * n + k];
+        if (s <= 1e-12 * dmax)
+            return 0;
+        const double d = sqrt(s);
+        H[j * n + j] = d;
+        for (int i = j + 1; i < n; ++i) {
+            double t = H[i * n + j];
+            for (int k = 0; k < j; ++k)
+                t -= H[i * n + k] * H[j * n + k];
+            H[i * n + j] = t / d;
+        }
+    }
+    return 1;
+}
+
+static void cholesky_solve(const double *L, const double *b, int n, double *out)
+{
+    for (int i = 0; i < n; ++i) {
+        double s = b[i];
+        for (int k = 0; k < i; ++k)
+            s -= L[i * n + k] * out[k];
+        out[i] = s / L[i * n + i];
+    }
+    for (int i = n - 1; i >= 0; --i) {
+        double s = out[i];
+        for (int k = i + 1; k < n; ++k)
+            s -= L[k * n + i] * out[k];
+        out[i] = s / L[i * n + i];
+    }
+}
+
+/* p <- p o d^-1 for affine warps (local frame). */
+static void compose_affine(double *p, const double *d)
+{
+    const double a = 1.0 + d[1], b = d[2], c = d[4], e = 1.0 + d[5];
+    const double det = a * e - b * c;
+    const double ia = e / det, ib = -b / det, ic = -c / det, ie = a / det;
+    const double tx = -(ia * d[0] + ib * d[3]), ty = -(ic * d[0] + ie * d[3]);
+    const double pa = 1.0 + p[1], pb = p[2], pc = p[4], pe = 1.0 + p[5];
+    const double u = pa * tx + pb * ty + p[0], v = pc * tx + pe * ty + p[3];
+    const double na = pa * ia + pb * ic, nb = pa * ib + pb * ie, nc = pc * ia + pe * ic, ne = pc * ib + pe * ie;
+    p[0] = u;
+    p[1] = na - 1.0;
+    p[2] = nb;
+    p[3] = v;
+    p[4] = nc;
+    p[5] = ne - 1.0;
+}
+
+/* p <- p o d^-1 for quadratic warps, fitted (least squares, matrix `fit`) at the 3 x 3 points
+ * (-half, 0, half)^2 of the subset. */
+static void compose_quadratic(double *p, const double *d, const double *fit, int half)
+{
+    double du[9], dv[9];
+    const double s[3] = {-half, 0.0, half};
+    int k = 0;
+    for (int a = 0; a < 3; ++a) {
+        const double sy = s[a];
+        for (int b = 0; b < 3; ++b) {
+            const double sx = s[b];
+            /* invert z + w_d(z) = s by Newton */
+            double zx = sx - displacement(d, 6, sx, sy), zy = sy - displacement(d + 6, 6, sx, sy);
+            for (int it = 0; it < 4; ++it) {
+                const double rx = zx + displacement(d, 6, zx, zy) - sx;
+                const double ry = zy + displacement(d + 6, 6, zx, zy) - sy;
+                const double j11 = 1.0 + d[1] + d[3] * zx + d[4] * zy, j12 = d[2] + d[4] * zx + d[5] * zy;
+                const double j21 = d[7] + d[9] * zx + d[10] * zy, j22 = 1.0 + d[8] + d[10] * zx + d[11] * zy;
+                const double det = j11 * j22 - j12 * j21;
+                zx -= (j22 * rx - j12 * ry) / det;
+                zy -= (-j21 * rx + j11 * ry) / det;
+            }
+            du[k] = zx + displacement(p, 6, zx, zy) - sx;
+            dv[k] = zy + displacement(p + 6, 6, zx, zy) - sy;
+            ++k;
+        }
+    }
+    for (int i = 0; i < 6; ++i) {
+        double su = 0.0, sv = 0.0;
+        for (int j = 0; j < 9; ++j) {
+            su += fit[i * 9 + j] * du[j];
+            sv += fit[i * 9 + j] * dv[j];
+        }
+        p[i] = su;
+        p[6 + i] = sv;
+    }
+}
+
+/* Lower triangle of H = J^T J, JS = sum J and JF = sum J fc over the m rows of J (m, n). */
+static void sums_generic(const double *J, const double *fc, int m, int n, double *H, double *JS, double *JF)
+{
+    for (int a = 0; a < n * n; ++a)
+        H[a] = 0.0;
+    for (int a = 0; a < n; ++a)
+        JS[a] = JF[a] = 0.0;
+    for (int k = 0; k < m; ++k) {
+        const double *Jk = J + (long)k * n;
+        const double c = fc[k];
+        for (int a = 0; a < n; ++a) {
+            const double ja = Jk[a];
+            JS[a] += ja;
+            JF[a] += ja * c;
+            for (int b = 0; b <= a; ++b)
+                H[a * n + b] += ja * Jk[b];
+        }
+    }
+}
+
+/* sums_generic for 6 parameters, in scalars (the compiler keeps them in registers). */
+static void sums_affine(const double *J, const double *fc, int m, double *H, double *JS, double *JF)
+{
+    double h00 = 0, h10 = 0, h11 = 0, h20 = 0, h21 = 0, h22 = 0, h30 = 0, h31 = 0, h32 = 0, h33 = 0, h40 = 0;
+    double h41 = 0, h42 = 0, h43 = 0, h44 = 0, h50 = 0, h51 = 0, h52 = 0, h53 = 0, h54 = 0, h55 = 0;
+    double s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0, s5 = 0, f0 = 0, f1 = 0, f2 = 0, f3 = 0, f4 = 0, f5 = 0;
+    for (int k = 0; k < m; ++k) {
+        const double *Jk = J + 6L * k;
+        const double c = fc[k], j0 = Jk[0], j1 = Jk[1], j2 = Jk[2], j3 = Jk[3], j4 = Jk[4], j5 = Jk[5];
+        s0 += j0; s1 += j1; s2 += j2; s3 += j3; s4 += j4; s5 += j5;
+        f0 += j0 * c; f1 += j1 * c; f2 += j2 * c; f3 += j3 * c; f4 += j4 * c; f5 += j5 * c;
+        h00 += j0 * j0;
+        h10 += j1 * j0; h11 += j1 * j1;
+        h20 += j2 * j0; h21 += j2 * j1; h22 += j2 * j2;
+        h30 += j3 * j0; h31 += j3 * j1; h32 += j3 * j2; h33 += j3 * j3;
+        h40 += j4 * j0; h41 += j4 * j1; h42 += j4 * j2; h43 += j4 * j3; h44 += j4 * j4;
+        h50 += j5 * j0; h51 += j5 * j1; h52 += j5 * j2; h53 += j5 * j3; h54 += j5 * j4; h55 += j5 * j5;
+    }
+    const double lower[21] = {h00, h10, h11, h20, h21, h22, h30, h31, h32, h33, h40,
+                              h41, h42, h43, h44, h50, h51, h52, h53, h54, h55};
+    for (int a = 0, i = 0; a < 6; ++a)
+        for (int b = 0; b <= a; ++b)
+            H[a * 6 + b] = lower[i++];
+    JS[0] = s0; JS[1] = s1; JS[2] = s2; JS[3] = s3; JS[4] = s4; JS[5] = s5;
+    JF[0] = f0; JF[1] = f1; JF[2] = f2; JF[3] = f3; JF[4] = f4; JF[5] = f5;
+}
+
+/* Reference side of one subset: steepest-descent images J (m, n), zero-mean values fc (m), the Hessian's
+ * Cholesky factor H (n, n), JS = sum J, JF = sum J fc. Returns the status; *norm = |fc|. */
+static int prepare_reference(const Problem *pb, Work *w, double x0, double y0, double *norm)
+{
+    const int n = pb->nparams, nb = n / 2, half = pb->half, side = 2 * half + 1, m = side * side;
+    const int width = pb->ref.width, height = pb->ref.height;
+    if (!(0.0 <= x0 - half && x0 + half <= width - 1 && 0.0 <= y0 - half && y0 + half <= height - 1))
+        return OUTSIDE;
+    double *J = w->J, *fc = w->fc;
+    const int on_pixel = x0 == floor(x0) && y0 == floor(y0);
+    const long ix0 = (long)x0, iy0 = (long)y0, plane = (long)width * height;
+    double fsum = 0.0;
+    int k = 0;
+    for (int j = 0; j < side; ++j) {
+        const double dy = j - half;
+        for (int i = 0; i < side; ++i, ++k) {
+            const double dx = i - half;
+            double f, gx, gy;
+            if (on_pixel) {
+                const long at = (iy0 + j - half) * width + ix0 + i - half;
+                f = pb->refpix[at];
+                gx = pb->refpix[plane + at];
+                gy = pb->refpix[2 * plane + at];
+            } else {
+                sample_with_gradient(&pb->ref, x0 + dx, y0 + dy, &f, &gx, &gy);
+            }
+            fc[k] = f;
+            fsum += f;
+            double *Jk = J + (long)k * n;
+            Jk[0] = gx;
+            Jk[1] = gx * dx;
+            Jk[2] = gx * dy;
+            Jk[nb] = gy;
+            Jk[nb + 1] = gy * dx;
+            Jk[nb + 2] = gy * dy;
+            if (nb == 6) {
+                Jk[3] = 0.5 * gx * dx * dx;
+                Jk[4] = gx * dx * dy;
+                Jk[5] = 0.5 * gx * dy * dy;
+                Jk[9] = 0.5 * gy * dx * dx;
+                Jk[10] = gy * dx * dy;
+                Jk[11] = 0.5 * gy * dy * dy;
+            }
+        }
+    }
+    const double fmean = fsum / m;
+    double ss = 0.0;
+    for (k = 0; k < m; ++k) {
+        fc[k] -= fmean;
+        ss += fc[k] * fc[k];
+    }
+    if (ss <= 1e-10 * m)
+        return NO_TEXTURE;
+    double *H = w->H, *JS = w->JS, *JF = w->JF;
+    if (n == 6)
+        sums_affine(J, fc, m, H, JS, JF);
+    else
+        sums_generic(J, fc, m, n, H, JS, JF);
+    if (!cholesky(H, n))
+        return NO_TEXTURE;
+    *norm = sqrt(ss);
+    return OK;
+}
+
+int reference_status(const Problem *pb, Work *w, double x0, double y0)
+{
+    double norm;
+    return prepare_reference(pb, w, x0, y0, &norm);
+}
+
+/* One pass over the warped subset in the deformed image: sums of g, g^2, fc g and SJg = sum J g.
+ * Returns 0 if the warped subset leaves the image. Any shape function, any order. */
+static int pass_generic(const Problem *pb, Work *w, const double *p, double x0, double y0,
+                        double *sg_, double *sgg_, double *sfg_)
+{
+    const int n = pb->nparams, nb = n / 2, half = pb->half, side = 2 * half + 1;
+    const double width = pb->dfm.width, height = pb->dfm.height;
+    double *SJg = w->SJg;
+    for (int a = 0; a < n; ++a)
+        SJg[a] = 0.0;
+    double sg = 0.0, sgg = 0.0, sfg = 0.0;
+    int k = 0;
+    for (int j = 0; j < side; ++j) {
+        const double dy = j - half;
+        for (int i = 0; i < side; ++i, ++k) {
+            const double dx = i - half;
+            const double xw = x0 + dx + displacement(p, nb, dx, dy);
+            const double yw = y0 + dy + displacement(p + nb, nb, dx, dy);
+            if (!(-0.5 <= xw && xw <= width - 0.5 && -0.5 <= yw && yw <= height - 0.5))
+                return 0;
+            const double g = sample_any(&pb->dfm, xw, yw);
+            sg += g;
+            sgg += g * g;
+            sfg += w->fc[k] * g;
+            const double *Jk = w->J + (long)k * n;
+            for (int a = 0; a < n; ++a)
+                SJg[a] += Jk[a] * g;
+        }
+    }
+    *sg_ = sg;
+    *sgg_ = sgg;
+    *sfg_ = sfg;
+    return 1;
+}
+
+/* pass_generic for affine warps and bicubic interpolation (the common, fast case). */
+static int pass_affine_cubic(const Problem *pb, Work *w, const double *p, double x0, double y0,
+                             double *sg_, double *sgg_, double *sfg_)
+{
+    const int half = pb->half, side = 2 * half + 1;
+    const double width = pb->dfm.width, height = pb->dfm.height;
+    const double a11 = 1.0 + p[1], a12 = p[2], a21 = p[4], a22 = 1.0 + p[5];
+    /* the warped subset is a parallelogram: inside if its corners are */
+    for (int cy = -half; cy <= half; cy += 2 * half) {
+        for (int cx = -half; cx <= half; cx += 2 * half) {
+            const double xw = x0 + p[0] + a11 * cx + a12 * cy, yw = y0 + p[3] + a21 * cx + a22 * cy;
+            if (!(-0.5 <= xw && xw <= width - 0.5 && -0.5 <= yw && yw <= height - 0.5))
+                return 0;
+        }
+    }
+    const float *c = pb->dfm.c;
+    const long stride = pb->dfm.stride;
+    const double *J = w->J, *fc = w->fc;
+    double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0, s4 = 0.0, s5 = 0.0, sg = 0.0, sgg = 0.0, sfg = 0.0;
+    int k = 0;
+    for (int j = 0; j < side; ++j) {
+        const double dy = j - half;
+        const double xr = x0 + p[0] + a12 * dy - a11 * half, yr = y0 + p[3] + a22 * dy - a21 * half;
+        for (int i = 0; i < side; ++i, ++k) {
+            const double g = sample_cubic(c, stride, xr + a11 * i, yr + a21 * i);
+            const double *Jk = J + 6L * k;
+            sg += g;
+            sgg += g * g;
+            sfg += fc[k] * g;
+            s0 += Jk[0] * g;
+            s1 += Jk[1] * g;
+            s2 += Jk[2] * g;
+            s3 += Jk[3] * g;
+            s4 += Jk[4] * g;
+            s5 += Jk[5] * g;
+        }
+    }
+    double *SJg = w->SJg;
+    SJg[0] = s0;
+    SJg[1] = s1;
+    SJg[2] = s2;
+    SJg[3] = s3;
+    SJg[4] = s4;
+    SJg[5] = s5;
+    *sg_ = sg;
+    *sgg_ = sgg;
+    *sfg_ = sfg;
+    return 1;
+}
+
+int solve_point(const Problem *pb, Work *w, double x0, double y0, double *p, double *zncc, int *iters)
+{
+    const int n = pb->nparams, nb = n / 2, half = pb->half, side = 2 * half + 1, m = side * side;
+    double df;
+    *zncc = NAN;
+    *iters = 0;
+    const int st = prepare_reference(pb, w, x0, y0, &df);
+    if (st != OK)
+        return st;
+    const double h2 = 0.5 * half * half, hh = (double)half * half;
+    const int fast = nb == 3 && pb->ref.order == 3;
+    for (int it = 1; it <= pb->max_iter; ++it) {
+        double sg, sgg, sfg;
+        *iters = it;
+        const int inside = fast ? pass_affine_cubic(pb, w, p, x0, y0, &sg, &sgg, &sfg)
+                                : pass_generic(pb, w, p, x0, y0, &sg, &sgg, &sfg);
+        if (!inside) {
+            *zncc = NAN;
+            return OUTSIDE;
+        }
+        const double gmean = sg / m, vg = sgg - sg * gmean;
+        if (!(vg > 1e-10 * m)) {
+            *zncc = NAN;
+            return NO_TEXTURE;
+        }
+        const double dg = sqrt(vg);
+        *zncc = sfg / (df * dg);
+        const double ratio = df / dg;
+        for (int a = 0; a < n; ++a)
+            w->rhs[a] = -(w->JF[a] - ratio * (w->SJg[a] - gmean * w->JS[a]));
+        cholesky_solve(w->H, w->rhs, n, w->dp);
+        const double *dp = w->dp;
+        double norm;
+        if (nb == 3) {
+            compose_affine(p, dp);
+            norm = dp[0] * dp[0] + dp[3] * dp[3] + hh * (dp[1] * dp[1] + dp[2] * dp[2] + dp[4] * dp[4] + dp[5] * dp[5]);
+        } else {
+            compose_quadratic(p, dp, pb->fit, half);
+            norm = dp[0] * dp[0] + dp[6] * dp[6]
+                   + hh * (dp[1] * dp[1] + dp[2] * dp[2] + dp[7] * dp[7] + dp[8] * dp[8])
+                   + h2 * h2 * (dp[3] * dp[3] + dp[4] * dp[4] + dp[5] * dp[5] + dp[9] * dp[9] + dp[10] * dp[10]
+                                + dp[11] * dp[11]);
+        }
+        if (!isfinite(norm) || norm > 1e6)
+            return DIVERGED;
+        if (norm < pb->tol * pb->tol)
+            return *zncc >= pb->min_zncc ? OK : LOW_ZNCC;
+    }
+    return DIVERGED;
+}

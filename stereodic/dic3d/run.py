@@ -1,0 +1,81 @@
+"""A stereo DIC experiment run through its run folder (`store.RunStore`): the states solved one after the
+other (`stereo.solve_state`), each saved as soon as it is done, an interrupted run resumed after its
+last finished state, and the combined outputs (CSV, NPZ, VTK, PNG, DICe's files) written at the end
+from the state files, one state in memory at a time.
+
+Per run the reference pair (state 0) is read and prepared once (on a resumed run too); per state the
+next pair is read, rectified and prepared in a worker thread while the current one is solved. Memory
+therefore holds the rig, the reference, the previous, current and next pairs and one state's result,
+whatever the length of the sequence.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable
+
+from calib.progress import progress
+from stereodic.dic.grid import Grid
+from stereodic.dic.sequence import prefetch
+from stereodic.dic3d.dataset import DicStates
+from stereodic.dic3d.output import plot_state, write_csv, write_npz
+from stereodic.dic3d.stereo import PreparedPair, StereoRun, StereoSettings, StereoState, solve_state
+from stereodic.dic3d.store import RunStore
+from stereodic.dic3d.vtk import write_collection, write_state
+from stereodic.rig import Rig
+
+
+def _prepare(data: DicStates, rig: Rig, settings: StereoSettings, k: int) -> PreparedPair:
+    return PreparedPair.prepare(*data.rectified_pair(rig, k), settings.dic)
+
+
+def run_states(store: RunStore, data: DicStates, rig: Rig, grid: Grid, seeds, settings: StereoSettings, *,
+               report: Callable[[StereoState], None] = lambda state: None) -> StereoState:
+    """Solve the states the store has not finished (`store.open` first), saving each; `report` is called
+    with each state solved (state 0 also when it is read back). Returns state 0."""
+    n = len(data)
+    done = store.done
+    pair0 = _prepare(data, rig, settings, 0)
+    run = StereoRun.prepare(rig, grid, settings, seeds, pair0)
+    if done == 0:
+        state0, carry = solve_state(run, 0, pair0)
+        store.write_state(state0, carry)
+        report(state0)
+        done = 1
+    else:
+        state0, carry = store.read_state(0), store.read_carry()
+        report(state0)
+    run = run.with_reference(state0)
+    previous = pair0 if done == 1 else _prepare(data, rig, settings, done - 1)
+    todo = range(done, n)
+    pairs = prefetch(todo, lambda k: _prepare(data, rig, settings, k))
+    for k, pair in progress(pairs, "dic", total=n, initial=done, unit="state"):
+        state, carry = solve_state(run, k, pair, carry, previous)
+        store.write_state(state, carry)
+        report(state)
+        previous = pair
+    return state0
+
+
+def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: StereoSettings, info: dict, *,
+                  vtk: bool = True, plot_every: int = 0, dice: Callable[[StereoState], None] | None = None,
+                  csv: bool = True) -> None:
+    """The combined outputs from the store's state files (module docstring): folder/dic.csv (unless
+    `dice` writes DICe's files instead, or not `csv`), folder/dic.npz, folder/vtk/ (with `vtk`),
+    folder/maps/ (every `plot_every`-th state, 0 = none)."""
+    folder = Path(folder)
+    n = store.manifest["states"]
+    has_strain = bool(settings.strain_window)
+    write_npz(folder / "dic.npz", grid, store.values, n, has_strain, settings, info)
+    if csv:
+        write_csv(folder / "dic.csv", grid, store.states())
+    if vtk or plot_every or dice is not None:
+        for st in progress(store.states(), "writing", total=n, unit="state"):
+            if vtk:
+                write_state(folder / "vtk", st)
+            if plot_every and st.state % plot_every == 0:
+                plot_state(folder / "maps", grid, st)
+            if dice is not None:
+                dice(st)
+    if vtk:
+        write_collection(folder / "vtk", range(n))

@@ -1,0 +1,172 @@
+"""The run folder of `stereodic dic`: a manifest, one result file per state and the carry between states,
+so that results stream to disk state by state and an interrupted run resumes where it stopped.
+
+- `DIR/run.json` ("stereodic.dic-run/1"): `settings` (everything that decides the results, the software
+  version included), `inputs` (the rig file's SHA-256; per state the left and right image files with
+  their sizes and a SHA-1 of 16 KiB from the middle of each), `states` (how many), `done` (how many
+  states are finished, from state 0 on), `outputs` (the options the combined files were last written
+  with, once they were).
+- `DIR/states/state{k:06d}.npz`: the result of state k (`output.state_arrays`: dic.npz's arrays of that
+  state, and the combined status);
+  `DIR/states/carry.npz`: what the state after the last finished one needs (`StereoCarry`).
+Every file is written atomically, in the order state file, carry, manifest: wherever a run stops, the
+folder is consistent and the run resumes after the carry's state (a state file beyond it is computed
+again, to the same bytes). A run whose settings or inputs differ from the folder's is refused.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from calib.atomic import write_json, write_npz
+from calib.errors import InputError
+from stereodic.dic3d.output import state_arrays, state_from_arrays
+from stereodic.dic3d.stereo import StereoCarry, StereoState
+
+FORMAT = "stereodic.dic-run/1"
+MANIFEST = "run.json"
+FINGERPRINT_BYTES = 16384
+
+
+def fingerprint(path: str | os.PathLike) -> str:
+    """'<size>:<SHA-1 of up to 16 KiB from the middle of the file>': cheap, and different for two
+    captures of a speckle (its noise alone differs)."""
+    path = Path(path)
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        f.seek(max(0, size // 2 - FINGERPRINT_BYTES // 2))
+        return f"{size}:{hashlib.sha1(f.read(FINGERPRINT_BYTES)).hexdigest()}"
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _first_difference(old, new, where: str = "") -> str | None:
+    """A description of the first place two JSON values differ, or None."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        for k in list(old) + [k for k in new if k not in old]:
+            d = _first_difference(old.get(k), new.get(k), f"{where}.{k}" if where else k)
+            if d:
+                return d
+        return None
+    if isinstance(old, list) and isinstance(new, list) and len(old) == len(new):
+        for i, (a, b) in enumerate(zip(old, new)):
+            d = _first_difference(a, b, f"{where}[{i}]")
+            if d:
+                return d
+        return None
+    return None if old == new else f"{where}: {json.dumps(old)} then, {json.dumps(new)} now"
+
+
+class RunStore:
+    """The run folder (module docstring). `open` starts or resumes a run."""
+
+    def __init__(self, folder: str | os.PathLike):
+        self.folder = Path(folder)
+        self.manifest_path = self.folder / MANIFEST
+        self.states_dir = self.folder / "states"
+        self.manifest: dict = {}
+
+    def open(self, settings: dict, inputs: dict, states: int, restart: bool = False) -> int:
+        """Start a run, or resume the one in the folder: returns how many states are finished. InputError
+        naming the manifest when the folder holds a run of other settings or inputs (unless `restart`:
+        then its state files are removed and the run starts over), or when the folder cannot be written."""
+        try:
+            self.states_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise InputError(self.folder, f"cannot create the output folder ({exc.strerror})") from None
+        if not os.access(self.states_dir, os.W_OK):
+            raise InputError(self.folder, "the output folder is not writable")
+        new = {"format": FORMAT, "settings": settings, "inputs": inputs, "states": states}
+        old = self._read_manifest()
+        if old is not None and restart:
+            for p in self.states_dir.glob("*.npz"):
+                p.unlink()
+            old = None
+        if old is not None:
+            for key in ("settings", "inputs"):
+                diff = _first_difference(old.get(key), new[key])
+                if diff:
+                    raise InputError(self.manifest_path, f"this folder holds a run with other {key} ({diff}); "
+                                                         f"use another output folder, or --restart")
+            new["done"] = self._resume_point(states)
+            if "outputs" in old and new["done"] == states:
+                new["outputs"] = old["outputs"]
+        else:
+            new["done"] = 0
+        self.manifest = new
+        write_json(self.manifest_path, self.manifest)
+        return new["done"]
+
+    def _read_manifest(self) -> dict | None:
+        if not self.manifest_path.is_file():
+            return None
+        try:
+            m = json.loads(self.manifest_path.read_text())
+        except json.JSONDecodeError:
+            raise InputError(self.manifest_path, "is not valid JSON (remove it, or use --restart)") from None
+        if m.get("format") != FORMAT:
+            raise InputError(self.manifest_path, f"format is {m.get('format')!r}, expected {FORMAT!r}")
+        return m
+
+    def _resume_point(self, states: int) -> int:
+        """The finished states: state 0 to the carry's state, if all their files exist (else none)."""
+        carry = self.states_dir / "carry.npz"
+        if not carry.is_file():
+            return 0
+        with np.load(carry) as z:
+            last = min(int(z["state"]), states - 1)
+        return last + 1 if all(self.state_path(k).is_file() for k in range(last + 1)) else 0
+
+    def state_path(self, k: int) -> Path:
+        return self.states_dir / f"state{k:06d}.npz"
+
+    def write_state(self, state: StereoState, carry: StereoCarry) -> None:
+        """Save a finished state and the carry after it, then record it done."""
+        write_npz(self.state_path(state.state), **state_arrays(state))
+        write_npz(self.states_dir / "carry.npz", **carry.to_arrays())
+        self.manifest["done"] = state.state + 1
+        self.manifest.pop("outputs", None)
+        write_json(self.manifest_path, self.manifest)
+
+    def read_state(self, k: int) -> StereoState:
+        with np.load(self.state_path(k)) as z:
+            return state_from_arrays(z, self.manifest["settings"].get("strain_measure"))
+
+    def values(self, key: str) -> Iterator[np.ndarray]:
+        """One array of every state's result file, state by state."""
+        for k in range(self.manifest["states"]):
+            with np.load(self.state_path(k)) as z:
+                yield z[key]
+
+    def states(self) -> Iterator[StereoState]:
+        """Every state's result, read one at a time."""
+        for k in range(self.manifest["states"]):
+            yield self.read_state(k)
+
+    def read_carry(self) -> StereoCarry:
+        with np.load(self.states_dir / "carry.npz") as z:
+            return StereoCarry.from_arrays(z)
+
+    @property
+    def done(self) -> int:
+        return int(self.manifest.get("done", 0))
+
+    def outputs_written(self, outputs: dict) -> bool:
+        """Whether the combined files were already written, with these options, after the last state."""
+        return self.manifest.get("outputs") == outputs
+
+    def record_outputs(self, outputs: dict) -> None:
+        self.manifest["outputs"] = outputs
+        write_json(self.manifest_path, self.manifest)

@@ -1,0 +1,117 @@
+"""Other programs' calibration files: one small reader (and, where we export to it, writer) per format.
+
+Every reader returns the file's cameras as `calib.camera_models.CameraModel`s in file order, each in
+the file's own world frame and with its own lens model exactly (`calib.camera_models`); the first two
+cameras of a stereo file are the left (reference) and the right camera. `read_calibration` picks the
+reader (`detect.detect_format` when the format is "auto") and fills in the image size from `size` where
+the file has none.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from calib.camera_models import CameraModel
+from calib.errors import InputError
+from calib.prvm_file import PRVM
+
+FORMATS = ("opencv", "vic3d", "dice", "mrcal", "kalibr")
+UNITS = {"mm": 1.0, "m": 1000.0}
+DEFAULT_UNITS = {"opencv": "mm", "vic3d": "mm", "dice": "mm", "mrcal": "mm", "kalibr": "m"}
+
+
+def read_calibration(paths: list[str | os.PathLike], fmt: str = "auto", *, size: tuple[int, int] | None = None,
+                     units: str | None = None) -> tuple[str, list[CameraModel]]:
+    """(format, cameras) of the calibration in `paths` (one file; or two: a stereo pair of mrcal
+    .cameramodel files, or OpenCV's stereo_calib pair intrinsics.yml + extrinsics.yml), translations in mm.
+    `size` (width, height) is used for cameras whose file gives no image size; `units` ("mm" or "m") is the
+    unit of the file's translations (default: the format's, DEFAULT_UNITS: Kalibr writes metres; OpenCV's
+    and mrcal's are those of the calibration target, taken as mm). InputError naming the file when a size
+    is needed and not given, or when the file is not a calibration of the format."""
+    from stereodic.formats import dice, kalibr, mrcal, opencv, vic3d
+    from stereodic.formats.detect import detect_format
+    paths = [Path(p) for p in paths]
+    for p in paths:
+        if not p.is_file():
+            raise InputError(p, "calibration file is missing")
+    if fmt == "auto":
+        kinds = [detect_format(p) for p in paths]
+        if len(set(kinds)) > 1:
+            raise InputError(paths[1], f"is a {kinds[1]} file but {paths[0]} is {kinds[0]}")
+        fmt = kinds[0]
+    if fmt not in FORMATS:
+        raise InputError("--format", f"unknown calibration format {fmt!r} (known: auto, {', '.join(FORMATS)})")
+    if len(paths) > 2 or (len(paths) == 2 and fmt not in ("mrcal", "opencv")):
+        raise InputError(paths[-1], f"a {fmt} calibration is one file" if fmt not in ("mrcal", "opencv") else
+                         "at most two files make a calibration")
+    reader = {"opencv": opencv.read, "vic3d": vic3d.read, "dice": dice.read, "mrcal": mrcal.read,
+              "kalibr": kalibr.read}[fmt]
+    cams = reader(paths if fmt in ("mrcal", "opencv") else paths[0])
+    for cam in cams:
+        if cam.width is None or cam.height is None:
+            if size is None:
+                raise InputError(paths[0], f"the {fmt} file gives no image size for camera {cam.name!r}: "
+                                           f"give it with --size WIDTHxHEIGHT")
+            cam.width, cam.height = int(size[0]), int(size[1])
+    units = units or DEFAULT_UNITS[fmt]
+    if units not in UNITS:
+        raise InputError("--units", f"unknown unit {units!r} (known: {', '.join(UNITS)})")
+    for cam in cams:
+        cam.t = cam.t * UNITS[units]
+    return fmt, cams
+
+
+def select(cams: list[CameraModel], names: list[str] | None, where) -> list[CameraModel]:
+    """The cameras named in `names` (by their name in the file or their 0-based position), all of them
+    when None; InputError naming `where` for a name the file does not have."""
+    if names is None:
+        return cams
+    out = []
+    for n in names:
+        hit = [c for c in cams if c.name == n] or ([cams[int(n)]] if n.isdigit() and int(n) < len(cams) else [])
+        if not hit:
+            raise InputError(where, f"has no camera {n!r} (it has {', '.join(repr(c.name) for c in cams)})")
+        out.append(hit[0])
+    return out
+
+
+@dataclass
+class Imported:
+    """What `import_calibration` made: the file's format, the cameras used, their PRVMs (internal frame)
+    and the result: the one camera's PRVM, or the rig (a `stereodic.rig.Rig`)."""
+
+    format: str
+    cameras: list[CameraModel]
+    prvms: list[PRVM]
+    result: object
+
+
+def import_calibration(paths: list[str | os.PathLike], fmt: str = "auto", *, size=None, units=None,
+                       cameras: list[str] | None = None, model: str = "pinhole", virtual_size=None,
+                       pitch_mm=None, plane_z_mm: float | None = None):
+    """The stereodic file of another program's calibration: a `calib.prvm_file.PRVM` for one camera, or
+    a `stereodic.rig.Rig` built by `stereodic.rig.build_rig` from two cameras' PRVMs exactly as
+    `stereodic rig` builds one (model, virtual_size (w, h), pitch_mm, plane_z_mm as there; plane_z_mm
+    defaults to the cameras' working point). The rays are in the internal frame of
+    `calib.camera_models.prvms_of`; the rig's (or the PRVM's meta) world_from_rig leads back to the file's
+    world frame. `cameras` picks one or two cameras by name or index (default: all, which must be one or
+    two)."""
+    from calib.camera_models import prvms_of
+    from stereodic.rig import build_rig
+    fmt, cams = read_calibration(paths, fmt, size=size, units=units)
+    where = paths[-1] if len(paths) > 1 else paths[0]
+    cams = select(cams, cameras, where)
+    if len(cams) > 2:
+        raise InputError(where, f"holds {len(cams)} cameras ({', '.join(repr(c.name) for c in cams)}): pick one "
+                                f"(its PRVM) or two (a rig) with --camera A[,B]")
+    dataset = f"imported from {os.fspath(where)}"
+    prvms = prvms_of(cams, where=where, dataset=dataset)
+    if len(prvms) == 1:
+        return Imported(fmt, cams, prvms, prvms[0])
+    w, h = virtual_size if virtual_size else (None, None)
+    rig = build_rig(prvms[0], prvms[1], model, w, h, pitch_mm,
+                    prvms[0].reference_z_mm if plane_z_mm is None else plane_z_mm,
+                    (f"{where}#{cams[0].name}", f"{where}#{cams[1].name}"))
+    return Imported(fmt, cams, prvms, rig)

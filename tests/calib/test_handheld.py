@@ -1,0 +1,148 @@
+"""Calibration without a stage (calib.handheld): a display held in unknown poses, against the truth of
+an independent synthetic generator (tests/calib/synth_capture.py) and of the simulated rig."""
+
+import json
+
+import numpy as np
+import pytest
+
+from calib.calibration import calibrate_camera
+from calib.capture import Display, load_capture
+from calib.evaluate import ErrorStats, ray_error_px
+from calib.poses import log_so3
+from calib.prvm_file import load_prvm
+from stereodic.cli import main
+from synth_capture import make_capture
+
+BIG = Display(960, 720, (0.25, 0.25))          # 240 x 180 mm: covers the synthetic camera's field when tilted
+PERIODS = (960, 120, 15)
+
+
+def _rotation(axis, deg):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    a = np.radians(deg)
+    return np.eye(3) + np.sin(a) * k + (1 - np.cos(a)) * k @ k
+
+
+def synthetic_poses(count=5):
+    """Display poses around the synthetic camera (at (60, 45, -150), looking along +z), its centre
+    130-190 mm in front, tilted 15-30 degrees about axes going round the circle."""
+    camera = np.array([60.0, 45.0, -150.0])
+    centre = np.array([BIG.width_px * BIG.pitch_mm[0] / 2, BIG.height_px * BIG.pitch_mm[1] / 2, 0.0])
+    out = []
+    for k in range(count):
+        a = 2 * np.pi * k / count
+        r = _rotation([np.cos(a), np.sin(a), 0.0], 15 + 15 * k / count) @ _rotation([0, 0, 1], 5 * np.sin(3 * k))
+        out.append((r, camera + np.array([3 * np.sin(k), 2 * np.cos(k), 130 + 15 * k]) - r @ centre))
+    return out
+
+
+@pytest.fixture(scope="module")
+def synthetic(tmp_path_factory):
+    root = tmp_path_factory.mktemp("handheld")
+    poses = synthetic_poses()
+    manifest, truth = make_capture(root, periods=PERIODS, display=BIG, poses=poses, noise=0.3,
+                                   flat_levels=(0, 64, 128, 192, 255), gamma=1.8)
+    cal = calibrate_camera(load_capture(root))
+    return root, poses, truth, cal
+
+
+def test_synthetic_capture_has_pose_frames(synthetic):
+    root, poses, _, _ = synthetic
+    cap = load_capture(root)
+    assert cap.posed and cap.positions("cam0") == list(range(len(poses)))
+    assert {f.pose for f in cap.select("cam0", type="flat")} == {0}     # flats at one pose only
+    manifest = json.loads((root / "capture.json").read_text())
+    assert all("pose" in f and "z_mm" not in f for f in manifest["frames"])
+
+
+def test_rays_match_the_truth_in_the_display_frame_at_pose_0(synthetic):
+    """The rays (WCS = the display at pose 0) match the synthetic truth there: RMS below 0.01 px on
+    the pose-0 display plane, and on a plane 60 mm beyond it."""
+    _, _, truth, cal = synthetic
+    for z in (0.0, 60.0):
+        err = ErrorStats.of(ray_error_px(cal.prvm, truth, z))
+        assert err.valid == 1.0 and err.rms < 0.01, (z, err)
+    assert cal.prvm.meta["wcs_definition"].startswith("the display's frame at pose 0")
+
+
+def test_poses_match_the_truth_within_their_uncertainty(synthetic):
+    """Each pose, relative to pose 0, within 5 of its reported sigma of the true one and within 20 um
+    and 0.01 degrees; pose 0 is the identity; no pose is out of family."""
+    _, poses, _, cal = synthetic
+    rep = cal.poses
+    r0, t0 = poses[0]
+    assert np.allclose(rep.rotation[0], np.eye(3)) and np.allclose(rep.translation[0], 0)
+    for k, (r, t) in enumerate(poses):
+        true_r, true_t = r0.T @ r, r0.T @ (t - t0)
+        c = rep.centre_mm[k]
+        q = rep.rotation[k].T @ (c - rep.translation[k])
+        err_um = 1000 * (c - (true_r @ q + true_t))
+        err_deg = np.degrees(log_so3(rep.rotation[k] @ true_r.T))
+        assert np.all(np.abs(err_um) <= 5 * rep.sd_translation_um[k] + 1e-6) and np.abs(err_um).max() < 20
+        assert np.all(np.abs(err_deg) <= 5 * rep.sd_rotation_deg[k] + 1e-9) and np.abs(err_deg).max() < 0.01
+    assert rep.used.all() and not rep.out_of_family.any()
+    meta = cal.prvm.meta["poses"]
+    assert [p["pose"] for p in meta] == list(range(len(poses))) and all(p["used"] for p in meta)
+
+
+def test_calibrate_command_prints_the_poses(synthetic, tmp_path, capsys):
+    root, poses, _, _ = synthetic
+    out = tmp_path / "cam.npz"
+    assert main(["calibrate", str(root), "-o", str(out), "--report", str(tmp_path / "rep")]) == 0
+    text = capsys.readouterr().out
+    assert f"from {len(poses)} display poses" in text and text.count("  pose ") == len(poses)
+    assert load_prvm(out).meta["poses"][1]["used"]
+    assert json.loads((tmp_path / "rep" / "poses.json").read_text())["poses"][0]["pose"] == 0
+
+
+def test_no_refine_poses_is_refused_for_a_hand_held_capture(synthetic, tmp_path, capsys):
+    root = synthetic[0]
+    assert main(["calibrate", str(root), "--no-refine-poses", "-o", str(tmp_path / "c.npz")]) == 2
+    err = capsys.readouterr().err
+    assert "--no-refine-poses" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_simulated_noncentral_hand_held(tmp_path):
+    """The simulated rig (a non-central lens, 6 poses at 300-600 mm tilted up to 35 degrees, 320 x 256):
+    rays within 0.02 px RMS of the truth on the pose-0 display, poses within 4 sigma of the truth."""
+    from scanners.sim.calibration import simulate_calibration
+    from scanners.sim.handheld import HandHeld
+    simulate_calibration(tmp_path, lens="noncentral", width=320, height=256, seed=1,
+                         flat_levels=(0, 64, 128, 192, 255), handheld=HandHeld(poses=6))
+    cal = calibrate_camera(load_capture(tmp_path))
+    truth = load_prvm(tmp_path / "truth.npz")
+    assert ErrorStats.of(ray_error_px(cal.prvm, truth, 0.0)).rms < 0.02
+    rep, rt, tt = cal.poses, truth.extra["display_rotation"], truth.extra["display_translation_mm"]
+    for k in range(6):
+        c = rep.centre_mm[k]
+        q = rep.rotation[k].T @ (c - rep.translation[k])
+        assert np.all(np.abs(1000 * (c - (rt[k] @ q + tt[k]))) <= 4 * rep.sd_translation_um[k] + 1e-6)
+        assert np.all(np.abs(np.degrees(log_so3(rep.rotation[k] @ rt[k].T))) <= 4 * rep.sd_rotation_deg[k] + 1e-9)
+
+
+@pytest.mark.slow
+def test_simulated_display_moved_during_its_fringes_is_left_out(tmp_path):
+    """A display that moved (0.2 mm, 0.1 degree) halfway through pose 3's fringes (640 x 512, 8 poses):
+    pose 3 is out of family and left out, and the rays are as good as without it (RMS < 0.01 px)."""
+    from scanners.sim.calibration import simulate_calibration
+    from scanners.sim.handheld import HandHeld
+    simulate_calibration(tmp_path, lens="brown", width=640, height=512, handheld=HandHeld(poses=8, disturbed=3))
+    cal = calibrate_camera(load_capture(tmp_path))
+    assert list(np.flatnonzero(cal.poses.out_of_family)) == [3] and not cal.poses.used[3]
+    assert any("pose(s) 3 left out" in n for n in cal.notes)
+    truth = load_prvm(tmp_path / "truth.npz")
+    assert ErrorStats.of(ray_error_px(cal.prvm, truth, 0.0)).rms < 0.01
+
+
+def test_reduced_prvm_of_one_pose(synthetic, tmp_path, capsys):
+    """--reduced works on one pose of a hand-held capture (the undistortion map of that display)."""
+    from calib.reduced import load_undistort_map
+    root = synthetic[0]
+    out = tmp_path / "map.npz"
+    assert main(["calibrate", str(root), "--reduced", "--position", "2", "-o", str(out)]) == 0
+    assert "at pose 2" in capsys.readouterr().out and load_undistort_map(out).meta["pose"] == 2
+    assert main(["calibrate", str(root), "--reduced", "--position", "9", "-o", str(out)]) == 2
+    assert "--position" in capsys.readouterr().err

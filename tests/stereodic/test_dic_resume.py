@@ -1,0 +1,88 @@
+"""`stereodic dic` streams its results to a run folder state by state: a run stopped half way and started
+again gives byte-identical files to an uninterrupted one; a run of other settings or inputs is refused."""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import stereodic.dic3d.run as dic_run
+from stereodic.cli import main
+
+OPTS = ["--step", "12", "--plot-every", "2"]
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(dic_sim, tmp_path_factory):
+    out = tmp_path_factory.mktemp("whole") / "out"
+    assert main(["dic", str(dic_sim / "rig.npz"), str(dic_sim), *OPTS, "-o", str(out)]) == 0
+    return out
+
+
+def _interrupt_at(monkeypatch, state: int):
+    real = dic_run.solve_state
+
+    def solve(run, k, *args):
+        if k == state:
+            raise KeyboardInterrupt
+        return real(run, k, *args)
+
+    monkeypatch.setattr(dic_run, "solve_state", solve)
+
+
+def test_a_run_stopped_half_way_resumes_to_the_same_bytes(dic_sim, uninterrupted, tmp_path, monkeypatch, capsys):
+    args = ["dic", str(dic_sim / "rig.npz"), str(dic_sim), *OPTS, "-o", str(tmp_path / "out")]
+    _interrupt_at(monkeypatch, 2)
+    assert main(args) == 130
+    manifest = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert manifest["done"] == 2 and manifest["states"] == 3
+    assert not (tmp_path / "out" / "dic.csv").exists()
+    monkeypatch.undo()
+    capsys.readouterr()
+    assert main(args) == 0
+    assert "resuming a run with 2 of 3 states done" in capsys.readouterr().out
+    whole, resumed = _files(uninterrupted), _files(tmp_path / "out")
+    assert whole.keys() == resumed.keys() and len(whole) > 10
+    assert [k for k in whole if whole[k] != resumed[k]] == []
+    assert main(args) == 0                                      # all done: nothing to do
+    assert "nothing to do" in capsys.readouterr().out
+
+
+def test_a_state_file_written_without_its_carry_is_computed_again(dic_sim, uninterrupted, tmp_path, monkeypatch):
+    """A stop between a state's file and the carry after it (the order the store writes them in)."""
+    args = ["dic", str(dic_sim / "rig.npz"), str(dic_sim), *OPTS, "-o", str(tmp_path / "out")]
+    _interrupt_at(monkeypatch, 1)
+    assert main(args) == 130
+    state1 = tmp_path / "out" / "states" / "state000001.npz"
+    np.savez(state1, junk=np.zeros(3))                          # half a state that never got its carry
+    monkeypatch.undo()
+    assert main(args) == 0
+    assert _files(uninterrupted) == _files(tmp_path / "out")
+
+
+def test_other_settings_or_inputs_are_refused_in_one_line(dic_sim, uninterrupted, tmp_path, capsys):
+    out = tmp_path / "out"
+    shutil.copytree(uninterrupted, out)
+    rig = str(dic_sim / "rig.npz")
+    assert main(["dic", rig, str(dic_sim), *OPTS, "--subset", "25", "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "run.json" in err and "subset" in err and "--restart" in err
+    data = tmp_path / "data"
+    shutil.copytree(dic_sim, data)
+    img = data / "s002" / "cam1.png"
+    raw = bytearray(img.read_bytes())
+    from calib.imageio import read_gray, write_gray
+    a = read_gray(img)
+    a[50, 60] ^= 1                                                # one grey level of one pixel
+    write_gray(img, a)
+    assert main(["dic", str(data / "rig.npz"), str(data), *OPTS, "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "inputs" in err and bytes(raw) != img.read_bytes()
+    assert main(["dic", str(data / "rig.npz"), str(data), *OPTS, "--restart", "-o", str(out)]) == 0
+    assert json.loads((out / "run.json").read_text())["done"] == 3

@@ -1,0 +1,101 @@
+"""The one-way layering of README's architecture, read from the code: every import of every module, those
+inside functions included.
+
+- `calib` imports nothing of ours;
+- `scanners` (drivers, acquisition, the simulated rig) imports `calib` only;
+- `stereodic`'s processing modules import `calib` only (and each other);
+- `stereodic.cli`, `stereodic.bench`, `stereodic.demo` and `stereodic.__main__` (the top layer) may
+  import everything, and nothing below imports them.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("calib", "scanners", "stereodic")
+TOP = ("stereodic.cli", "stereodic.bench", "stereodic.demo", "stereodic.__main__")
+
+
+def _module_name(path: Path, root: Path) -> str:
+    parts = list(path.relative_to(root).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _within(name: str, prefix: str) -> bool:
+    return name == prefix or name.startswith(prefix + ".")
+
+
+def _layer(module: str) -> str:
+    if any(_within(module, t) for t in TOP):
+        return "top"
+    return module.split(".")[0]
+
+
+# which of our packages (or the top layer) each layer may import
+ALLOWED = {"calib": {"calib"}, "scanners": {"calib", "scanners"}, "stereodic": {"calib", "stereodic"},
+           "top": {"calib", "scanners", "stereodic", "top"}}
+
+
+def _imports(tree: ast.AST, module: str, is_package: bool) -> list[tuple[int, str]]:
+    """(line, absolute module name) of every import in the tree, at any depth; relative imports resolved."""
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = module.split(".")
+                base = base[:len(base) - node.level + (1 if is_package else 0)]
+                name = ".".join(base + ([node.module] if node.module else []))
+            else:
+                name = node.module or ""
+            # "from stereodic import cli" imports stereodic.cli
+            out += [(node.lineno, f"{name}.{a.name}") for a in node.names] if name in PACKAGES else \
+                [(node.lineno, name)]
+    return out
+
+
+def layering_violations(root: Path) -> list[str]:
+    """One line per import against the rule: 'module (file:line) imports name: layer may not import it'."""
+    found = []
+    for package in PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            module = _module_name(path, root)
+            layer = _layer(module)
+            tree = ast.parse(path.read_text(), str(path))
+            for line, name in _imports(tree, module, path.name == "__init__.py"):
+                if name.split(".")[0] not in PACKAGES:
+                    continue                                # the standard library and third parties
+                target = _layer(name)
+                if target not in ALLOWED[layer]:
+                    found.append(f"{module} ({path.relative_to(root)}:{line}) imports {name}: "
+                                 f"{layer} may import only {', '.join(sorted(ALLOWED[layer]))}")
+    return found
+
+
+def test_every_import_follows_the_layering():
+    violations = layering_violations(ROOT)
+    assert not violations, "imports against the layering:\n" + "\n".join(violations)
+
+
+def test_a_wrong_import_is_caught_and_named(tmp_path):
+    for package in PACKAGES:
+        (tmp_path / package).mkdir()
+        (tmp_path / package / "__init__.py").write_text("")
+    (tmp_path / "calib" / "fine.py").write_text("import numpy\nfrom calib import errors\n")
+    (tmp_path / "calib" / "upward.py").write_text("def f():\n    from stereodic.rig import build_rig\n")
+    (tmp_path / "scanners" / "sideways.py").write_text("from . import fine\nimport stereodic.triangulate\n")
+    (tmp_path / "stereodic" / "processing.py").write_text("from ..scanners import sim\nfrom . import rig\n")
+    (tmp_path / "stereodic" / "lower.py").write_text("from stereodic import cli\n")
+    (tmp_path / "stereodic" / "cli").mkdir()
+    (tmp_path / "stereodic" / "cli" / "__init__.py").write_text("import scanners.sim\nfrom ..bench import x\n")
+    found = layering_violations(tmp_path)
+    assert len(found) == 4, found
+    assert found[0].startswith("calib.upward (calib/upward.py:2) imports stereodic.rig: calib may import only calib")
+    assert found[1].startswith("scanners.sideways (scanners/sideways.py:2) imports stereodic.triangulate")
+    assert found[2].startswith("stereodic.lower (stereodic/lower.py:1) imports stereodic.cli: stereodic may")
+    assert found[3].startswith("stereodic.processing (stereodic/processing.py:1) imports scanners")
