@@ -29,12 +29,13 @@ from calib.phase import QUALITY_NAMES
 from calib.progress import progress
 from calib.prvm import GLASS_ITERATIONS, Lines, fit_lines, fit_posed_lines, glass_offset
 from calib.prvm_file import PRVM
-from calib.regularise import Adaptive, Smoother, smooth_fields
-# the smallest automatic regularisation window, in display pixels
-WINDOW_DISPLAY_PX = 26
+from calib.regularise import Adaptive, Smoother, deepest_half, finest_scale, smooth_fields
 AUTO = Adaptive(half_window=-1)          # marker: choose the windows from the data (`auto_smoother`)
 # warn when more than this fraction of the pixels could not be calibrated
 MASKED_WARNING = 0.001
+# when the first position's intensity matrix lacks more than this fraction of the pixels, another
+# position's flats fill them in (below it, the few pixels are not worth reading the flats again)
+IM_REFILL = 0.001
 
 
 @dataclass
@@ -84,12 +85,20 @@ def decode_all(capture: Capture, camera: str) -> tuple[list[DecodedPosition], In
     bar = progress(range(n_frames), desc=f"decoding {camera}", total=n_frames)
     it = iter(bar)
     # the display response and each pixel's linearisation are the camera's and display's, not the
-    # position's (and the phase does not depend on a pixel's offset and gain): one IM serves all positions
+    # position's (and the phase does not depend on a pixel's offset and gain): one IM serves all
+    # positions, but for the pixels it lacks (they saw no display at its position: a display that does
+    # not fill the view), those of another position's flats where there are enough of them
     im = intensity_matrix(capture, camera, zs[0])
     if im is None:
         notes.append("no flat frames: the display's response is not compensated (a display gamma "
                      "then leaves a periodic phase error); capture flats at several levels")
-    positions = [decode_position(capture, camera, z, im, progress=lambda: next(it, None)) for z in zs]
+    flat_zs = {f.pose if capture.posed else f.z_mm for f in capture.select(camera, type="flat")}
+    positions = []
+    for z in zs:
+        im_z = im
+        if im is not None and z != zs[0] and z in flat_zs and np.mean(~np.isfinite(im.gain)) > IM_REFILL:
+            im_z = im.filled(intensity_matrix(capture, camera, z))
+        positions.append(decode_position(capture, camera, z, im_z, progress=lambda: next(it, None)))
     return positions, im, notes
 
 
@@ -140,7 +149,7 @@ def _coverage_notes(camera: str, quality: np.ndarray, valid: np.ndarray) -> list
     rows, cols = np.nonzero(masked)
     reasons = ", ".join(f"{name} {np.mean(quality & flag > 0):.1%}" for flag, name in QUALITY_NAMES.items()
                         if (quality & flag).any())
-    edge = masked[0].any() or masked[-1].any() or masked[:, 0].any() or masked[:, -1].any()
+    edge = max(masked[0].mean(), masked[-1].mean(), masked[:, 0].mean(), masked[:, -1].mean()) > 0.1
     hint = (" - does the display cover the camera's whole field of view at every stage position?"
             if edge else "")
     return [f"camera {camera!r}: {masked.mean():.1%} of the pixels are not calibrated (columns "
@@ -148,18 +157,31 @@ def _coverage_notes(camera: str, quality: np.ndarray, valid: np.ndarray) -> list
             f"see the mask with --report or `stereodic show`"]
 
 
-def auto_smoother(position: DecodedPosition) -> Adaptive:
-    """The default regularisation: windows chosen per pixel (`Adaptive`), the smallest spanning
-    `WINDOW_DISPLAY_PX` display pixels (the decoded field has no information finer than the display's
-    pixels, and its noise in camera pixels grows with the camera pixels per display pixel), at least
-    `Adaptive()`'s, at most a third of the image."""
-    h, w = position.valid.shape
-    gv, gu = np.gradient(position.coord[0])
-    scale = np.hypot(gu, gv)[position.valid]                      # display px per camera px
-    cam_per_display = 1.0 / max(float(np.median(scale)), 1e-9) if scale.size else 1.0
-    half = int(round(WINDOW_DISPLAY_PX * cam_per_display / 2))
-    half = min(max(half, Adaptive().half_window), (min(h, w) // 3 - 1) // 2)
-    return Adaptive(half_window=max(half, 2))
+def _clipping_notes(camera: str, positions: list[DecodedPosition]) -> list[str]:
+    solved = sum(p.clipped[0] for p in positions)
+    lost = sum(p.clipped[1] for p in positions)
+    if not solved and not lost:
+        return []
+    return [f"camera {camera!r}: clipped samples (at full scale or 0): {solved} pixel-positions decoded from "
+            f"their unclipped samples, {lost} left out (fewer than 3 samples left in a fringe set); lower the "
+            f"exposure or the fringe's high level if that is many"]
+
+
+def auto_smoother(positions: list[DecodedPosition]) -> Adaptive:
+    """The default regularisation: windows chosen per pixel (`Adaptive`) on a ladder doubling from the
+    smallest window the data need (`calib.regularise.finest_scale`, from the decoded points of the
+    first and last stage positions) while narrower than the image; from one position alone, which
+    cannot tell lens structure from noise, from `calib.regularise.deepest_half`."""
+    first, last = positions[0], positions[-1]
+    h, w = first.valid.shape
+    if len(positions) > 1:
+        half = finest_scale(first.coord, last.coord, first.valid & last.valid)
+    else:
+        half = deepest_half(h, w)
+    levels = 1
+    while 2 * half * 2 ** levels + 1 < min(h, w):
+        levels += 1
+    return Adaptive(half_window=half, levels=levels)
 
 
 def _regularisation_meta(smoother: Smoother | Adaptive | None, mean_window_px: float) -> dict | None:
@@ -196,7 +218,7 @@ def regularise_lines(capture: Capture, camera: str, raw: Lines, positions: list[
     a Bayer camera's colours each on their own, `calib.bayer.smooth_planes`), their (H, W, 2) float32
     1-sigma uncertainty on those planes, and `meta.regularisation`. smoother: as `calibrate_camera`'s
     (None: raw lines, the noise still estimated)."""
-    used = auto_smoother(positions[0]) if smoother is None or smoother == AUTO else smoother
+    used = auto_smoother(positions) if smoother is None or smoother == AUTO else smoother
     regularised = smoother is not None
     if camera in capture.bayer:
         from calib.bayer import smooth_planes
@@ -224,6 +246,7 @@ def ray_meta(capture: Capture, camera: str, positions: list[DecodedPosition], im
             "regularisation": regularisation,
             "cover_glass": None if capture.display.cover_glass is None else vars(capture.display.cover_glass),
             "intensity_matrix": im is not None,
+            "clipped_pixels": [list(p.clipped) for p in positions],
             **({"bayer": capture.bayer[camera]} if camera in capture.bayer else {}),
             "uncertainty_z_mm": [z_a, z_b],
             "notes": notes}
@@ -279,7 +302,7 @@ def calibrate_camera(capture: Capture, camera: str | None = None, smoother: Smoo
     if not raw.valid.any():
         raise InputError(capture.manifest_path, f"camera {camera!r}: no pixel was decoded at 2 or more "
                                                 "stage positions")
-    notes += _coverage_notes(camera, quality, raw.valid)
+    notes += _coverage_notes(camera, quality, raw.valid) + _clipping_notes(camera, positions)
 
     z_a, z_b = zs[0], zs[-1]
     lines, sigma, regularisation = regularise_lines(capture, camera, raw, positions, smoother, z_a, z_b, z_ref)

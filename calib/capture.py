@@ -168,12 +168,26 @@ class Capture:
         return self.root / frame.file
 
     def read(self, frame: Frame) -> np.ndarray:
-        """The frame's image as a 2-D uint8/uint16 array, checked against the camera's size."""
+        """The frame's image as a 2-D uint8/uint16 array, checked against the camera's size and declared
+        bit depth (a value above 2**bit_depth - 1, e.g. 12-bit data written MSB-aligned, is an InputError:
+        its full scale would be misread)."""
         img = read_gray(self.path(frame))
         w, h = self.cameras[frame.camera]
         if img.shape != (h, w):
             raise InputError(self.path(frame), f"image is {img.shape[1]}x{img.shape[0]}, camera "
                                                f"{frame.camera!r} is {w}x{h}")
+        bits = self.bit_depth.get(frame.camera)
+        if bits is not None:
+            stored = 8 * img.dtype.itemsize
+            if bits > stored:
+                raise InputError(self.path(frame), f"camera {frame.camera!r} declares bit_depth {bits}, but the "
+                                                   f"file holds {stored}-bit values")
+            top = int(img.max()) if bits < stored else 0
+            if top > 2 ** bits - 1:
+                raise InputError(self.path(frame), f"values up to {top} exceed camera {frame.camera!r}'s declared "
+                                                   f"bit_depth {bits} (full scale {2 ** bits - 1}): MSB-aligned "
+                                                   f"data? declare bit_depth {stored}, or store the values "
+                                                   f"LSB-aligned")
         return img
 
     def max_value(self, camera: str, image: np.ndarray) -> int:

@@ -21,8 +21,8 @@ import numpy as np
 from calib.capture import Capture, Frame
 from calib.errors import InputError
 from calib.intensity import IntensityMatrix, fit_intensity
-from calib.phase import (DARK, LOW_MODULATION, NO_DATA, SATURATED, UNWRAP, FringeSums, WaveformCorrection,
-                         unwrap_temporal)
+from calib.phase import (DARK, EDGE, LOW_MODULATION, NO_DATA, SATURATED, UNWRAP, FringeSums,
+                         WaveformCorrection, correct_phase, unwrap_temporal)
 
 AXES = ("x", "y")
 # a pixel is dark when its brightest fringe frame stays below this fraction of full scale
@@ -32,6 +32,11 @@ MODULATION_FRACTION = 0.2
 # the largest robust spread (in periods) of the disagreement between successive periods that still
 # makes a wrong fringe order (a disagreement beyond 0.75 period) a 7-sigma event
 MAX_MISMATCH_SIGMA = 0.1
+# the display's edge (`display_edge`): the modulation's profile is measured out to this distance (camera
+# pixels) from the bezel; a shortfall from its plateau beyond EDGE_FALL (or the profile's ripple) marks
+# the edge
+EDGE_PROFILE_PX = 16
+EDGE_FALL = 0.05
 
 
 @dataclass
@@ -43,7 +48,9 @@ class DecodedPosition:
     amplitude B and mean A of the shortest period (decoding units: relative luminance with an intensity
     matrix, camera values without); quality: (H, W) uint8 flag bits of `calib.phase` (0 = good);
     steps: frames per set of the shortest period, per axis; period_px: the shortest period, per axis;
-    mismatch_sigma: per axis, the measured spread of the period-to-period disagreement.
+    mismatch_sigma: per axis, the measured spread of the period-to-period disagreement; clipped: (pixels
+    with clipped samples in some fringe set, each solved from its unclipped samples; pixels flagged
+    SATURATED, too few left in some set).
     """
 
     z_mm: float
@@ -54,6 +61,7 @@ class DecodedPosition:
     steps: tuple[int, int]
     period_px: tuple[float, float]
     mismatch_sigma: dict = field(default_factory=dict)
+    clipped: tuple[int, int] = (0, 0)
     pose: int | None = None
 
     @property
@@ -140,6 +148,8 @@ def decode_position(capture: Capture, camera: str, z_mm: float, im: IntensityMat
     display = capture.display
     extent = {"x": display.width_px, "y": display.height_px}
     coords, mods, means, steps, shortest, mismatch = [], [], [], [], [], {}
+    clip_any = np.zeros((h, w), bool)
+    raw_mods = []
     quality = np.zeros((h, w), np.uint8)
     if im is not None:
         quality[~np.isfinite(im.gain)] |= DARK
@@ -161,22 +171,24 @@ def decode_position(capture: Capture, camera: str, z_mm: float, im: IntensityMat
         phases, last = [], None
         for period in periods:
             frames = sets[axis][period]
-            sums = FringeSums((h, w), squares=len(frames) > 3)
-            full = None
+            sums = None
             for _ in frames:
                 f, raw = next(stream)
                 first_file = first_file or capture.path(f)
-                full = capture.max_value(camera, raw)
+                if sums is None:
+                    full = capture.max_value(camera, raw)
+                    sums = FringeSums((h, w), squares=len(frames) > 3, full_scale=full)
                 sums.add(raw, f.pattern.shift_rad)
                 if progress is not None:
                     progress()
             lit = (sums.raw_max >= DARK_FRACTION * full) & (sums.raw_max < full)
-            res = sums.solve(full, DARK_FRACTION * full, 0.0, None if im is None else (im.offset, im.gain))
+            res = sums.solve(full, DARK_FRACTION * full, 0.0, None if im is None else (im.offset, im.gain),
+                             raw_modulation=period == periods[-1])
             if im is not None:
-                res.phase = _waveform_correction(capture, frames, im)(res.phase)
-            ref = res.modulation[lit & np.isfinite(res.modulation)][::97]   # a sample suffices
-            min_mod = MODULATION_FRACTION * float(np.percentile(ref, 90)) if ref.size else np.inf
-            res.quality[~(res.modulation >= min_mod)] |= LOW_MODULATION
+                correct_phase(res, _waveform_correction(capture, frames, im))
+            res.quality[~(res.modulation >= _modulation_floor(res.modulation, lit))] |= LOW_MODULATION
+            if res.clipped is not None:
+                clip_any |= np.bitwise_or.reduce(res.clipped, axis=0) != 0
             quality |= res.quality
             phases.append(res.phase)
             last = res                    # periods run longest first: the last is the shortest
@@ -200,15 +212,89 @@ def decode_position(capture: Capture, camera: str, z_mm: float, im: IntensityMat
         quality[~un.consistent] |= UNWRAP
         coords.append(un.coord)
         mods.append(last.modulation)
+        raw_mods.append(last.raw_modulation)
         means.append(last.offset)
         steps.append(last.frames)
         shortest.append(periods[-1])
     coord = np.stack(coords)
     quality[~np.isfinite(coord).all(axis=0)] |= NO_DATA
+    # the edge shows in the camera's own modulation: the IM's per-pixel gain, measured on flats seen
+    # through the same mix of display and bezel, would cancel it
+    quality[display_edge(coord, np.stack(raw_mods), quality, (display.width_px, display.height_px))] |= EDGE
+    del raw_mods
     if not (quality == 0).any():
         _raise_unusable(capture, camera, z_mm, quality, first_file)
+    lost = (quality & SATURATED) != 0
+    clipped = (int(np.count_nonzero(clip_any & ~lost)), int(np.count_nonzero(clip_any & lost)))
     return DecodedPosition(np.nan if capture.posed else float(z_mm), coord, np.stack(mods), np.stack(means),
-                           quality, tuple(steps), tuple(shortest), mismatch, z_mm if capture.posed else None)
+                           quality, tuple(steps), tuple(shortest), mismatch, clipped,
+                           z_mm if capture.posed else None)
+
+
+def display_edge(coord: np.ndarray, modulation: np.ndarray, quality: np.ndarray,
+                 extent: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool: the decoded pixels at the display's edge, whose view (its blur and area) takes in
+    part of the bezel, which biases the decoded point towards the display's inside.
+
+    coord: (2, H, W) decoded display (c, r); modulation: (2, H, W) B of each axis in camera values (not
+    normalised per pixel; NaN taken as 0); quality: the flags so far; extent: the display's
+    (width_px, height_px). The bezel is where pixels see no usable fringe (DARK, LOW_MODULATION, NO_DATA,
+    UNWRAP; not SATURATED, which sees the display). The good pixels next to it straddle the edge (a sampled image
+    cannot place an edge finer than a pixel) and are the edge; how much farther the bezel's influence
+    reaches is measured: the median modulation of the good pixels at each whole distance d (camera
+    pixels) from the bezel against its plateau, the median over d = EDGE_PROFILE_PX / 2 ..
+    EDGE_PROFILE_PX, whose lowest bin (the display grid's aliasing ripples the profile) sets the
+    tolerance; the edge extends over the run of distances from the bezel where the modulation falls
+    short of the plateau by more than that or EDGE_FALL and still rises. Only pixels whose decoded point lies
+    within EDGE_PROFILE_PX + 2 camera pixels (in display pixels) of the display's border are
+    considered, so that bezel-like spots inside the display (dust, hot pixels) leave their neighbours
+    alone."""
+    good = quality == 0
+    bezel = ((quality & (DARK | LOW_MODULATION | NO_DATA | UNWRAP)) != 0) & ((quality & SATURATED) == 0)
+    edge = np.zeros(quality.shape, bool)
+    if not bezel.any() or not good.any():
+        return edge
+    din = cv2.distanceTransform((~bezel).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    cand = np.nonzero(good & (din <= EDGE_PROFILE_PX))
+    if not cand[0].size:
+        return edge
+    c, r = coord[0][cand], coord[1][cand]
+    border = np.minimum(np.minimum(c + 0.5, extent[0] - 0.5 - c), np.minimum(r + 0.5, extent[1] - 0.5 - r))
+    sample = good[::4, ::4]
+    scale = np.concatenate([np.hypot(*np.gradient(a[::4, ::4]))[sample] for a in coord]) / 4
+    scale = float(np.percentile(scale[np.isfinite(scale)], 95)) if np.isfinite(scale).any() else 1.0
+    near = border < (EDGE_PROFILE_PX + 2) * scale
+    rows, cols = cand[0][near], cand[1][near]
+    d = np.rint(din[rows, cols]).astype(int)
+    b = np.nan_to_num((modulation[0][rows, cols] + modulation[1][rows, cols]) / 2)
+    medians = np.array([np.median(b[d == k]) if np.count_nonzero(d == k) >= 30 else np.nan
+                        for k in range(EDGE_PROFILE_PX + 1)])
+    half = EDGE_PROFILE_PX // 2
+    ref = medians[half:][np.isfinite(medians[half:])]
+    reach = 1
+    if ref.size >= 3:
+        plateau = float(np.median(ref))
+        low = plateau - max(EDGE_FALL * plateau, plateau - float(ref.min()))
+        # the run of short bins from the bezel, while the modulation still rises (the edge's shortfall
+        # shrinks with the distance; the ripple's comes and goes)
+        while reach + 1 < half and medians[reach + 1] < low and medians[reach + 1] > medians[reach]:
+            reach += 1
+    hit = d <= reach
+    edge[rows[hit], cols[hit]] = True
+    return edge
+
+
+def _modulation_floor(modulation: np.ndarray, lit: np.ndarray) -> float:
+    """The least modulation of a usable pixel: MODULATION_FRACTION of the well-lit pixels' (the 90th
+    percentile of those lit, unsaturated and with a finite modulation, taken again among those above a
+    fifth of the first estimate, so that pixels seeing the bezel or room light do not lower it however
+    many they are). A sample of the pixels suffices."""
+    ref = modulation[lit & np.isfinite(modulation)][::97]
+    if not ref.size:
+        return np.inf
+    top = float(np.percentile(ref, 90))
+    ref = ref[ref > 0.2 * top]
+    return MODULATION_FRACTION * float(np.percentile(ref, 90))
 
 
 def _raise_unusable(capture: Capture, camera: str, z_mm: float, quality: np.ndarray, where) -> None:

@@ -90,6 +90,14 @@ def volume_error_px(estimate: PRVM, truth: PRVM, planes: np.ndarray | None = Non
     return np.sqrt(sq / len(planes))
 
 
+def positions_seen(truth: PRVM, width_px: int, height_px: int) -> np.ndarray:
+    """(H, W) int: at how many stage positions of a simulated truth each pixel centre's true ray met the
+    pixel area of a display of width_px x height_px pixels (its `display_cr` within -0.5 .. size - 0.5)."""
+    cr = truth.extra["display_cr"]
+    inside = (cr[..., 0] >= -0.5) & (cr[..., 0] <= width_px - 0.5) & (cr[..., 1] >= -0.5) & (cr[..., 1] <= height_px - 0.5)
+    return inside.sum(axis=0)
+
+
 @dataclass
 class ErrorStats:
     """RMS, 99th percentile and maximum (pixels) over the valid pixels, and the valid fraction."""

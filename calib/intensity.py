@@ -43,6 +43,13 @@ class IntensityMatrix:
         phi = 2 * np.pi * np.arange(samples) / samples
         return self.response(low + (high - low) / 2 * (1 + np.cos(phi)))
 
+    def filled(self, other: "IntensityMatrix") -> "IntensityMatrix":
+        """This IM with the pixels it lacks (gain NaN: they saw no display) taken from `other` (e.g. the
+        flats of another stage position, where they do); the response stays this one's."""
+        missing = ~np.isfinite(self.gain)
+        return IntensityMatrix(np.where(missing, other.offset, self.offset),
+                               np.where(missing, other.gain, self.gain), self.response)
+
     def to_arrays(self, prefix: str = "im_") -> dict[str, np.ndarray]:
         """Arrays for a PRVM file's extra keys."""
         return {f"{prefix}offset": self.offset.astype(np.float32), f"{prefix}gain": self.gain.astype(np.float32),

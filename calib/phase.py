@@ -7,6 +7,14 @@ never held in memory and repeated frames (tip 3.3, averaging) simply add rows. F
 theta = atan2(sum I sin delta, sum I cos delta) (formula (4) for N = 3); other known shifts are solved
 exactly. The phase noise is sigma_theta = sqrt(2/N) * sigma_I / B.
 
+Clipped samples: a frame value at the sensor's full scale (or at 0) says only that the light was at
+least (or at most) that much, so it carries no phase. Given the full scale, `FringeSums` records per
+pixel which frames were clipped (a bit mask, no more arrays in the frame loop) and `solve` removes
+them from that pixel's normal equations and sums: the pixel is solved exactly from its unclipped
+samples (known shifts, unknown offset and amplitude) where at least three remain that determine the
+phase, and flagged SATURATED otherwise. The display-response correction depends on the shifts used,
+so such pixels get the correction of their own subset (`correct_phase`).
+
 `decode_frames` decodes a set whose frames are all in memory in one pass (the sums stay per row, in
 cache), the waveform correction included.
 
@@ -26,16 +34,19 @@ import numba
 import numpy as np
 
 # quality flags (bits of the per-pixel `quality` array; 0 = good)
-DARK, SATURATED, LOW_MODULATION, UNWRAP, NO_DATA = 1, 2, 4, 8, 16
+DARK, SATURATED, LOW_MODULATION, UNWRAP, NO_DATA, EDGE = 1, 2, 4, 8, 16, 32
 QUALITY_NAMES = {DARK: "too dark", SATURATED: "saturated", LOW_MODULATION: "low modulation",
-                 UNWRAP: "unwrapping inconsistent", NO_DATA: "not decoded"}
+                 UNWRAP: "unwrapping inconsistent", NO_DATA: "not decoded", EDGE: "display edge"}
 
 
 @dataclass
 class WrappedPhase:
     """One decoded fringe set. phase: wrapped, radians in (-pi, pi] (float32, H x W); offset: A and
     modulation: B, in the units of the frames given (float32); noise: per-pixel sigma_I estimated from the
-    fit residual (float32; NaN when the set has no redundancy, i.e. 3 frames); quality: flag bits."""
+    fit residual (float32; NaN when the pixel's fit has no redundancy, e.g. 3 frames); quality: flag
+    bits; clipped: (K, H, W) uint64 per-pixel bit masks of the frames left out as clipped (bit j of
+    word k: frame 64 k + j), or None where clipping was not tracked; raw_modulation: B in the raw
+    frames' units, before any linearisation (float32; None unless asked for)."""
 
     phase: np.ndarray
     offset: np.ndarray
@@ -43,6 +54,8 @@ class WrappedPhase:
     noise: np.ndarray
     quality: np.ndarray
     frames: int
+    clipped: np.ndarray | None = None
+    raw_modulation: np.ndarray | None = None
 
 
 class FringeSums:
@@ -55,58 +68,93 @@ class FringeSums:
     the same result (the least-squares fit is linear in the frames) without reading two more arrays
     per frame. squares=False leaves out the sum of I^2 (25 % less memory traffic per frame) when the
     set will have 3 frames, whose fit has no redundancy to estimate the noise from.
+    full_scale: the raw value at which the sensor clips; given, each pixel's clipped samples (raw at
+    full_scale or at 0) are recorded and left out of its fit (module docstring; `image` must then be
+    the raw frame itself); None, a pixel reaching `solve`'s full_scale in any frame is SATURATED.
     """
 
-    def __init__(self, shape: tuple[int, int], squares: bool = True):
+    def __init__(self, shape: tuple[int, int], squares: bool = True, full_scale: float | None = None):
         self.shape = tuple(shape)
         # I, I cos d, I sin d and, for the noise estimate (N > 3 frames), I^2
         self.sums = np.zeros((4 if squares else 3,) + self.shape, np.float32)
         self.normal = np.zeros((3, 3))
         self.raw_max: np.ndarray | None = None        # in the raw frames' dtype
         self.frames = 0
+        self.full_scale = full_scale
+        self.shifts: list[float] = []
+        # per pixel, bit masks of the clipped frames and of those clipped at full scale (64 frames a word;
+        # zero pages until a pixel clips)
+        self.clip = np.zeros((0,) + self.shape, np.uint64)
+        self.high = np.zeros((0,) + self.shape, np.uint64)
 
     def add(self, image: np.ndarray, shift_rad: float, raw: np.ndarray | None = None) -> None:
         img = np.asarray(image)
         if img.dtype.kind not in "fu":
             img = img.astype(np.float32)
+        if self.full_scale is not None and raw is not None and raw is not image:
+            raise ValueError("clipped samples are tracked in the raw frames: add them as `image`")
         raw = img if raw is None else np.asarray(raw)
         if img.shape != self.shape or raw.shape != self.shape:
             raise ValueError(f"frame of shape {img.shape} added to fringe sums of shape {self.shape}")
         if self.raw_max is None:
             self.raw_max = np.zeros(self.shape, raw.dtype)
+        word, bit = divmod(self.frames, 64)
+        if self.full_scale is not None and word == len(self.clip):
+            self.clip = np.concatenate([self.clip, np.zeros((1,) + self.shape, np.uint64)])
+            self.high = np.concatenate([self.high, np.zeros((1,) + self.shape, np.uint64)])
         c, s = np.cos(shift_rad), np.sin(shift_rad)
         x = np.array([1.0, c, s])
         self.normal += np.outer(x, x)
+        track = self.full_scale is not None
         _accumulate(_flat(img), _flat(raw).astype(self.raw_max.dtype, copy=False), np.float32(c), np.float32(s),
-                    self.sums.reshape(len(self.sums), -1), self.raw_max.reshape(-1))
+                    self.sums.reshape(len(self.sums), -1), self.raw_max.reshape(-1),
+                    np.float32(self.full_scale if track else np.inf), word, np.uint64(1 << bit),
+                    self.clip.reshape(len(self.clip), -1) if track else _NO_MASK,
+                    self.high.reshape(len(self.high), -1) if track else _NO_MASK)
+        self.shifts.append(float(shift_rad))
         self.frames += 1
 
     def solve(self, full_scale: float, dark_level: float, min_modulation: float,
-              linearise: tuple[np.ndarray, np.ndarray] | None = None) -> WrappedPhase:
+              linearise: tuple[np.ndarray, np.ndarray] | None = None, raw_modulation: bool = False) -> WrappedPhase:
         """The wrapped phase and its quality.
 
-        full_scale: the raw saturation value (a frame reaching it marks the pixel SATURATED);
-        dark_level: raw values whose brightest frame stays below it are DARK; min_modulation: B below it
-        (decoding units) is LOW_MODULATION; linearise: (offset, gain) (H, W) of y = (I - offset) / gain,
-        the decoding domain of offset, modulation and noise (the phase does not depend on it; NaN
-        where the gain is NaN). Raises ValueError if the shifts do not determine the phase.
+        full_scale: the raw saturation value (with clipping tracked, the one given to the constructor;
+        without, a frame reaching it marks the pixel SATURATED); dark_level: raw values whose brightest
+        frame stays below it are DARK; min_modulation: B below it (decoding units) is LOW_MODULATION;
+        linearise: (offset, gain) (H, W) of y = (I - offset) / gain, the decoding domain of offset,
+        modulation and noise (the phase does not depend on it; NaN where the gain is NaN);
+        raw_modulation: also return B in the raw frames' units (defined where the gain is NaN too).
+        Raises ValueError if the shifts do not determine the phase.
         """
         if np.linalg.matrix_rank(self.normal) < 3:
             raise ValueError("the phase shifts of this fringe set do not determine the phase "
                              "(need 3 or more distinct shifts)")
+        track = self.full_scale is not None
+        if track and full_scale != self.full_scale:
+            raise ValueError(f"solve's full scale {full_scale} differs from the tracked {self.full_scale}")
         inv = np.linalg.inv(self.normal).astype(np.float32)
         phase, offset, modulation, noise = (np.empty(self.shape, np.float32) for _ in range(4))
         quality = np.empty(self.shape, np.uint8)
         lin_offset, lin_gain = (_EMPTY, _EMPTY) if linearise is None else \
             (_flat(np.asarray(linearise[0], np.float32)), _flat(np.asarray(linearise[1], np.float32)))
-        dof = self.frames - 3 if len(self.sums) == 4 else 0
-        _solve(self.sums.reshape(len(self.sums), -1), inv, dof, np.float32(full_scale), np.float32(dark_level),
-               np.float32(min_modulation), self.raw_max.reshape(-1).astype(np.float32), lin_offset, lin_gain,
-               *(o.reshape(-1) for o in (phase, offset, modulation, noise, quality)))
-        return WrappedPhase(phase, offset, modulation, noise, quality, self.frames)
+        squares = len(self.sums) == 4
+        dof = self.frames - 3 if squares else 0
+        shifts = np.asarray(self.shifts)
+        raw_mod = np.empty(self.shape, np.float32) if raw_modulation else None
+        _solve(self.sums.reshape(len(self.sums), -1), inv, dof, squares, self.normal, np.cos(shifts),
+               np.sin(shifts), self.clip.reshape(len(self.clip), -1) if track else _NO_MASK,
+               self.high.reshape(len(self.high), -1) if track else _NO_MASK,
+               np.float32(full_scale), np.float32(dark_level), np.float32(min_modulation),
+               self.raw_max.reshape(-1).astype(np.float32), lin_offset, lin_gain,
+               *(o.reshape(-1) for o in (phase, offset, modulation, noise, quality)),
+               _EMPTY if raw_mod is None else raw_mod.reshape(-1))
+        return WrappedPhase(phase, offset, modulation, noise, quality, self.frames, self.clip if track else None,
+                            raw_mod)
 
 
 _EMPTY = np.zeros(0, np.float32)
+_NO_INDEX = np.zeros(0, np.int64)
+_NO_MASK = np.zeros((0, 0), np.uint64)
 
 
 def _flat(a: np.ndarray) -> np.ndarray:
@@ -115,8 +163,9 @@ def _flat(a: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, parallel=True)
-def _accumulate(values, raw, c, s, sums, raw_max):  # pragma: no cover - compiled
+def _accumulate(values, raw, c, s, sums, raw_max, full, word, bit, clip, high):  # pragma: no cover - compiled
     squares = sums.shape[0] == 4
+    track = clip.shape[0] > 0
     for i in numba.prange(values.size):
         y = np.float32(values[i])
         sums[0, i] += y
@@ -126,6 +175,12 @@ def _accumulate(values, raw, c, s, sums, raw_max):  # pragma: no cover - compile
             sums[3, i] += y * y
         if raw[i] > raw_max[i]:
             raw_max[i] = raw[i]
+        if track:
+            if y >= full:
+                clip[word, i] |= bit
+                high[word, i] |= bit
+            elif y <= 0:
+                clip[word, i] |= bit
 
 
 @numba.njit(cache=True, inline="always")
@@ -150,17 +205,11 @@ def _atan2(y, x):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, inline="always")
-def _pixel(s0, s1, s2, s3, inv, dof, lin_offset, lin_gain, raw_max, full, dark, min_mod):  # pragma: no cover
-    """One pixel from its sums (I, I cos d, I sin d, I^2): least-squares (A, b, c) of A + b cos d + c sin d,
-    y = (I - lin_offset) / lin_gain applied to them -> (phase, offset, modulation, noise, quality flags)."""
-    a = inv[0, 0] * s0 + inv[0, 1] * s1 + inv[0, 2] * s2
-    b = inv[1, 0] * s0 + inv[1, 1] * s1 + inv[1, 2] * s2
-    c = inv[2, 0] * s0 + inv[2, 1] * s1 + inv[2, 2] * s2
-    if dof > 0:
-        rss = (s3 - (a * s0 + b * s1 + c * s2)) / (lin_gain * lin_gain)
-        noise = np.sqrt(max(rss, np.float32(0)) / dof)
-    else:
-        noise = np.float32(np.nan)
+def _pixel(a, b, c, noise, lin_offset, lin_gain, raw_max, full, dark, min_mod):  # pragma: no cover
+    """One pixel from its least-squares (A, b, c) of A + b cos d + c sin d and raw noise, with
+    y = (I - lin_offset) / lin_gain applied -> (phase, offset, modulation, noise, quality flags);
+    SATURATED if raw_max reaches `full` (pass inf where clipped samples were left out instead)."""
+    noise = noise / abs(lin_gain)
     a = (a - lin_offset) / lin_gain
     b /= lin_gain
     c /= lin_gain
@@ -175,52 +224,142 @@ def _pixel(s0, s1, s2, s3, inv, dof, lin_offset, lin_gain, raw_max, full, dark, 
     return _atan2(c, b), a, m, noise, q
 
 
+@numba.njit(cache=True, inline="always")
+def _fit(s0, s1, s2, s3, inv, dof):  # pragma: no cover - compiled
+    """Least-squares (A, b, c) from the sums with the inverse normal matrix, and the residual sigma of
+    the raw values (NaN without redundancy, dof = 0)."""
+    a = inv[0, 0] * s0 + inv[0, 1] * s1 + inv[0, 2] * s2
+    b = inv[1, 0] * s0 + inv[1, 1] * s1 + inv[1, 2] * s2
+    c = inv[2, 0] * s0 + inv[2, 1] * s1 + inv[2, 2] * s2
+    if dof > 0:
+        rss = s3 - (a * s0 + b * s1 + c * s2)
+        noise = np.sqrt(max(rss, 0.0) / dof)
+    else:
+        noise = np.nan
+    return a, b, c, noise
+
+
+@numba.njit(cache=True, inline="always")
+def _fit_unclipped(s0, s1, s2, s3, squares, normal, cos, sin, clip, high, i, full):  # pragma: no cover
+    """(A, b, c, raw noise, ok) of pixel i fitted to its unclipped samples only: the clipped frames'
+    rows taken out of the normal matrix and their values (full scale, or 0) out of the sums; ok False
+    when fewer than 3 remain or they do not determine the phase."""
+    n = normal.copy()
+    t0, t1, t2, t3 = np.float64(s0), np.float64(s1), np.float64(s2), np.float64(s3)
+    left = cos.size
+    for k in range(cos.size):
+        word, bit = k // 64, np.uint64(1) << np.uint64(k % 64)
+        if clip[word, i] & bit:
+            x1, x2 = cos[k], sin[k]
+            n[0, 0] -= 1.0
+            n[0, 1] -= x1
+            n[0, 2] -= x2
+            n[1, 1] -= x1 * x1
+            n[1, 2] -= x1 * x2
+            n[2, 2] -= x2 * x2
+            left -= 1
+            if high[word, i] & bit:
+                t0 -= full
+                t1 -= full * x1
+                t2 -= full * x2
+                t3 -= full * full
+    n[1, 0], n[2, 0], n[2, 1] = n[0, 1], n[0, 2], n[1, 2]
+    if left < 3:
+        return np.nan, np.nan, np.nan, np.nan, False
+    # the inverse by cofactors; singular (the remaining shifts do not fix the phase) below 1e-9 of
+    # the matrix's scale
+    c00 = n[1, 1] * n[2, 2] - n[1, 2] * n[2, 1]
+    c01 = n[0, 2] * n[2, 1] - n[0, 1] * n[2, 2]
+    c02 = n[0, 1] * n[1, 2] - n[0, 2] * n[1, 1]
+    det = n[0, 0] * c00 + n[1, 0] * c01 + n[2, 0] * c02
+    if not (det > 1e-9 * left ** 3):
+        return np.nan, np.nan, np.nan, np.nan, False
+    inv = np.empty((3, 3))
+    inv[0, 0], inv[0, 1], inv[0, 2] = c00 / det, c01 / det, c02 / det
+    inv[1, 1] = (n[0, 0] * n[2, 2] - n[0, 2] * n[2, 0]) / det
+    inv[1, 2] = (n[0, 2] * n[1, 0] - n[0, 0] * n[1, 2]) / det
+    inv[2, 2] = (n[0, 0] * n[1, 1] - n[0, 1] * n[1, 0]) / det
+    inv[1, 0], inv[2, 0], inv[2, 1] = inv[0, 1], inv[0, 2], inv[1, 2]
+    a, b, c, noise = _fit(t0, t1, t2, t3, inv, left - 3 if squares else 0)
+    return a, b, c, noise, True
+
+
 @numba.njit(cache=True, parallel=True)
-def _solve(sums, inv, dof, full, dark, min_mod, raw_max, lin_offset, lin_gain, phase, offset, modulation, noise,
-           quality):  # pragma: no cover - compiled
-    """`_pixel` of every pixel of the accumulated sums."""
+def _solve(sums, inv, dof, squares, normal, cos, sin, clip, high, full, dark, min_mod, raw_max, lin_offset,
+           lin_gain, phase, offset, modulation, noise, quality, raw_mod):  # pragma: no cover - compiled
+    """`_pixel` of every pixel of the accumulated sums (`_fit_unclipped` where samples were clipped);
+    raw_mod (if not empty) gets the modulation before the linearisation."""
     linearise = lin_offset.size > 0
+    track = clip.shape[0] > 0
     zero, one = np.float32(0), np.float32(1)
+    inf = np.float32(np.inf)
+    want_raw = raw_mod.size > 0
     for i in numba.prange(offset.size):
-        s3 = sums[3, i] if dof > 0 else zero
+        s3 = sums[3, i] if squares else zero
         o, g = (lin_offset[i], lin_gain[i]) if linearise else (zero, one)
+        clipped = False
+        if track:
+            for word in range(clip.shape[0]):
+                if clip[word, i] != 0:
+                    clipped = True
+        if clipped:
+            a, b, c, sd, ok = _fit_unclipped(sums[0, i], sums[1, i], sums[2, i], s3, squares, normal, cos, sin,
+                                             clip, high, i, full)
+        else:
+            a, b, c, sd = _fit(sums[0, i], sums[1, i], sums[2, i], s3, inv, dof)
+            ok = True
+        if want_raw:
+            raw_mod[i] = np.sqrt(b * b + c * c)
         phase[i], offset[i], modulation[i], noise[i], quality[i] = _pixel(
-            sums[0, i], sums[1, i], sums[2, i], s3, inv, dof, o, g, raw_max[i], full, dark, min_mod)
+            a, b, c, sd, o, g, raw_max[i], inf if track else full, dark, min_mod)
+        if not ok:
+            quality[i] |= SATURATED
 
 
 def decode_frames(frames: list[np.ndarray], shifts, full_scale: float, dark_level: float, min_modulation: float,
                   correction: WaveformCorrection | None = None) -> WrappedPhase:
     """One fringe set whose frames are in memory, in one pass: `FringeSums` of `frames` (N of (H, W), the
-    camera's raw values) at `shifts` (radians), solved (full_scale, dark_level, min_modulation as in
-    `FringeSums.solve`; the noise for N > 3), then `correction` (the display's `WaveformCorrection`, or
-    None) applied to the phase. ValueError if the shifts do not determine the phase."""
+    camera's raw values, clipped samples left out) at `shifts` (radians), solved (full_scale,
+    dark_level, min_modulation as in `FringeSums.solve`; the noise where a pixel has more than 3
+    samples), then `correction` (the display's `WaveformCorrection`, or None) applied to the phase
+    (`correct_phase`). ValueError if the shifts do not determine the phase."""
     shifts = np.asarray(shifts, np.float64)
     x = np.stack([np.ones_like(shifts), np.cos(shifts), np.sin(shifts)], axis=1)
     if np.linalg.matrix_rank(x) < 3:
         raise ValueError("the phase shifts of this fringe set do not determine the phase "
                          "(need 3 or more distinct shifts)")
-    inv = np.linalg.inv(x.T @ x).astype(np.float32)
+    normal = x.T @ x
+    inv = np.linalg.inv(normal).astype(np.float32)
     stack = np.stack(frames)
     shape = stack.shape[1:]
     out = WrappedPhase(*(np.empty(shape, np.float32) for _ in range(4)), np.empty(shape, np.uint8), len(frames))
+    out.clipped = np.zeros(((len(frames) + 63) // 64,) + shape, np.uint64)
+    high = np.zeros_like(out.clipped)
     table, scale = (_EMPTY, np.float32(0)) if correction is None else (correction._table, correction._scale)
-    _decode(stack, x[:, 1].astype(np.float32), x[:, 2].astype(np.float32), inv, len(frames) - 3,
-            np.float32(full_scale), np.float32(dark_level), np.float32(min_modulation), table, scale, out.phase,
-            out.offset, out.modulation, out.noise, out.quality)
+    _decode(stack, x[:, 1].astype(np.float32), x[:, 2].astype(np.float32), inv, len(frames) - 3, normal, x[:, 1],
+            x[:, 2], np.float32(full_scale), np.float32(dark_level), np.float32(min_modulation), table, scale,
+            out.phase, out.offset, out.modulation, out.noise, out.quality, out.clipped, high)
+    if correction is not None:
+        correct_phase(out, correction, unclipped_done=True)
     return out
 
 
 @numba.njit(cache=True, parallel=True)
-def _decode(stack, cos, sin, inv, dof, full, dark, min_mod, table, scale, phase, offset, modulation, noise,
-            quality):  # pragma: no cover - compiled
-    """Per row: the sums of `FringeSums.add` over the N frames, `_pixel`, then `_undistort` (if a table)."""
+def _decode(stack, cos, sin, inv, dof, normal, cos64, sin64, full, dark, min_mod, table, scale, phase, offset,
+            modulation, noise, quality, clip, high):  # pragma: no cover - compiled
+    """Per row: the sums of `FringeSums.add` over the N frames and the clipped frames' masks, `_pixel`
+    (`_fit_unclipped` where samples were clipped), then `_undistort` (if a table; not where clipped:
+    `correct_phase` does those)."""
     n, h, w = stack.shape
     zero, one = np.float32(0), np.float32(1)
+    inf = np.float32(np.inf)
     for r in numba.prange(h):
         s0, s1, s2 = np.zeros(w, np.float32), np.zeros(w, np.float32), np.zeros(w, np.float32)
         s3, hi = np.zeros(w, np.float32), np.zeros(w, np.float32)
+        any_clip = np.zeros(w, np.bool_)
         for k in range(n):
             c, s = cos[k], sin[k]
+            word, bit = k // 64, np.uint64(1) << np.uint64(k % 64)
             for x in range(w):
                 v = np.float32(stack[k, r, x])
                 s0[x] += v
@@ -229,10 +368,58 @@ def _decode(stack, cos, sin, inv, dof, full, dark, min_mod, table, scale, phase,
                 if dof > 0:
                     s3[x] += v * v
                 hi[x] = max(hi[x], v)
+                if v >= full:
+                    clip[word, r, x] |= bit
+                    high[word, r, x] |= bit
+                    any_clip[x] = True
+                elif v <= 0:
+                    clip[word, r, x] |= bit
+                    any_clip[x] = True
+        flat_clip = clip[:, r, :]
+        flat_high = high[:, r, :]
         for x in range(w):
+            if any_clip[x]:
+                a, b, c, sd, ok = _fit_unclipped(s0[x], s1[x], s2[x], s3[x], dof > 0, normal, cos64, sin64,
+                                                 flat_clip, flat_high, x, full)
+            else:
+                a, b, c, sd = _fit(s0[x], s1[x], s2[x], s3[x], inv, dof)
+                ok = True
             ph, offset[r, x], modulation[r, x], noise[r, x], quality[r, x] = _pixel(
-                s0[x], s1[x], s2[x], s3[x], inv, dof, zero, one, hi[x], full, dark, min_mod)
-            phase[r, x] = _undistort(ph, table, scale) if table.size > 0 else ph
+                a, b, c, sd, zero, one, hi[x], inf, dark, min_mod)
+            if not ok:
+                quality[r, x] |= SATURATED
+            phase[r, x] = _undistort(ph, table, scale) if table.size > 0 and not any_clip[x] else ph
+
+
+def correct_phase(wrapped: WrappedPhase, correction: WaveformCorrection, unclipped_done: bool = False) -> None:
+    """Apply the display-response correction to `wrapped.phase` (in place): `correction` where a pixel
+    was fitted to every frame (unless done already: unclipped_done), and where it was fitted without
+    its clipped frames, the correction of the shifts it kept (one per distinct set of clipped frames);
+    a pixel whose kept shifts cannot be corrected is flagged SATURATED."""
+    raw = wrapped.phase
+    out = raw.copy() if unclipped_done else correction(raw)
+    if wrapped.clipped is not None:
+        solved = (np.bitwise_or.reduce(wrapped.clipped, axis=0) != 0) & ((wrapped.quality & SATURATED) == 0)
+        idx = np.flatnonzero(solved)
+        if idx.size:
+            masks = wrapped.clipped.reshape(len(wrapped.clipped), -1)[:, idx].T      # (pixels, words)
+            kinds, which = np.unique(masks, axis=0, return_inverse=True)
+            which = which.ravel()
+            k = np.arange(wrapped.frames)
+            tables = np.empty((len(kinds), correction._table.size), np.float32)
+            usable = np.ones(len(kinds), bool)
+            for j, mask in enumerate(kinds):
+                keep = (mask[k // 64] >> (k % 64).astype(np.uint64)) & np.uint64(1) == 0
+                try:
+                    tables[j] = correction.subset(keep)._table
+                except ValueError:
+                    usable[j] = False
+                    tables[j] = correction._table
+            fixed = np.empty(idx.size, np.float32)
+            _correct(np.ascontiguousarray(raw.reshape(-1)[idx]), tables, which, correction._scale, fixed)
+            out.reshape(-1)[idx] = fixed
+            wrapped.quality.reshape(-1)[idx[~usable[which]]] |= SATURATED
+    wrapped.phase = out
 
 
 class WaveformCorrection:
@@ -248,6 +435,8 @@ class WaveformCorrection:
     """
 
     def __init__(self, waveform: np.ndarray, shifts):
+        self.waveform = np.asarray(waveform, float)
+        self.shifts = np.asarray(shifts, float)
         k = len(waveform)
         phi = 2 * np.pi * np.arange(k) / k
         shifts = np.asarray(shifts, float)
@@ -271,18 +460,25 @@ class WaveformCorrection:
         self._table = np.interp(np.mod(grid - x[0], 2 * np.pi) + x[0], x, y).astype(np.float32)
         self._scale = np.float32(k / (2 * np.pi))
 
+    def subset(self, keep: np.ndarray) -> "WaveformCorrection":
+        """The correction for the same waveform decoded from the frames `keep` (a bool per shift) alone;
+        ValueError if the waveform is too distorted for them."""
+        return WaveformCorrection(self.waveform, self.shifts[np.asarray(keep, bool)])
+
     def __call__(self, phase: np.ndarray) -> np.ndarray:
         """The true phase (radians, (-pi, pi]) of decoded phases (float32)."""
         phase = np.asarray(phase, np.float32)
         out = np.empty_like(phase)
-        _correct(_flat(phase), self._table, self._scale, out.reshape(-1))
+        _correct(_flat(phase), self._table[None], _NO_INDEX, self._scale, out.reshape(-1))
         return out
 
 
 @numba.njit(cache=True, parallel=True)
-def _correct(phase, table, scale, out):  # pragma: no cover - compiled
+def _correct(phase, tables, which, scale, out):  # pragma: no cover - compiled
+    """out = `_undistort` of each phase with the table tables[which[i]] (which empty: tables[0])."""
+    one = which.size == 0
     for i in numba.prange(phase.size):
-        out[i] = _undistort(phase[i], table, scale)
+        out[i] = _undistort(phase[i], tables[0] if one else tables[which[i]], scale)
 
 
 @numba.njit(cache=True, inline="always")

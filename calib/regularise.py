@@ -23,13 +23,18 @@ the fit interpolated between the two neighbouring windows of the ladder, so the 
 A global polynomial (`_base`) is removed first and the local fits smooth the remainder: of degree 3,
 or up to 6 where that models the field to within its noise (a Brown-Conrady lens's r^4 terms; not a
 free-form lens's bumps), so that what is left for the local fits is small and the large windows fit it
-without bias up to the border. Masked
-pixels are filled with the remainder's nearest valid value; windows less than `coverage` valid are not
-used beyond the smallest. At the image border a window becomes one-sided and `edge_span` times longer
-(the off-centre evaluation of a polynomial is noisier), and the larger windows fit a line there
-(`Adaptive.edge_order`), which the base has made enough; the smallest keeps the cubic, for a local
-bump near the border. Window sums come from running sums (numba), so a window costs the same whatever
-its size.
+without bias up to the border. Small holes in the valid pixels are filled with the remainder's nearest
+valid value; windows less than `coverage` valid (among their pixels inside the data) are not used
+beyond the smallest. At the border of the data - the image's, or where a larger invalid area begins,
+such as the band a display that does not fill the view leaves - a window becomes one-sided and
+`edge_span` times longer (the off-centre evaluation of a polynomial is noisier), and the larger windows
+fit a line there (`Adaptive.edge_order`), which the base has made enough; the smallest keeps the cubic,
+for a local bump near the border. Window sums come from running sums (numba), so a window costs the
+same whatever its size.
+
+Where the ladder starts is measured (`finest_scale`): the finest scale of the structure the fields of
+two stage planes share (the lens's), told from the noise and the display's own errors, which differ
+between the planes.
 """
 
 from __future__ import annotations
@@ -48,6 +53,18 @@ BASE_DEGREE = 3
 BASE_DEGREE_MAX = 6
 BASE_SIGNIFICANCE = 20.0
 BASE_RESIDUAL = 1.5
+# holes in the valid pixels up to this distance (pixels) from valid data are filled; larger invalid
+# areas are outside the data, where the windows end (`_inside`)
+FILL_PX = 2.0
+# the smallest window (`finest_scale`): the analysis covers at most SCALE_REGION x SCALE_REGION pixels
+# (the centre of a larger image) cut into blocks of a SCALE_BLOCKS-th of its smaller side; the ladder
+# reaches below a window when more than SCALE_SHARE of the blocks are better served by a smaller one,
+# and it keeps at least SCALE_LEVELS windows (doubling, narrower than the image: Lepski's test has a
+# choice everywhere, also for local features too small for a share of the blocks)
+SCALE_REGION = 1024
+SCALE_BLOCKS = 8
+SCALE_SHARE = 0.2
+SCALE_LEVELS = 3
 
 
 @dataclass(frozen=True)
@@ -70,35 +87,70 @@ class Smoother:
         the fit at pixel i is sum_k coef[i, k] * sum_{lo[i] <= j < hi[i]} ((j - i) / m)^k a[j], and var[i]
         is that fit's noise variance over the raw one's for white noise.
         """
-        m = self.half_window
         i = np.arange(n)
-        ne = min(n, self.edge_span * self.window)
-        lo = np.clip(i - m, 0, None)
-        hi = np.minimum(i + m + 1, n)
-        edge_lo, edge_hi = i < m, i >= n - m
-        lo[edge_lo], hi[edge_lo] = 0, ne
-        lo[edge_hi], hi[edge_hi] = n - ne, n
-        coef = np.zeros((n, self.order + 1))
-        var = np.empty(n)
-        # sums of ((j - i) / m)^p over a window = differences of prefix sums over the offsets j - i
-        offsets = np.arange(-n, n + 1) / m
-        prefix = np.zeros((2 * self.order + 1, 2 * n + 2))
-        for p in range(2 * self.order + 1):
-            np.cumsum(offsets ** p, out=prefix[p, 1:])
-        for deg, rows in ((self.order, ~(edge_lo | edge_hi)), (self.edge_order, edge_lo | edge_hi)):
-            idx = np.flatnonzero(rows)
-            if not len(idx):
-                continue
-            a0, a1 = lo[idx] - idx + n, hi[idx] - idx + n
-            pw = (prefix[:2 * deg + 1, a1] - prefix[:2 * deg + 1, a0]).T        # (rows, 2 deg + 1)
-            a = pw[:, np.add.outer(np.arange(deg + 1), np.arange(deg + 1))]
-            e0 = np.zeros((len(idx), deg + 1, 1))
-            e0[:, 0] = 1.0
-            c = np.linalg.solve(a, e0)[..., 0]               # A^-1 e0: the fit's value at u = 0
-            coef[idx, :deg + 1] = c
-            var[idx] = c[:, 0]                              # e0^T A^-1 e0
+        lo, hi, edge = self.bounds(i, np.zeros(n, np.int64), np.full(n, n, np.int64))
+        coef, var = np.zeros((n, self.order + 1)), np.empty(n)
+        for deg, rows in ((self.order, ~edge), (self.edge_order, edge)):
+            coef[rows], var[rows] = _coefficients(self.half_window, deg, lo[rows] - i[rows], hi[rows] - i[rows],
+                                                  self.order)
         return lo, hi, coef, var
 
+    def bounds(self, i: np.ndarray, start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The windows [lo, hi) of pixels i within their runs [start, end) of an axis (arrays): centred,
+        or, within a half window of a run's end, one-sided and `edge_span` windows long (the whole run
+        if it is shorter); and whether each is such an edge window."""
+        m = self.half_window
+        ne = np.minimum(end - start, self.edge_span * self.window)
+        edge_lo = i - start < m
+        edge_hi = ~edge_lo & (end - 1 - i < m)
+        lo = np.where(edge_lo, start, np.where(edge_hi, end - ne, i - m))
+        hi = np.where(edge_lo, start + ne, np.where(edge_hi, end, i + m + 1))
+        return lo, hi, edge_lo | edge_hi
+
+    def run_tables(self, lengths: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Coefficients (as `axis_weights`'s, in (p - i) / m) of the windows a pixel can have inside a run
+        of valid pixels (`_WindowTables`): interior (order+1,), edge (m, order+1) for the pixel k < m
+        pixels from the lower end of a run at least edge_span windows long (the upper end mirrors it),
+        and for each run shorter than that, of a length in `lengths`, the whole run's fit at each of
+        its pixels: short (sum of lengths, order+1), with start (the row of each length's first
+        pixel) ."""
+        m, ne = self.half_window, self.edge_span * self.window
+        interior = _coefficients(m, self.order, np.array([-m]), np.array([m + 1]), self.order)[0][0]
+        k = np.arange(m)
+        edge = _coefficients(m, self.edge_order, -k, ne - k, self.order)[0]
+        lengths = np.asarray(lengths, np.int64)
+        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
+        k = np.concatenate([np.arange(n) for n in lengths]) if len(lengths) else np.zeros(0, np.int64)
+        run = np.repeat(lengths, lengths)
+        short = np.zeros((len(k), self.order + 1))
+        for n in np.unique(lengths):         # a run too short for the degree: the degree its pixels allow
+            rows = run == n
+            short[rows] = _coefficients(m, min(self.edge_order, max(int(n) // 2 - 1, 0)), -k[rows], n - k[rows],
+                                        self.order)[0]
+        return interior, edge, short, starts
+
+
+def _coefficients(m: int, degree: int, lo_off: np.ndarray, hi_off: np.ndarray, width: int) -> tuple[np.ndarray, ...]:
+    """For windows lo_off <= p - i < hi_off (arrays of N offsets): (coef (N, width+1), var (N,)) of the
+    least-squares polynomial of `degree` in t = (p - i) / m, evaluated at t = 0: its value is
+    sum_k coef_k sum_p t^k a_p, and var = e0^T A^-1 e0 its variance factor (coef beyond the degree 0)."""
+    lo_off, hi_off = np.asarray(lo_off, np.int64), np.asarray(hi_off, np.int64)
+    coef = np.zeros((len(lo_off), width + 1))
+    if not len(lo_off):
+        return coef, np.zeros(0)
+    first, last = int(lo_off.min()), int(hi_off.max())
+    # sums of t^q over a window = differences of prefix sums over the offsets
+    t = np.arange(first, last) / m
+    prefix = np.zeros((2 * degree + 1, last - first + 1))
+    for q in range(2 * degree + 1):
+        np.cumsum(t ** q, out=prefix[q, 1:])
+    pw = (prefix[:, hi_off - first] - prefix[:, lo_off - first]).T          # (N, 2 degree + 1)
+    a = pw[:, np.add.outer(np.arange(degree + 1), np.arange(degree + 1))]
+    e0 = np.zeros((len(lo_off), degree + 1, 1))
+    e0[:, 0] = 1.0
+    c = np.linalg.solve(a, e0)[..., 0]                   # A^-1 e0: the fit's value at t = 0
+    coef[:, :degree + 1] = c
+    return coef, c[:, 0].copy()                          # e0^T A^-1 e0
 
 
 def _axis_weights(ladder: list[Smoother], n: int) -> tuple[np.ndarray, ...]:
@@ -122,19 +174,112 @@ def _axis_weights(ladder: list[Smoother], n: int) -> tuple[np.ndarray, ...]:
     return lo, hi, g, var, float(centre), scale
 
 
+def _runs(inside: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """(start, end) int64 arrays of inside's shape: for each inside pixel, the run of inside pixels along
+    `axis` (0: its column, 1: its row) that holds it, [start, end); 0, 0 outside."""
+    a = inside if axis == 0 else inside.T
+    n = a.shape[0]
+    idx = np.arange(n)[:, None]
+    before = np.zeros_like(a)
+    before[1:] = a[:-1]
+    after = np.zeros_like(a)
+    after[:-1] = a[1:]
+    start = np.maximum.accumulate(np.where(a & ~before, idx, -1), axis=0)
+    end = np.minimum.accumulate(np.where(a & ~after, idx + 1, n + 1)[::-1], axis=0)[::-1]
+    start, end = np.where(a, start, 0), np.where(a, end, 0)
+    return (start, end) if axis == 0 else (np.ascontiguousarray(start.T), np.ascontiguousarray(end.T))
+
+
+class _WindowTables:
+    """The per-pixel windows of a ladder along one axis where runs of valid pixels are shorter than the
+    axis (`Smoother.run_tables` of each level, flattened for the kernels): half (J,), span (J,) the edge
+    window's length, interior (J, K), edge (J, max m, K), short (total, K) with short_index (J, n + 1)
+    the row of a run length's first pixel (-1: absent), binom (K, K)."""
+
+    def __init__(self, ladder: list[Smoother], start: np.ndarray, end: np.ndarray, n: int):
+        nk = max(s.order for s in ladder) + 1
+        self.half = np.array([s.half_window for s in ladder], np.int64)
+        self.span = np.array([s.edge_span * s.window for s in ladder], np.int64)
+        self.interior = np.zeros((len(ladder), nk))
+        self.edge = np.zeros((len(ladder), int(self.half.max()), nk))
+        self.short_index = np.full((len(ladder), n + 1), -1, np.int64)
+        lengths = np.unique((end - start)[end > start])
+        shorts = []
+        offset = 0
+        for j, s in enumerate(ladder):
+            short_lengths = lengths[lengths < self.span[j]]
+            interior, edge, short, starts = s.run_tables(short_lengths)
+            self.interior[j, :interior.size] = interior
+            self.edge[j, :len(edge), :edge.shape[1]] = edge
+            self.short_index[j, short_lengths] = starts + offset
+            shorts.append(np.pad(short, ((0, 0), (0, nk - short.shape[1]))))
+            offset += len(short)
+        self.short = np.concatenate(shorts) if shorts else np.zeros((0, nk))
+        self.binom = np.array([[comb(k, q) for q in range(nk)] for k in range(nk)], np.float64)
+
+    def args(self):
+        return self.half, self.span, self.interior, self.edge, self.short, self.short_index, self.binom
+
+
+_NO_RUNS = np.zeros((0, 0), np.int64)
+_NO_VAR = np.zeros((0, 0, 0), np.float32)
+
+
+@numba.njit(cache=True, inline="always")
+def _run_window(i, s, e, j, half, span, interior, edge, short, short_index, binom, centre, scale, gq):
+    """Pixel i of the run [s, e) at level j: fills gq with its coefficients in ((p - centre) / scale)^q
+    (`_axis_weights`'s expansion) and returns (lo, hi, variance factor)."""
+    m = half[j]
+    k, kh = i - s, e - 1 - i
+    sign = 1.0
+    if k >= m and kh >= m:
+        c = interior[j]
+        lo, hi = i - m, i + m + 1
+    elif e - s >= span[j]:
+        if k < m:
+            c = edge[j, k]
+            lo, hi = s, s + span[j]
+        else:
+            c = edge[j, kh]
+            lo, hi = e - span[j], e
+            sign = -1.0                                 # the lower end's fit, mirrored
+    else:
+        c = short[short_index[j, e - s] + k]
+        lo, hi = s, e
+    d = (centre - i) / m
+    r = scale / m
+    nk = gq.size
+    for q in range(nk):
+        gq[q] = 0.0
+    sk = 1.0
+    for kk in range(nk):
+        ck = c[kk] * sk
+        sk *= sign
+        dq = 1.0
+        for q in range(kk, -1, -1):                     # d^(kk - q), q from kk down to 0
+            gq[q] += ck * binom[kk, q] * r ** q * dq
+            dq *= d
+    return lo, hi, c[0]
+
+
 @numba.njit(cache=True, parallel=True)
-def _fit_axis0(a, lo, hi, g, centre, scale):
+def _fit_axis0(a, lo, hi, g, centre, scale, start, end, half, span, interior, edge, short, short_index, binom,
+               var):
     """(J, N, C) float32 window fits along axis 0 of a (N, C): out[j, i, c] = sum_q g[j, i, q] *
     sum_{lo[j, i] <= p < hi[j, i]} ((p - centre) / scale)^q a[p, c], from float64 running sums over
-    blocks of columns (float32 holds the fits of the small remainder to ~1e-7 of its size)."""
+    blocks of columns (float32 holds the fits of the small remainder to ~1e-7 of its size). Where
+    start/end (N, C) are given, a pixel whose run of valid pixels in its column is not the whole column
+    has its own window inside the run (`_run_window`), its variance factor written to var (J, N, C)."""
     n, ncol = a.shape
     nw, _, nk = g.shape
     out = np.empty((nw, n, ncol), np.float32)
+    runs = start.shape[0] > 0
     block = 32
     for b in numba.prange((ncol + block - 1) // block):
         c0 = b * block
         nc = min(ncol, c0 + block) - c0
         cs = np.zeros((n + 1, nk, block))
+        gq = np.zeros(nk)
         for p in range(n):
             t = (p - centre) / scale
             tq = 1.0
@@ -146,6 +291,18 @@ def _fit_axis0(a, lo, hi, g, centre, scale):
             for i in range(n):
                 l, h = lo[j, i], hi[j, i]
                 for c in range(nc):
+                    if runs and (start[i, c0 + c] != 0 or end[i, c0 + c] != n):
+                        if end[i, c0 + c] == 0:                   # not in any run: outside the data
+                            out[j, i, c0 + c] = 0.0
+                            continue
+                        l2, h2, v2 = _run_window(i, start[i, c0 + c], end[i, c0 + c], j, half, span, interior,
+                                                 edge, short, short_index, binom, centre, scale, gq)
+                        var[j, i, c0 + c] = v2
+                        v = 0.0
+                        for q in range(nk):
+                            v += gq[q] * (cs[h2, q, c] - cs[l2, q, c])
+                        out[j, i, c0 + c] = v
+                        continue
                     v = 0.0
                     for q in range(nk):
                         v += g[j, i, q] * (cs[h, q, c] - cs[l, q, c])
@@ -154,13 +311,17 @@ def _fit_axis0(a, lo, hi, g, centre, scale):
 
 
 @numba.njit(cache=True, parallel=True)
-def _fit_axis1(a, lo, hi, g, centre, scale):
-    """In place, along the last axis of a (J, R, N), window j for a[j]: as `_fit_axis0`."""
+def _fit_axis1(a, lo, hi, g, centre, scale, start, end, half, span, interior, edge, short, short_index, binom,
+               var):
+    """In place, along the last axis of a (J, R, N), window j for a[j]: as `_fit_axis0` (start/end
+    (R, N): the runs along the rows)."""
     nw, nrow, n = a.shape
     nk = g.shape[2]
+    runs = start.shape[0] > 0
     for jr in numba.prange(nw * nrow):
         j, r = jr // nrow, jr % nrow
         cs = np.zeros((n + 1, nk))
+        gq = np.zeros(nk)
         for p in range(n):
             t = (p - centre) / scale
             v = a[j, r, p]
@@ -168,6 +329,18 @@ def _fit_axis1(a, lo, hi, g, centre, scale):
                 cs[p + 1, q] = cs[p, q] + v
                 v *= t
         for i in range(n):
+            if runs and (start[r, i] != 0 or end[r, i] != n):
+                if end[r, i] == 0:
+                    a[j, r, i] = 0.0
+                    continue
+                l2, h2, v2 = _run_window(i, start[r, i], end[r, i], j, half, span, interior, edge, short,
+                                         short_index, binom, centre, scale, gq)
+                var[j, r, i] = v2
+                v = 0.0
+                for q in range(nk):
+                    v += gq[q] * (cs[h2, q] - cs[l2, q])
+                a[j, r, i] = v
+                continue
             l, h = lo[j, i], hi[j, i]
             v = 0.0
             for q in range(nk):
@@ -187,11 +360,11 @@ def _lepski(fits, sigma, var_v, var_u, top, threshold):
         for c in range(w):
             s2 = (threshold * sigma[r, c]) ** 2
             for j in range(1, min(nw, top[r, c] + 1)):
-                vj = var_v[j, r] * var_u[j, c]
+                vj = var_v[j, r, c] * var_u[j, r, c]
                 ok = True
                 for i in range(j):
                     d = fits[j, r, c] - fits[i, r, c]
-                    if d * d > s2 * (var_v[i, r] * var_u[i, c] - vj):
+                    if d * d > s2 * (var_v[i, r, c] * var_u[i, r, c] - vj):
                         ok = False
                         break
                 if not ok:
@@ -218,7 +391,7 @@ def _blend(fits, index, var_v, var_u, base, valid, windows):
             j1 = min(j0 + 1, nw - 1)
             f = x - j0
             value[r, c] = base[r, c] + (1 - f) * fits[j0, r, c] + f * fits[j1, r, c]
-            gain[r, c] = np.sqrt((1 - f) * var_v[j0, r] * var_u[j0, c] + f * var_v[j1, r] * var_u[j1, c])
+            gain[r, c] = np.sqrt((1 - f) * var_v[j0, r, c] * var_u[j0, r, c] + f * var_v[j1, r, c] * var_u[j1, r, c])
             window[r, c] = (1 - f) * windows[j0] + f * windows[j1]
     return value, gain, window
 
@@ -233,7 +406,7 @@ def _residual2(rem, fit, var_v, var_u, valid):
         for c in range(w):
             if valid[r, c]:
                 d = rem[r, c] - fit[r, c]
-                out[r, c] = d * d / max(1.0 - var_v[r] * var_u[c], 1e-3)
+                out[r, c] = d * d / max(1.0 - var_v[r, c] * var_u[r, c], 1e-3)
     return out
 
 
@@ -246,8 +419,9 @@ class Adaptive:
     one-sided fits at the image border (lower is less noisy there; the smallest window keeps `order`,
     so the test can fall back to it where the field bends); threshold: how many standard deviations
     of their difference a window's fit may differ from a smaller one's; coverage: the least fraction of
-    valid pixels in a window for it to be used (beyond the smallest); blend: the half size (in smallest
-    half windows) of the median, erosion and box filters applied to the chosen window index.
+    valid pixels among a window's pixels inside the data (the rest: filled holes) for it to be used
+    (beyond the smallest); blend: the half size (in smallest half windows) of the median, erosion and
+    box filters applied to the chosen window index.
     """
 
     half_window: int = 20
@@ -255,7 +429,7 @@ class Adaptive:
     order: int = 3
     edge_order: int = 1
     threshold: float = 3.0
-    coverage: float = 0.995
+    coverage: float = 0.9
     blend: float = 1.0
 
     @property
@@ -280,7 +454,103 @@ class Regularised:
     window: np.ndarray
 
 
-def _base(field: np.ndarray, valid: np.ndarray) -> np.ndarray:
+def window_halves(h: int, w: int) -> list[int]:
+    """The candidate half windows of an h x w image, largest first: the window spanning a third of the
+    smaller side, halved down to a half window of 2 (a cubic's least)."""
+    halves = [max((min(h, w) // 3 - 1) // 2, 2)]
+    while halves[-1] // 2 >= 2:
+        halves.append(halves[-1] // 2)
+    return halves
+
+
+def deepest_half(h: int, w: int) -> int:
+    """The largest candidate half window (`window_halves`) whose ladder keeps SCALE_LEVELS windows
+    narrower than the image (or the smallest candidate)."""
+    halves = window_halves(h, w)
+    fits = [m for m in halves if 2 * m * 2 ** (SCALE_LEVELS - 1) + 1 < min(h, w)]
+    return fits[0] if fits else halves[-1]
+
+
+def finest_scale(first: np.ndarray, last: np.ndarray, valid: np.ndarray, order: int = 3) -> int:
+    """The smallest window (half size, pixels) the fields need, from the data: what lens structure they
+    have, and how fine, told from the noise and the display's own systematic errors (the pixel grid's
+    staircase and moire) by their behaviour between two stage positions.
+
+    first, last: (2, H, W) the points (x, y, any length unit) the pixels' rays reach on the first and
+    last stage planes (their decoded display points); valid: (H, W) where both are. A ray's error from
+    the lens is common to both planes (in pixels of each plane: the same displacement of the ray),
+    while the noise and the display's systematic errors are not (other display pixels, another blur).
+    With r_a, r_b each plane's remainder after the global polynomial (`_base`) in pixels (over each
+    plane's mean pixel spacing), S = (r_a + r_b) / 2 holds the common structure and D = r_b - r_a none
+    of it. For a window m, E[(S - S_m S)^2] - E[(D - S_m D)^2] / 4 is the common structure it fails to
+    follow (bias^2) and E[(S_m D - S_top D)^2] / 2 the non-lens error it passes (variance, beyond the
+    largest window's): their sum, averaged over blocks, is each block's risk, and each block has its
+    best window. Candidates: `window_halves`; the smallest window is the largest candidate for which at
+    most SCALE_SHARE of the blocks do better with a smaller one, and at most SCALE_DEPTH candidates
+    below the top (ladders starting there keep four windows on a 1280 x 1024 image). Pixels outside `valid` are filled (`smooth_fields`'s windows) and left out."""
+    h, w = valid.shape
+    halves = window_halves(h, w)
+    cap = deepest_half(h, w)
+    r0, c0 = max((h - SCALE_REGION) // 2, 0), max((w - SCALE_REGION) // 2, 0)
+    win = np.s_[r0:r0 + min(h, SCALE_REGION), c0:c0 + min(w, SCALE_REGION)]
+    valid = valid[win]
+    h, w = valid.shape
+    halves = [m for m in halves if 2 * m + 1 < min(h, w)]
+    if valid.mean() < 0.5 or len(halves) < 2:
+        return cap
+    rem = []
+    for plane in (first, last):
+        r = []
+        for f in plane:
+            f = np.asarray(f[win], np.float64)
+            base = _base(f, valid, BASE_DEGREE)          # what finer windows follow, the cubic leaves
+            spacing = np.median(np.hypot(*np.gradient(base[::4, ::4]))[valid[::4, ::4]]) / 4
+            r.append(_masked(f - base, valid) / spacing)
+        rem.append(np.stack(r))
+    common, diff = (rem[0] + rem[1]) / 2, rem[1] - rem[0]
+    fitter = _Fitter([Smoother(m, order, order) for m in halves], valid)
+    fc = [fitter.fits(fitter.filled(f)) for f in common]          # (J, H, W) each
+    fd = [fitter.fits(fitter.filled(f)) for f in diff]
+    block = max(min(h, w) // SCALE_BLOCKS, 1)
+    risk = _block_risk(common, diff, fc[0], fc[1], fd[0], fd[1], valid, block)
+    best = np.asarray(halves)[np.argmin(risk, axis=0)]        # each block's best half window
+    floor = halves[-1]
+    for m in halves:
+        if np.mean(best < m) <= SCALE_SHARE:
+            floor = m
+            break
+    return min(floor, cap)
+
+
+@numba.njit(cache=True, parallel=True)
+def _block_risk(common, diff, fc0, fc1, fd0, fd1, valid, block):
+    """(J, rows, columns) mean over the valid pixels of each block x block block of window j's risk:
+    over the two components k, (common_k - its fit)^2 - (diff_k - its fit)^2 / 4 + (fit of diff_k -
+    window 0's)^2 / 2 (fc, fd: (J, H, W) the windows' fits of each component of common and diff)."""
+    nw = fc0.shape[0]
+    h, w = valid.shape
+    nbr, nbc = h // block, w // block
+    out = np.zeros((nw, nbr, nbc))
+    for b in numba.prange(nbr * nbc):
+        br, bc = b // nbc, b % nbc
+        n = 0
+        acc = np.zeros(nw)
+        for r in range(br * block, (br + 1) * block):
+            for c in range(bc * block, (bc + 1) * block):
+                if not valid[r, c]:
+                    continue
+                n += 1
+                for j in range(nw):
+                    e0, e1 = common[0, r, c] - fc0[j, r, c], common[1, r, c] - fc1[j, r, c]
+                    d0, d1 = diff[0, r, c] - fd0[j, r, c], diff[1, r, c] - fd1[j, r, c]
+                    p0, p1 = fd0[j, r, c] - fd0[0, r, c], fd1[j, r, c] - fd1[0, r, c]
+                    acc[j] += e0 * e0 + e1 * e1 - (d0 * d0 + d1 * d1) / 4 + (p0 * p0 + p1 * p1) / 2
+        for j in range(nw):
+            out[j, br, bc] = acc[j] / max(n, 1)
+    return out
+
+
+def _base(field: np.ndarray, valid: np.ndarray, max_degree: int = BASE_DEGREE_MAX) -> np.ndarray:
     """The global polynomial removed before local smoothing, least-squares over every valid pixel, in
     Legendre polynomials of the normalised pixel coordinates: of total degree `BASE_DEGREE`, or higher
     (up to `BASE_DEGREE_MAX`) where the polynomial is the field's model. A higher degree's terms must
@@ -290,12 +560,12 @@ def _base(field: np.ndarray, valid: np.ndarray) -> np.ndarray:
     And what that degree leaves must be noise, within `BASE_RESIDUAL` times the pixel-to-pixel noise
     variance: where the field has local structure (a free-form lens's bumps), the local fits are its
     model, and a high-degree polynomial chasing the bumps only makes the remainder harder for them.
-    The normal equations separate into products of the (H, W) arrays with small per-axis tables, so no
+    max_degree = BASE_DEGREE: the cubic alone. The normal equations separate into products of the (H, W) arrays with small per-axis tables, so no
     design matrix of one row per pixel is built."""
     h, w = field.shape
-    pu = np.polynomial.legendre.legvander(np.linspace(-1, 1, w), BASE_DEGREE_MAX)    # (W, D)
-    pv = np.polynomial.legendre.legvander(np.linspace(-1, 1, h), BASE_DEGREE_MAX)    # (H, D)
-    d = BASE_DEGREE_MAX + 1
+    pu = np.polynomial.legendre.legvander(np.linspace(-1, 1, w), max_degree)    # (W, D)
+    pv = np.polynomial.legendre.legvander(np.linspace(-1, 1, h), max_degree)    # (H, D)
+    d = max_degree + 1
     pairs_u = (pu[:, :, None] * pu[:, None, :]).reshape(w, d * d)
     pairs_v = (pv[:, :, None] * pv[:, None, :]).reshape(h, d * d)
     # gram[j, l, i, k] = sum over valid pixels of P_i(u) P_k(u) P_j(v) P_l(v); rhs[j, i] of P_i(u) P_j(v) f
@@ -306,7 +576,7 @@ def _base(field: np.ndarray, valid: np.ndarray) -> np.ndarray:
     rhs = pv.T @ f0 @ pu
     total = float(np.dot(f0.ravel(), f0.ravel()))
     fits = []                                                     # (terms, coefficients, residual SS)
-    for degree in range(BASE_DEGREE, BASE_DEGREE_MAX + 1):
+    for degree in range(BASE_DEGREE, max_degree + 1):
         terms = [(i, j) for i in range(degree + 1) for j in range(degree + 1 - i)]
         a = np.array([[gram[j, l, i, k] for (k, l) in terms] for (i, j) in terms])
         b = np.array([rhs[j, i] for (i, j) in terms])
@@ -344,44 +614,115 @@ def _white_noise_variance(field: np.ndarray, valid: np.ndarray, stride: int = 4)
     return float(np.mean(out)) if out else 0.0
 
 
-def _box_median(index: np.ndarray, levels: int, size: int) -> np.ndarray:
-    """Median over a size x size box of an index map with values 0 .. levels-1: the median is >= j
-    where at least half the box is >= j."""
+def _box_median(index: np.ndarray, levels: int, size: int, inside: np.ndarray | None) -> np.ndarray:
+    """Median over a size x size box (of its pixels inside the data, if given) of an index map with
+    values 0 .. levels-1: the median is >= j where at least half the box is >= j."""
     out = np.zeros(index.shape, np.float32)
+    norm = None if inside is None else np.maximum(_box(inside.astype(np.float32), size), 1e-6)
     for j in range(1, levels):
-        share = cv2.blur((index >= j).astype(np.float32), (size, size), borderType=cv2.BORDER_REPLICATE)
-        out += share >= 0.5
+        above = (index >= j) if inside is None else (index >= j) & inside
+        share = _box(above.astype(np.float32), size)
+        out += (share if norm is None else share / norm) >= 0.5
     return out
 
 
-def _smooth_index(index: np.ndarray, levels: int, size: int) -> np.ndarray:
+def _box(a: np.ndarray, size: int) -> np.ndarray:
+    return cv2.blur(a, (size, size), borderType=cv2.BORDER_REPLICATE)
+
+
+def _smooth_index(index: np.ndarray, levels: int, size: int, inside: np.ndarray | None = None) -> np.ndarray:
     """The chosen window index made smooth: median (drops the test's isolated false alarms), eroded
-    (so that it nowhere exceeds the median) and box-blurred over size x size pixels."""
-    med = _box_median(index, levels, size)
+    (so that it nowhere exceeds the median) and box-blurred over size x size pixels; with `inside`,
+    each over the pixels inside the data only (outside them there is no index)."""
+    med = _box_median(index, levels, size, inside)
+    if inside is not None:
+        med[~inside] = levels - 1                       # no pull on the erosion
     ero = cv2.erode(med, np.ones((size, size), np.uint8), borderType=cv2.BORDER_REPLICATE)
-    return cv2.blur(ero, (size, size), borderType=cv2.BORDER_REPLICATE)
+    if inside is None:
+        return _box(ero, size)
+    f = inside.astype(np.float32)
+    return _box(np.where(inside, ero, 0), size) / np.maximum(_box(f, size), 1e-6)
+
+
+def _inside(valid: np.ndarray) -> np.ndarray | None:
+    """The pixels the smoothing windows may span: the valid ones and the holes among them, the invalid
+    pixels within FILL_PX of a valid one (filled with their nearest valid neighbour's remainder, which
+    biases a fit by at most the remainder's change over FILL_PX); None where that is the whole image.
+    Beyond it (the undecoded band past a display that does not fill the view, a large masked area) the
+    windows stop at its border, one-sided as at the image's."""
+    if valid.all():
+        return None
+    dist = cv2.distanceTransform((~valid).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    inside = dist <= FILL_PX
+    return None if inside.all() else inside
+
+
+class _Fitter:
+    """The window fits of a ladder over an image's valid pixels: the per-axis weights, the runs of
+    pixels inside the data (`_inside`) and their window tables, the per-pixel variance factors pv, pu
+    (J, H, W) of the two axes, and the nearest-valid fill of the holes."""
+
+    def __init__(self, ladder: list[Smoother], valid: np.ndarray):
+        h, w = valid.shape
+        nw = len(ladder)
+        self.valid = valid
+        self.axis_v = _axis_weights(ladder, h)
+        self.axis_u = _axis_weights(ladder, w)
+        self.inside = _inside(valid)
+        var_v, var_u = self.axis_v[3], self.axis_u[3]
+        if self.inside is None:
+            self.runs_v = self.runs_u = (_NO_RUNS, _NO_RUNS)
+            self.tab_v = self.tab_u = _WindowTables(ladder, np.zeros(1, np.int64), np.zeros(1, np.int64), 1)
+            self.pv = np.broadcast_to(var_v[:, :, None], (nw, h, w))
+            self.pu = np.broadcast_to(var_u[:, None, :], (nw, h, w))
+            self.wv = self.wu = _NO_VAR                   # nothing per pixel to write
+        else:
+            self.runs_v, self.runs_u = _runs(self.inside, 0), _runs(self.inside, 1)
+            self.tab_v, self.tab_u = _WindowTables(ladder, *self.runs_v, h), _WindowTables(ladder, *self.runs_u, w)
+            self.pv = np.ascontiguousarray(np.broadcast_to(var_v[:, :, None], (nw, h, w)), np.float32)
+            self.pu = np.ascontiguousarray(np.broadcast_to(var_u[:, None, :], (nw, h, w)), np.float32)
+            self.wv, self.wu = self.pv, self.pu
+        self.fill = None
+        if not valid.all():
+            self.fill = ndimage.distance_transform_edt(~valid, return_distances=False, return_indices=True)
+
+    def filled(self, rem: np.ndarray) -> np.ndarray:
+        """A field with its invalid pixels given their nearest valid neighbour's value."""
+        return rem if self.fill is None else rem[self.fill[0], self.fill[1]]
+
+    def fits(self, rem: np.ndarray) -> np.ndarray:
+        """(J, H, W) float32 each window's fit of the (filled) field `rem`."""
+        lo, hi, g, _, centre, scale = self.axis_v
+        fits = _fit_axis0(rem, lo, hi, g, centre, scale, *self.runs_v, *self.tab_v.args(), self.wv)
+        lo, hi, g, _, centre, scale = self.axis_u
+        _fit_axis1(fits, lo, hi, g, centre, scale, *self.runs_u, *self.tab_u.args(), self.wu)
+        return fits
 
 
 def smooth_fields(fields: np.ndarray, valid: np.ndarray, smoother: Smoother | Adaptive) -> Regularised:
     """Smooth (K, H, W) fields over the valid pixels with one window (`Smoother`) or a window chosen
-    per pixel (`Adaptive`)."""
+    per pixel (`Adaptive`). Windows stay inside the data (`_inside`): along each column and row a
+    window ends where the run of pixels inside the data does, one-sided there as at the image border
+    (the two passes of the separable fit each follow their own axis's runs)."""
     k, h, w = fields.shape
     if min(h, w) <= smoother.window:
         raise ValueError(f"image ({w}x{h}) is too small for a {smoother.window}-pixel smoothing window")
     ladder = smoother.ladder() if isinstance(smoother, Adaptive) else [smoother]
     ladder = [s for s in ladder if s.window < min(h, w)]
-    lo_v, hi_v, g_v, var_v, centre_v, scale_v = _axis_weights(ladder, h)
-    lo_u, hi_u, g_u, var_u, centre_u, scale_u = _axis_weights(ladder, w)
+    nw = len(ladder)
+    fitter = _Fitter(ladder, valid)
+    inside, pv, pu = fitter.inside, fitter.pv, fitter.pu
     vf = valid.astype(np.float32)
-    fill_idx = None
-    if not valid.all():
-        fill_idx = ndimage.distance_transform_edt(~valid, return_distances=False, return_indices=True)
     box = ladder[0].window
-    count = cv2.blur(vf, (box, box), borderType=cv2.BORDER_REPLICATE)
-    # the largest window allowed at each pixel: one whose valid fraction reaches `coverage`
+    count = _box(vf, box)
+    # the largest window allowed at each pixel: one whose share of valid pixels among those inside the
+    # data reaches `coverage` (holes are filled, not fitted)
     top = np.zeros((h, w), np.uint8)
     for j, s in enumerate(ladder[1:], 1):
-        top[cv2.blur(vf, (s.window, s.window), borderType=cv2.BORDER_REPLICATE) >= smoother.coverage] = j
+        share = _box(vf, s.window)
+        if inside is not None:
+            share = share / np.maximum(_box(inside.astype(np.float32), s.window), 1e-6)
+        top[share >= smoother.coverage] = j
     windows = np.array([s.window for s in ladder], np.float32)
     out = np.empty((k, h, w))
     noise = np.empty((k, h, w), np.float32)
@@ -389,19 +730,16 @@ def smooth_fields(fields: np.ndarray, valid: np.ndarray, smoother: Smoother | Ad
     window = np.zeros((h, w), np.float32)
     for i in range(k):
         base = _base(fields[i], valid)
-        rem = _masked(fields[i] - base, valid)
-        if fill_idx is not None:
-            rem = rem[fill_idx[0], fill_idx[1]]
-        fits = _fit_axis0(rem, lo_v, hi_v, g_v, centre_v, scale_v)
-        _fit_axis1(fits, lo_u, hi_u, g_u, centre_u, scale_u)
-        e2 = cv2.blur(_residual2(rem, fits[0], var_v[0], var_u[0], valid), (box, box), borderType=cv2.BORDER_REPLICATE)
+        rem = fitter.filled(_masked(fields[i] - base, valid))
+        fits = fitter.fits(rem)
+        e2 = _box(_residual2(rem, fits[0], pv[0], pu[0], valid), box)
         sigma = np.sqrt(np.maximum(e2, 0) / np.maximum(count, 1e-6))
         index = np.zeros((h, w), np.float32)
-        if len(ladder) > 1:
-            index = _lepski(fits, sigma, var_v, var_u, top, smoother.threshold)
+        if nw > 1:
+            index = _lepski(fits, sigma, pv, pu, top, smoother.threshold)
             size = 2 * int(round(smoother.blend * ladder[0].half_window)) + 1
-            index = _smooth_index(index, len(ladder), size)
-        out[i], gain[i], win = _blend(fits, index, var_v, var_u, base, valid, windows)
+            index = _smooth_index(index, nw, size, inside)
+        out[i], gain[i], win = _blend(fits, index, pv, pu, base, valid, windows)
         noise[i] = np.where(valid, sigma, np.nan)
         window += win / k
     return Regularised(out, noise, gain, window)

@@ -109,7 +109,7 @@ def open_writer(out_dir, kind: str, cameras: Sequence[Camera], display: Display 
                 extra: dict | None = None) -> CaptureWriter:
     """A CaptureWriter for these cameras (resuming `out_dir` if it holds this dataset already)."""
     return CaptureWriter(out_dir, kind, {c.name: c.size for c in cameras}, display, extra=extra,
-                         bit_depth={c.name: c.bit_depth for c in cameras})
+                         bit_depth={c.name: c.bit_depth for c in cameras if c.bit_depth is not None})
 
 
 def ask_on_terminal(state: int) -> None:

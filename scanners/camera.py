@@ -1,13 +1,14 @@
 """Cameras for acquisition: one interface (`Camera.grab`), averaging and the saturation check (`capture`).
 
-- `OpenCVCamera` (`--camera cv:INDEX?exposure_ms=..&gain=..`): a `cv2.VideoCapture` device (USB/UVC,
-  V4L2, DirectShow, AVFoundation). Exposure and gain are set where the driver allows and read back; a
-  setting the driver ignores is reported, not silently assumed. Frames buffered before the pattern
-  changed are discarded (`discard`), colour frames become monochrome (the seed: colour as monochrome).
-- `FolderCamera` (`--camera folder:DIR?size=WxH&timeout=S`): photos taken by hand (a phone, a DSLR on a
-  tripod: the seed's reduced PRVM and hand-held cases). Each `grab` takes the next photo (by file name)
-  not used yet, waiting for it to appear (the user is asked to take it). Pixels stay as the sensor
-  stored them (EXIF rotation is not applied: a PRVM belongs to the sensor).
+- `OpenCVCamera` (`--camera cv:INDEX?exposure_ms=..&gain=..&bit_depth=..`): a `cv2.VideoCapture` device
+  (USB/UVC, V4L2, DirectShow, AVFoundation). Exposure and gain are set where the driver allows and read
+  back; a setting the driver ignores is reported, not silently assumed. Frames buffered before the
+  pattern changed are discarded (`discard`), colour frames become monochrome (the seed: colour as
+  monochrome).
+- `FolderCamera` (`--camera folder:DIR?size=WxH&timeout=S&bit_depth=..`): photos taken by hand (a
+  phone, a DSLR on a tripod: the seed's reduced PRVM and hand-held cases). Each `grab` takes the next
+  photo (by file name) not used yet, waiting for it to appear (the user is asked to take it). Pixels
+  stay as the sensor stored them (EXIF rotation is not applied: a PRVM belongs to the sensor).
 - `SimulatedCamera` (`--camera sim[:LENS]?size=WxH&seed=N&pixel_um=P&tilt=TX,TY&roll=R`):
   `scanners.sim.camera.SimCamera` looking at the `SimScreen` on the emulated stage, rendered at the
   stage's TRUE position along its true travel direction (`stage_axis`). `pixel_um` sets the pixel pitch
@@ -16,6 +17,15 @@
   (`scanners.sim.aim`) are those (either given: the other defaults to 0; neither: the lens keeps its
   seeded pose). Its noise is seeded by what it sees (image shown, position, grab number), so a resumed
   acquisition gives the same images.
+
+Bit depth (`Camera.bit_depth`, recorded as `cameras.NAME.bit_depth` in capture.json): the significant
+bits of the pixel values, LSB-aligned. 8-bit frames are 8 bits. A 16-bit frame may hold 10, 12 or 14
+significant bits: an OpenCV backend that reports it (XIMEA, `CAP_PROP_XI_OUTPUT_DATA_BIT_DEPTH`) is
+asked; otherwise the user declares it with `bit_depth=N` in the camera's spec (a 12-bit camera whose
+driver delivers 16-bit words: `cv:0?bit_depth=12`), and without either it is the frame's 16 bits. A
+declared depth is checked against the first frame: values beyond 2^N - 1 (data MSB-aligned, or the
+wrong N) are refused. The full scale 2^N - 1 is then where saturation is counted, here and in the
+calibration.
 """
 
 from __future__ import annotations
@@ -43,11 +53,12 @@ class SaturatedError(HardwareError):
 
 
 class Camera(ABC):
-    """A camera: `name` in the dataset, `size` = (width, height), `bit_depth` of its pixel values."""
+    """A camera: `name` in the dataset, `size` = (width, height), `bit_depth` of its pixel values (None:
+    not known, the frames' own depth)."""
 
     name: str
     size: tuple[int, int]
-    bit_depth: int = 8
+    bit_depth: int | None = 8
     exposure_ms: float | None = None
     source: str | None = None  # where the last frame came from, if it came from a file
 
@@ -70,10 +81,10 @@ def capture(camera: Camera, average: int = 1, max_saturated: float | None = 1e-4
     more than `max_saturated` of the pixels (a fraction) are at full scale (None: no check)."""
     if average < 1:
         raise ValueError("average must be >= 1")
-    full = 2 ** camera.bit_depth - 1
     acc = None
     for _ in range(average):
         img = camera.grab()
+        full = 2 ** camera.bit_depth - 1 if camera.bit_depth else int(np.iinfo(img.dtype).max)
         w, h = camera.size
         if img.shape != (h, w):
             raise HardwareError(f"{camera.name}: frame is {img.shape[1]}x{img.shape[0]}, expected {w}x{h}")
@@ -90,12 +101,33 @@ def capture(camera: Camera, average: int = 1, max_saturated: float | None = 1e-4
 
 # ------------------------------------------------------------------------------------------ OpenCV
 
+def frame_bit_depth(first: np.ndarray, name: str, declared: int | None = None,
+                    reported: int | None = None) -> int:
+    """A camera's bit depth (module docstring) from its first frame, the user's `declared` depth and the
+    driver's `reported` one (ignored unless 1..16): declared, else reported, else the frame's dtype.
+    InputError (naming --camera) if the declared depth does not fit the frames."""
+    stored = 8 * first.dtype.itemsize
+    if declared is not None:
+        if not 1 <= declared <= stored:
+            raise InputError("--camera", f"{name}: bit_depth={declared} does not fit its {stored}-bit frames")
+        top = int(first.max())
+        if top > 2 ** declared - 1:
+            raise InputError("--camera", f"{name}: a frame value of {top} exceeds bit_depth={declared} "
+                                         f"(full scale {2 ** declared - 1}): MSB-aligned data, or another depth")
+        return declared
+    if reported is not None and 1 <= reported <= stored:
+        return int(reported)
+    return stored
+
+
 class OpenCVCamera(Camera):
     """A `cv2.VideoCapture` device. exposure_ms/gain: None leaves the driver's setting (and automatic
-    exposure) alone. discard: frames thrown away before each grab (driver buffers hold stale frames)."""
+    exposure) alone. discard: frames thrown away before each grab (driver buffers hold stale frames).
+    bit_depth: the significant bits the user declares (`frame_bit_depth`)."""
 
     def __init__(self, index: int, name: str, exposure_ms: float | None = None, gain: float | None = None,
-                 discard: int = 2, width: int | None = None, height: int | None = None):
+                 discard: int = 2, width: int | None = None, height: int | None = None,
+                 bit_depth: int | None = None):
         import cv2
         self._cv2 = cv2
         self.name, self.discard = name, discard
@@ -119,7 +151,8 @@ class OpenCVCamera(Camera):
             print(f"stereodic: {name}: the driver ignored the gain setting", file=sys.stderr)
         first = self._read()
         self.size = (first.shape[1], first.shape[0])
-        self.bit_depth = 8 if first.dtype == np.uint8 else 16
+        reported = int(self._cap.get(cv2.CAP_PROP_XI_OUTPUT_DATA_BIT_DEPTH) or 0)
+        self.bit_depth = frame_bit_depth(first, name, bit_depth, reported)
 
     def _read(self) -> np.ndarray:
         ok, frame = self._cap.read()
@@ -145,18 +178,19 @@ class FolderCamera(Camera):
     None to take it from the first photo already there."""
 
     def __init__(self, folder: str | os.PathLike, name: str, size: tuple[int, int] | None = None,
-                 timeout_s: float = 600.0, poll_s: float = 0.2):
+                 timeout_s: float = 600.0, poll_s: float = 0.2, bit_depth: int | None = None):
         self.folder, self.name = Path(folder), name
         self.timeout_s, self.poll_s = timeout_s, poll_s
         self.used: set[str] = set()
-        if size is None:
-            photos = self._photos()
-            if not photos:
-                raise InputError(self.folder, "no photo here yet to take the size from; give it: "
-                                              "folder:DIR?size=WIDTHxHEIGHT")
+        self.bit_depth = bit_depth                    # None until a photo or the user tells
+        photos = self._photos()
+        if size is None and not photos:
+            raise InputError(self.folder, "no photo here yet to take the size from; give it: "
+                                          "folder:DIR?size=WIDTHxHEIGHT")
+        if photos:
             img = read_gray(self.folder / photos[0])
-            size = (img.shape[1], img.shape[0])
-            self.bit_depth = 8 if img.dtype == np.uint8 else 16
+            size = size or (img.shape[1], img.shape[0])
+            self.bit_depth = frame_bit_depth(img, name, bit_depth)
         self.size = size
 
     def _photos(self) -> list[str]:
@@ -277,7 +311,7 @@ def open_camera(spec: str, name: str, screen=None, true_z_mm: Callable[[], float
     kind = parts.scheme or spec.split("?")[0]
     options = dict(parse_qsl(parts.query))
     target = parts.netloc + parts.path if parts.scheme else ""
-    allowed = {"cv": {"exposure_ms", "gain", "size", "discard"}, "folder": {"size", "timeout"},
+    allowed = {"cv": {"exposure_ms", "gain", "size", "discard", "bit_depth"}, "folder": {"size", "timeout", "bit_depth"},
                "sim": {"size", "seed", "noise", "pixel_um", "tilt", "roll"}}
     if kind not in allowed:
         raise InputError("--camera", f"unknown camera {spec!r} (cv:INDEX, folder:DIR or sim[:LENS])")
@@ -285,18 +319,22 @@ def open_camera(spec: str, name: str, screen=None, true_z_mm: Callable[[], float
     if unknown:
         raise InputError("--camera", f"{spec!r}: unknown option(s) {', '.join(sorted(unknown))}")
     size = _size_option(options, spec)
+    bits = _float_option(options, "bit_depth", spec)
+    if bits is not None and (bits != int(bits) or not 1 <= bits <= 16):
+        raise InputError("--camera", f"{spec!r}: bit_depth must be a whole number 1..16")
+    bits = None if bits is None else int(bits)
     if kind == "cv":
         if not target.isdigit():
             raise InputError("--camera", f"{spec!r}: expected cv:INDEX, e.g. cv:0")
         w, h = size or (None, None)
         return OpenCVCamera(int(target), name, _float_option(options, "exposure_ms", spec),
                             _float_option(options, "gain", spec), int(_float_option(options, "discard", spec) or 2),
-                            w, h)
+                            w, h, bits)
     if kind == "folder":
         if not target:
             raise InputError("--camera", f"{spec!r}: expected folder:DIR")
         timeout = _float_option(options, "timeout", spec)
-        return FolderCamera(target, name, size, 600.0 if timeout is None else timeout)
+        return FolderCamera(target, name, size, 600.0 if timeout is None else timeout, bit_depth=bits)
     from scanners.display import SimScreen
     if not isinstance(screen, SimScreen) or true_z_mm is None:
         raise InputError("--camera", "a simulated camera needs --display sim and a stage (emulated:zaber or "
@@ -314,4 +352,5 @@ def open_camera(spec: str, name: str, screen=None, true_z_mm: Callable[[], float
                            pixel_um=pixel_um, aim=aim, stage_axis=stage_axis)
 
 
-__all__ = ["Camera", "SaturatedError", "capture", "OpenCVCamera", "FolderCamera", "SimulatedCamera", "open_camera"]
+__all__ = ["Camera", "SaturatedError", "capture", "frame_bit_depth", "OpenCVCamera", "FolderCamera", "SimulatedCamera",
+           "open_camera"]

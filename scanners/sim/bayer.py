@@ -105,7 +105,7 @@ class BayerCamera(SimCamera):
         for i in range(3):
             v = self._colours[i].view(display, pose)
             seen = dataclasses.replace(display, gamma=self.bayer.gamma[i])
-            radiance = seen.luminance_at(display_image, v.c, v.r, v.window)
+            radiance = seen.luminance_at(display_image, v.c, v.r, v.window, v.sin2)
             full = blur_and_integrate(radiance, self.supersample, v.blur_px, self.sigma_px)
             mask = self.colour == i
             out[mask] = full[mask] * np.float32(self.bayer.gain[i])

@@ -31,7 +31,7 @@ from scanners.sim.bayer import BayerCamera, BayerSensor
 from scanners.sim.camera import SimCamera
 from scanners.sim.display import SimDisplay
 from scanners.sim.handheld import HandHeld, disturbed_pose, handheld_poses, relative_poses, to_pose0_frame
-from scanners.sim.lenses import Lens, make_lens
+from scanners.sim.lenses import DEFAULT_TARGET_MM, Lens, make_lens
 from scanners.sim.pose import DisplayPose
 from scanners.sim.screens import fringe_shifts, screen_image
 from scanners.sim.sensor import Sensor
@@ -42,7 +42,7 @@ CHESS_SQUARES = (9, 7)          # columns, rows: 8 x 6 inner corners
 
 
 def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown", width: int = 1280,
-                         height: int = 1024, seed: int = 0, periods=(60, 360, 1920), steps: int = 3,
+                         height: int = 1024, seed: int = 0, periods=(60, 360, 1920), steps=3,
                          z_positions=(0.0, 50.0), flat_levels=DEFAULT_FLATS, noise: bool = True,
                          bit_depth: int = 8, supersample: int = 3,
                          cover_glass: CoverGlass | tuple[float, float] | None = None, low: int = 20,
@@ -50,35 +50,49 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
                          stage_tilt_deg: float = 0.0, stage_lateral_um: float = 0.0,
                          stage_axis=(0.0, 0.0, 1.0), exposure_fraction: float = 0.87,
                          display: SimDisplay | None = None, lens_options: dict | None = None,
-                         camera: str = "cam0", sensor_seed: int | None = None,
-                         board_lenses: tuple[Lens, ...] = (), handheld: HandHeld | None = None,
+                         camera: str = "cam0", sensor_seed: int | None = None, ambient: float = 0.0,
+                         ambient_variation: float = 0.0, hot_pixels: float = 0.0, overexposure: float = 0.0,
+                         unseen: float = 0.0, board_lenses: tuple[Lens, ...] = (), handheld: HandHeld | None = None,
                          bayer: BayerSensor | None = None) -> Capture:
     """Write a simulated calibration dataset to `out_dir` and return it (as load_capture reads it).
 
     lens: a family of scanners.sim.lenses (with `lens_options` passed to make_lens) or a Lens;
-    periods: fringe periods in display pixels; steps: phase shifts per period (>= 3); z_positions:
-    nominal stage positions (mm, >= 1 of them); flat_levels: grey levels of the flat frames;
-    cover_glass: (thickness_mm, refractive_index) or a CoverGlass; low/high: fringe (and chessboard)
-    levels; chessboard: add chessboards (squares CHESS_SQUARES) at 5 placements per position, inside
-    the field at that position;
+    periods: fringe periods in display pixels; steps: phase shifts per period (>= 3), one number or one
+    per period; z_positions: nominal stage positions (mm, >= 1 of them); flat_levels: grey levels of
+    the flat frames; cover_glass: (thickness_mm, refractive_index) or a CoverGlass; low/high: fringe
+    (and chessboard) levels; chessboard: add chessboards (squares CHESS_SQUARES) at 5 placements per
+    position, inside the field at that position;
     stage_error_um, stage_tilt_deg, stage_lateral_um: RMS stage errors per position: along the axis,
     tilt about each of the display's x and y axes (about the display's centre), and across the axis
     (`scanners.sim.stage.SimStage`); exposure_fraction: brightest fringe pixel / full scale;
-    sensor_seed: seed of the camera's gain map and noise (default `seed`; cameras of one rig share the
-    stage's seed but each has its own sensor); board_lenses: further lenses (a stereo rig's other
-    cameras) that must see every chessboard whole too: one display shows one board to all of them;
-    handheld: hold the display by hand in random poses (`scanners.sim.handheld.HandHeld`) instead of the
-    stage (z_positions and the stage errors unused); bayer: a colour camera with that raw Bayer mosaic
-    (`scanners.sim.bayer.BayerSensor`; its lens gets the sensor's lateral chromatic aberration).
-    Raises InputError naming the argument for bad arguments or a display that does not cover the field.
+    sensor_seed: seed of the camera's gain map, hot pixels and noise (default `seed`; cameras of one
+    rig share the stage's seed but each has its own sensor); board_lenses: further lenses (a stereo
+    rig's other cameras) that must see every chessboard whole too: one display shows one board to all
+    of them; handheld: hold the display by hand in random poses (`scanners.sim.handheld.HandHeld`)
+    instead of the stage (z_positions and the stage errors unused); bayer: a colour camera with that raw
+    Bayer mosaic (`scanners.sim.bayer.BayerSensor`; its lens gets the sensor's lateral chromatic
+    aberration).
+    A real bench's flaws (all off by default; docs/simulator.md): `display` (a SimDisplay: bow, pitch
+    error, viewing-angle falloff and gamma, bezel); ambient, ambient_variation: room light on the
+    sensor (`SimCamera`); hot_pixels: their fraction (`Sensor`); overexposure: the fraction of the
+    pixels seeing the display that exceed full scale at a flat of level `high` (instead of
+    `exposure_fraction`); unseen: the fraction of the image rows beyond the display's lower edge at
+    the last stage position (a lens family on a stage only: the camera and its aim are moved along the
+    display's rows until they are).
+    Raises InputError naming the argument for bad arguments or a camera that does not see the display.
     """
     periods = _check_list("--periods", periods, positive=True)
     z_nominal = _check_list("--positions", z_positions)
     flats = [int(v) for v in _check_list("flat_levels", flat_levels, allow_empty=True)]
     if len(set(z_nominal)) != len(z_nominal):
         raise InputError("--positions", f"stage positions must be distinct, got {z_nominal}")
-    if int(steps) != steps or steps < 3:
-        raise InputError("--steps", f"need a whole number >= 3 of phase steps, got {steps}")
+    steps = _check_list("--steps", [steps] * len(periods) if np.isscalar(steps) else steps)
+    if len(steps) != len(periods) or any(int(n) != n or n < 3 for n in steps):
+        raise InputError("--steps", f"need a whole number >= 3 of phase steps (one, or one per period), "
+                                    f"got {steps}")
+    if not (0 <= overexposure < 1 and 0 <= unseen < 1 and 0 <= hot_pixels < 1):
+        raise InputError("flaws", f"overexposure, unseen and hot_pixels are fractions in [0, 1), got "
+                                  f"{overexposure}, {unseen}, {hot_pixels}")
     if not 0 <= low < high <= 255 or any(not 0 <= v <= 255 for v in flats):
         raise InputError("--low/--high", f"levels must satisfy 0 <= low < high <= 255 and flats within "
                                          f"0..255, got low={low}, high={high}, flats={flats}")
@@ -94,8 +108,13 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
     display = display or SimDisplay()
     if cover_glass is not None:
         display = dataclasses.replace(display, cover_glass=cover_glass)
+    if unseen > 0 and (handheld is not None or not isinstance(lens, str)):
+        raise InputError("--unseen", "needs a lens family on a stage (the camera is moved), not a Lens or a "
+                                     "hand-held display")
     if isinstance(lens, str):
         lens = make_lens(lens, width, height, seed, **(lens_options or {}))
+        if unseen > 0:
+            lens = _shifted_for_unseen(lens, display, seed, unseen, z_nominal[-1], stage_axis, lens_options)
     if handheld is not None and chessboard:
         raise InputError("--chessboard", "chessboards are rendered at stage positions only")
     stage = None
@@ -105,14 +124,16 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
                              stage_lateral_um, pivot_mm=tuple(np.array(display.size_mm) / 2))
         except ValueError as exc:
             raise InputError("stage", str(exc)) from None
-    sensor_options = dict(seed=seed if sensor_seed is None else sensor_seed, cover=handheld is None)
+    sensor = Sensor(bit_depth=bit_depth, hot_pixels=hot_pixels)
+    sensor_options = dict(seed=seed if sensor_seed is None else sensor_seed, ambient=ambient,
+                          ambient_variation=ambient_variation)
     if bayer is not None:
         lens = dataclasses.replace(lens, colour=bayer.colour(lens.width, lens.height))
-        cam = BayerCamera(lens, Sensor(bit_depth=bit_depth), supersample, bayer=bayer, **sensor_options)
+        cam = BayerCamera(lens, sensor, supersample, bayer=bayer, **sensor_options)
     else:
-        cam = SimCamera(lens, Sensor(bit_depth=bit_depth), supersample, **sensor_options)
+        cam = SimCamera(lens, sensor, supersample, **sensor_options)
     poses = list(stage.poses) if stage is not None else handheld_poses(lens, display, handheld, seed)
-    cam.set_exposure(display, high, poses[0], exposure_fraction)
+    cam.set_exposure(display, high, poses[0], exposure_fraction, clipped=overexposure)
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -127,7 +148,7 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
         image = screen_image(f.pattern, display.width_px, display.height_px)
         write_gray(out / f.file, cam.render(image, display, pose, noise))
 
-    truth = _truth(cam, display, poses, seed, noise, camera, stage)
+    truth = _truth(cam, display, poses, seed, noise, camera, stage, ambient, ambient_variation, overexposure)
     simulated = {"lens": lens.family, "seed": seed, "noise": noise, "supersample": cam.supersample,
                  "truth": "truth.npz"}
     if bayer is not None:
@@ -154,6 +175,21 @@ def _check_list(name: str, values, positive: bool = False, allow_empty: bool = F
     return [int(v) if v == int(v) else v for v in vals]
 
 
+def _shifted_for_unseen(lens: Lens, display: SimDisplay, seed: int, unseen: float, z_last: float, axis,
+                        lens_options: dict | None) -> Lens:
+    """The same lens family and seed moved (camera and aim together, along the display's rows) so that
+    the last `unseen` fraction of its image rows lies beyond the display's lower edge at stage position
+    z_last (nominal, an ideal stage), judged along the middle column."""
+    v = np.arange(lens.height, dtype=np.float64)
+    o, d = lens.rays(np.full_like(v, (lens.width - 1) / 2), v)
+    r = display.hit(o, d, DisplayPose.staged(z_last, axis))[1]
+    row = min(int(round((1 - unseen) * lens.height)), lens.height - 1)
+    shift = (display.height_px - 0.5 - r[row]) * display.true_pitch_mm[1] * np.sign(r[-1] - r[0])
+    options = dict(lens_options or {})
+    target = np.asarray(options.get("target_mm", DEFAULT_TARGET_MM), float) + [0.0, shift, 0.0]
+    return make_lens(lens.family, lens.width, lens.height, seed, **{**options, "target_mm": tuple(target)})
+
+
 def _frames(camera, places, flats, periods, steps, low, high, boards) -> list[Frame]:
     """The frames at each place ({"z_mm": z}: flats at every stage position; {"pose": i}: at pose 0)."""
     frames = []
@@ -163,8 +199,8 @@ def _frames(camera, places, flats, periods, steps, low, high, boards) -> list[Fr
             frames.append(Frame(camera, f"{folder}/{camera}_flat_{level}.png", Pattern("flat", {"level": level}),
                                 **where))
         for axis in ("x", "y"):
-            for p in periods:
-                for k, shift in enumerate(fringe_shifts(int(steps))):
+            for p, n in zip(periods, steps):
+                for k, shift in enumerate(fringe_shifts(int(n))):
                     frames.append(Frame(camera, f"{folder}/{camera}_{axis}_P{p:g}_s{k}.png",
                                         Pattern("fringe", {"axis": axis, "period_px": p, "shift_rad": shift,
                                                            "low": low, "high": high}), **where))
@@ -200,6 +236,8 @@ def _chess_placements(cams: list[SimCamera], display: SimDisplay, pose: DisplayP
         a, b = np.percentile(cr.reshape(-1, 2), [2, 98], axis=0)
         lo, hi = np.maximum(lo, a), np.minimum(hi, b)
         outlines.append(np.concatenate([cr[0], cr[1:, -1], cr[-1, -2::-1], cr[-2:0:-1, 0]]).astype(np.float32))
+    lo = np.maximum(lo, 0.0)                            # and on the display, if it does not fill the field
+    hi = np.minimum(hi, [display.width_px - 1.0, display.height_px - 1.0])
     field = np.maximum(hi - lo, 0.0)
     size = int(0.65 * min(field[0] / CHESS_SQUARES[0], field[1] / CHESS_SQUARES[1]))
     while size >= 4:
@@ -233,10 +271,11 @@ def _inside(outline: np.ndarray, board: dict, margin: float) -> bool:
 
 
 def _truth(cam: SimCamera, display: SimDisplay, poses: list[DisplayPose], seed: int, noise: bool, camera: str,
-           stage: SimStage | None):
+           stage: SimStage | None, ambient: float, ambient_variation: float, overexposure: float):
     """The true PRVM (simulator frame) with the rig's other truths: stage positions (with a stage), the
-    display's true poses, gain and vignetting maps, and the display coordinates (c, r) each pixel
-    centre's ray reaches at each true pose."""
+    display's true poses, gain and vignetting maps (and the hot pixels' and ambient light's, if any), and
+    the display coordinates (c, r) each pixel centre's ray reaches at each true pose (outside
+    0..width-1, 0..height-1 by more than half a pixel: the ray misses the display's pixel area)."""
     lens = cam.lens
     o, d = lens.rays(*lens.pixel_grid())
     display_cr = np.stack([np.stack(display.hit(o, d, pose), axis=-1) for pose in poses])
@@ -253,15 +292,20 @@ def _truth(cam: SimCamera, display: SimDisplay, poses: list[DisplayPose], seed: 
         camera=camera, dataset="capture.json", seed=seed, noise=noise,
         working_distance_mm=float(lens.axis_depth(centre)), pixel_footprint_mm=float(footprint), **rig,
         display={"fill_factor": list(display.fill_factor), "stripes": display.stripes,
-                 "black_level": display.black_level, "gamma": display.gamma},
+                 "black_level": display.black_level, "gamma": display.gamma, **display.flaws()},
         sensor={**cam.sensor.__dict__, "exposure_e": cam.exposure_e, "supersample": cam.supersample,
-                "diffraction_sigma_px": cam.sigma_px})
+                "diffraction_sigma_px": cam.sigma_px, "ambient": ambient, "ambient_variation": ambient_variation,
+                "overexposure": overexposure})
     prvm.extra = {"display_rotation": np.array([p.R for p in poses]),
                   "display_translation_mm": np.array([p.t for p in poses]), "gain": cam.gain,
                   "vignetting": cam.vignetting, "display_cr": display_cr.astype(np.float32)}
     if stage is not None:
         prvm.extra = {"stage_nominal_z_mm": np.array(stage.nominal_mm, float),
                       "stage_true_z_mm": np.array(stage.true_mm, float), **prvm.extra}
+    if cam.hot_e is not None:
+        prvm.extra["hot_pixels_e"] = cam.hot_e
+    if cam.ambient is not None:
+        prvm.extra["ambient"] = cam.ambient
     return prvm
 
 

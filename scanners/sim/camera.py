@@ -5,11 +5,14 @@ Rendering a frame (`SimCamera.render`):
     (`Lens.rays`) is traced through the display's cover glass to its pixel plane -> display coordinates
     (computed once per display and display pose and cached: rays do not change between patterns);
  2. the display's luminance is averaged over each sub-sample's footprint on the pixel grid (8-bit value
-    -> gamma -> black level -> lit sub-pixel stripes and black gaps);
+    -> gamma -> black level -> lit sub-pixel stripes and black gaps; the bezel outside the pixel area;
+    an angle-dependent display's falloff and gamma at each sub-sample's viewing angle);
  3. the image-plane radiance is blurred by the thin-lens defocus circle and diffraction, and integrated
-    over each pixel (`defocus`);
- 4. times relative illumination (vignetting), per-pixel gain (PRNU) and exposure -> electrons ->
-    shot noise, full well, read noise, dark offset, quantisation, saturation (`sensor`).
+    over each pixel (`defocus`), so the display's edge mixes display and bezel;
+ 4. plus the room light (`ambient`: a veiling offset, constant or slowly varying across the image),
+    times relative illumination (vignetting), per-pixel gain (PRNU) and exposure -> electrons, plus the
+    hot pixels' dark signal -> shot noise, full well, read noise, dark offset, quantisation,
+    saturation (`sensor`).
 """
 
 from __future__ import annotations
@@ -35,7 +38,9 @@ class View:
     c, r: (H*S, W*S) float32 display coordinates of the sub-samples (row-major sub-pixel grid);
     window: (wc, wr) a sub-sample's footprint in display pixels; blur_px: (H, W) defocus blur-circle
     diameters (pixels); display_cr: (H, W, 2) float64 mean display coordinates (c, r) of each pixel's
-    sub-samples; points_mm: (H, W, 3) the WCS points on the pixel plane at those coordinates.
+    sub-samples; points_mm: (H, W, 3) the WCS points on the pixel surface at those coordinates;
+    sin2: (H*S, W*S) float32 sin^2 of each sub-sample's viewing angle (None unless the display is
+    angle-dependent); seen: (H, W) bool, the pixels whose sub-samples' mean lies on the pixel area.
     """
 
     c: np.ndarray
@@ -44,32 +49,46 @@ class View:
     blur_px: np.ndarray
     display_cr: np.ndarray
     points_mm: np.ndarray
+    sin2: np.ndarray | None
+    seen: np.ndarray
 
 
 class SimCamera:
     """A camera: `lens` (true rays) + `sensor`, supersampling S x S per pixel.
 
     exposure_e: expected photo-electrons of a pixel with unit gain and unit relative illumination
-    looking at unit mean display luminance (see `set_exposure`). seed draws the PRNU gain map and the
-    noise. diffraction: include the Airy blur (wavelength_mm). cover: require the display to cover the
-    whole field at every pose (a hand-held display need not: the pixels beside it see black).
+    looking at unit mean display luminance (see `set_exposure`). seed draws the PRNU gain map, the hot
+    pixels, the ambient light's gradient and the noise. diffraction: include the Airy blur
+    (wavelength_mm). ambient: room light reaching the sensor through the lens (a veiling offset, in the
+    display's relative luminance: 0.02 = 2 % of a white display), varying linearly across the image by
+    +-ambient_variation (a fraction) along a seeded direction.
     """
 
     def __init__(self, lens: Lens, sensor: Sensor | None = None, supersample: int = 3,
                  exposure_e: float = 10_000.0, seed: int = 0, diffraction: bool = True,
-                 wavelength_mm: float = 550e-6, cover: bool = True):
+                 wavelength_mm: float = 550e-6, ambient: float = 0.0, ambient_variation: float = 0.0):
         if int(supersample) != supersample or not 1 <= supersample <= 16:
             raise InputError("--supersample", f"must be a whole number 1..16, got {supersample}")
+        if not (ambient >= 0 and 0 <= ambient_variation <= 1):
+            raise InputError("--ambient", f"needs ambient >= 0 and a variation in 0..1, got {ambient}, "
+                                          f"{ambient_variation}")
         self.lens = lens
         self.sensor = sensor or Sensor()
         self.supersample = int(supersample)
-        self.cover = cover
         self.exposure_e = float(exposure_e)
         self.sigma_px = lens.diffraction_sigma_px(wavelength_mm) if diffraction else 0.0
         self.gain = (1.0 + self.sensor.prnu * np.random.default_rng([seed, 1]).standard_normal(
             (lens.height, lens.width))).astype(np.float32)
         self.rng = np.random.default_rng([seed, 2])
         self.vignetting = lens.relative_illumination(*lens.pixel_grid()).astype(np.float32)
+        self.hot_e = self.sensor.hot_signal_e(self.shape, np.random.default_rng([seed, 3]))
+        self.ambient = None
+        if ambient > 0:
+            angle = np.random.default_rng([seed, 4]).uniform(0, 2 * np.pi)
+            u, v = lens.pixel_grid()
+            ramp = ((u / max(lens.width - 1, 1) - 0.5) * np.cos(angle) + (v / max(lens.height - 1, 1) - 0.5)
+                    * np.sin(angle)) * 2 / (abs(np.cos(angle)) + abs(np.sin(angle)))       # -1 .. 1
+            self.ambient = (ambient * (1 + ambient_variation * ramp)).astype(np.float32)
         self._views: dict[tuple, View] = {}
 
     @property
@@ -77,8 +96,9 @@ class SimCamera:
         return self.lens.height, self.lens.width
 
     def view(self, display: SimDisplay, pose: DisplayPose) -> View:
-        """The (cached) View of `display` at its TRUE `pose`; InputError if the display does not cover
-        the whole camera field there or the supersampling is too coarse for its pixel grid."""
+        """The (cached) View of `display` at its TRUE `pose`; InputError if the camera does not see the
+        display there at all or the supersampling is too coarse for its pixel grid. A display that
+        covers only part of the field is rendered as a real bench shows it: the bezel beyond it."""
         key = (display, pose)
         if key not in self._views:
             if len(self._views) >= 2:               # keep memory bounded: ~100 MB per 1.3 MP view
@@ -92,54 +112,77 @@ class SimCamera:
         us = (np.arange(w)[:, None] + sub[None, :]).ravel()
         c = np.empty((h * s, w * s), np.float32)
         r = np.empty((h * s, w * s), np.float32)
+        sin2 = np.empty((h * s, w * s), np.float32) if display.angular else None
         for v0 in range(0, h, ROWS_PER_CHUNK):
             vs = (np.arange(v0, min(h, v0 + ROWS_PER_CHUNK))[:, None] + sub[None, :]).ravel()
             o, d = self.lens.rays(*np.meshgrid(us, vs))
             cc, rr = display.hit(o, d, pose)
             c[v0 * s:v0 * s + len(vs)] = cc
             r[v0 * s:v0 * s + len(vs)] = rr
-        lo_c, hi_c, lo_r, hi_r = c.min(), c.max(), r.min(), r.max()
-        outside = lo_c < -0.5 or lo_r < -0.5 or hi_c > display.width_px - 0.5 or hi_r > display.height_px - 0.5
-        if outside and self.cover:
-            raise InputError("simulated rig", f"the display ({display.width_px}x{display.height_px} px) does "
-                             f"not cover the camera's field at {_where(pose)}: the field "
-                             f"spans columns {lo_c:.0f}..{hi_c:.0f} and rows {lo_r:.0f}..{hi_r:.0f}; move "
-                             f"the camera or the stage positions, or use a longer lens")
+            if sin2 is not None:
+                sin2[v0 * s:v0 * s + len(vs)] = display.sin2_view(d, pose)
+        cm = c.reshape(h, s, w, s).mean(axis=(1, 3), dtype=np.float64)
+        rm = r.reshape(h, s, w, s).mean(axis=(1, 3), dtype=np.float64)
+        seen = (cm >= -0.5) & (cm <= display.width_px - 0.5) & (rm >= -0.5) & (rm <= display.height_px - 0.5)
+        if not seen.any():
+            raise InputError("simulated rig", f"the camera does not see the display "
+                             f"({display.width_px}x{display.height_px} px) at {_where(pose)}: its field spans "
+                             f"columns {c.min():.0f}..{c.max():.0f} and rows {r.min():.0f}..{r.max():.0f}; "
+                             f"move the camera or the stage positions")
         window = (float(np.median(np.abs(np.diff(c, axis=1)))), float(np.median(np.abs(np.diff(r, axis=0)))))
         if max(window) > 1.0:
             need = int(np.ceil(s * max(window)))
             raise InputError("--supersample", f"a sub-sample covers {max(window):.2f} display pixels at "
                                               f"{_where(pose)}; use supersample >= {need}")
-        cm = c.reshape(h, s, w, s).mean(axis=(1, 3), dtype=np.float64)
-        rm = r.reshape(h, s, w, s).mean(axis=(1, 3), dtype=np.float64)
-        pts = pose.to_wcs(np.stack([cm * display.pitch_mm[0], rm * display.pitch_mm[1], np.zeros_like(cm)],
-                                   axis=-1))
+        px, py = display.true_pitch_mm
+        x, y = cm * px, rm * py
+        z = display.bow(x, y)[0] if display.bow_mm else np.zeros_like(cm)
+        pts = pose.to_wcs(np.stack([x, y, z], axis=-1))
         blur = self.lens.blur_diameter_px(*self.lens.pixel_grid(), pts).astype(np.float32)
-        return View(c, r, window, blur, np.stack([cm, rm], axis=-1), pts)
+        return View(c, r, window, blur, np.stack([cm, rm], axis=-1), pts, sin2, seen)
 
     def irradiance(self, display_image: np.ndarray, display: SimDisplay, pose: DisplayPose) -> np.ndarray:
         """(H, W) float32 blurred, pixel-integrated display luminance seen by each pixel (relative
         units: 1 = a fully lit display area at value 255), before vignetting and gain."""
         v = self.view(display, pose)
-        radiance = display.luminance_at(display_image, v.c, v.r, v.window)
+        radiance = display.luminance_at(display_image, v.c, v.r, v.window, v.sin2)
         return blur_and_integrate(radiance, self.supersample, v.blur_px, self.sigma_px)
+
+    def electrons(self, display_image: np.ndarray, display: SimDisplay, pose: DisplayPose) -> np.ndarray:
+        """(H, W) expected photo-electrons (and hot pixels' dark electrons) of each pixel: the display's
+        irradiance plus the ambient light, times vignetting, gain and exposure."""
+        irr = self.irradiance(display_image, display, pose)
+        if self.ambient is not None:
+            irr = irr + self.ambient
+        e = irr * (self.vignetting * self.gain * np.float32(self.exposure_e))
+        return e if self.hot_e is None else e + self.hot_e
 
     def render(self, display_image: np.ndarray, display: SimDisplay, pose: DisplayPose, noise: bool = True,
                rng: np.random.Generator | None = None) -> np.ndarray:
         """The camera image (uint8, or uint16 above 8 bits) of `display` showing `display_image`
         ((height_px, width_px) uint8) at its TRUE `pose`; noise=False gives the expected image, rounded.
         rng: the noise generator for this frame (default: the camera's own stream)."""
-        e = self.irradiance(display_image, display, pose) * (self.vignetting * self.gain
-                                                             * np.float32(self.exposure_e))
+        e = self.electrons(display_image, display, pose)
         return self.sensor.digitise(e, (self.rng if rng is None else rng) if noise else None)
 
-    def set_exposure(self, display: SimDisplay, level: int, pose: DisplayPose, fraction: float = 0.87) -> float:
+    def set_exposure(self, display: SimDisplay, level: int, pose: DisplayPose, fraction: float = 0.87,
+                     clipped: float = 0.0) -> float:
         """Choose exposure_e so that the brightest pixel seeing a flat display at `level` at `pose`
-        reaches `fraction` of full scale (dark offset included); returns it."""
+        reaches `fraction` of full scale (dark offset included); returns it. clipped > 0 over-exposes
+        instead: that fraction of the pixels seeing the display exceeds full scale there (hot pixels
+        aside)."""
         flat = np.full((display.height_px, display.width_px), level, np.uint8)
-        signal = self.irradiance(flat, display, pose) * self.vignetting * self.gain
-        target = (fraction - self.sensor.dark_offset) * self.sensor.full_well_e
-        self.exposure_e = float(target / signal.max())
+        irr = self.irradiance(flat, display, pose)
+        if self.ambient is not None:
+            irr = irr + self.ambient
+        signal = irr * self.vignetting * self.gain
+        if clipped > 0:
+            seen = signal[self.view(display, pose).seen]
+            target = (1 - self.sensor.dark_offset) * self.sensor.full_well_e
+            self.exposure_e = float(target / np.quantile(seen, 1 - clipped))
+        else:
+            target = (fraction - self.sensor.dark_offset) * self.sensor.full_well_e
+            self.exposure_e = float(target / signal.max())
         return self.exposure_e
 
 

@@ -243,11 +243,11 @@ def look_at(centre_mm, target_mm, roll_deg: float = 0.0) -> np.ndarray:
 _COMMON = ("pixel_mm", "distance_mm", "focus_mm", "target_mm", "offset_mm", "roll_deg", "vignetting",
            "principal_offset_px")
 _FAMILY_KEYS = {
-    "brown": ("focal_mm", "f_number", "k", "p"),
-    "freeform": ("focal_mm", "f_number", "k", "p", "bumps", "bump_sigma_px", "bump_amplitude_px"),
-    "noncentral": ("focal_mm", "f_number", "k", "p", "window"),
+    "brown": ("focal_mm", "f_number", "k", "p", "ripple"),
+    "freeform": ("focal_mm", "f_number", "k", "p", "bumps", "bump_sigma_px", "bump_amplitude_px", "ripple"),
+    "noncentral": ("focal_mm", "f_number", "k", "p", "window", "ripple"),
     "telecentric": ("magnification", "numerical_aperture", "k"),
-    "scheimpflug": ("focal_mm", "f_number", "k", "p", "sensor_tilt_deg", "view_deg"),
+    "scheimpflug": ("focal_mm", "f_number", "k", "p", "sensor_tilt_deg", "view_deg", "ripple"),
 }
 # the default lenses are focused on the display at the middle of the default stage travel (0, 50 mm)
 FOCUS_BEYOND_TARGET_MM = 25.0
@@ -282,7 +282,9 @@ def make_lens(family: str, width: int = 1280, height: int = 1024, seed: int = 0,
     vignetting (mechanical r^2 coefficient);
     principal_offset_px (cx, cy offset from the sensor centre); and per family: focal_mm, f_number,
     k (k1, k2, k3), p (p1, p2), bumps ((n, 5) array of (u, v, sigma, du, dv) in pixels, or a count),
-    bump_sigma_px (lo, hi), bump_amplitude_px (lo, hi), window (a Window), magnification,
+    bump_sigma_px (lo, hi), bump_amplitude_px (lo, hi), ripple ((amplitude_px, wavelength_px): a radial
+    ripple about the principal point, finer than any of our families' distortion, e.g. (0.3, 15);
+    not for telecentric), window (a Window), magnification,
     numerical_aperture, sensor_tilt_deg (default for scheimpflug: the Scheimpflug condition for the
     display plane in focus, `scheimpflug_tilt_deg`), view_deg (angle between the scheimpflug camera's
     axis and the display normal, from which its default offset follows).
@@ -347,9 +349,15 @@ def make_lens(family: str, width: int = 1280, height: int = 1024, seed: int = 0,
     if family == "freeform":
         bumps = _bumps(rng, q["bumps"], width, height, q["bump_sigma_px"], q["bump_amplitude_px"])
     bumps_norm = np.column_stack([(bumps[:, 0] - cx) / f_px, (bumps[:, 1] - cy) / f_px, bumps[:, 2:] / f_px])
-    dist = Distortion(k=k, p=tuple(float(c) for c in q["p"]), bumps=bumps_norm)
+    ripple = tuple(float(v) for v in q.get("ripple", (0.0, 1.0)))
+    if len(ripple) != 2 or not (ripple[1] > 0 and 2 * np.pi * abs(ripple[0]) < ripple[1]):
+        raise InputError("lens", f"ripple must be (amplitude_px, wavelength_px) with 2 pi amplitude < wavelength, "
+                                 f"got {ripple}")
+    dist = Distortion(k=k, p=tuple(float(c) for c in q["p"]), bumps=bumps_norm,
+                      ripple=(ripple[0] / f_px, ripple[1] / f_px))
     params = {"fx": f_px, "fy": f_px, "cx": cx, "cy": cy, "focal_mm": q["focal_mm"], "f_number": q["f_number"],
-              "distortion": {"k": list(k), "p": list(dist.p), "bumps_px": bumps.tolist()}}
+              "distortion": {"k": list(k), "p": list(dist.p), "bumps_px": bumps.tolist(),
+                             **({"ripple_px": list(ripple)} if ripple[0] else {})}}
     tilt = q.get("sensor_tilt_deg", 0.0)
     tilt = scheimpflug_tilt_deg(rot, focus, q["focal_mm"]) if tilt is None else float(tilt)
     window = q.get("window")

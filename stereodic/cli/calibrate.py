@@ -23,7 +23,7 @@ def register(sub):
                    help="keep each pixel's own ray (no spatial regularisation)")
     p.add_argument("--window", type=int, default=None, metavar="PX",
                    help="one fixed regularisation window (odd, camera pixels; default: a window chosen per "
-                        "pixel, from 26 display pixels (at least 41) up to 8x that): larger lowers noise, "
+                        "pixel, from the smallest the data need up to the image's size): larger lowers noise, "
                         "smaller follows finer distortion")
     p.add_argument("--no-refine-poses", action="store_true",
                    help="with 3 or more stage positions: use the nominal positions as they are (default: "
@@ -155,7 +155,7 @@ def _reduced(args, capture, smoother) -> int:
         raise InputError("--position", f"camera {camera!r} has no frames at {capture.label(z)} (have {zs})")
     from calib.calibration import AUTO, auto_smoother
     decoded = decode_position(capture, camera, z, intensity_matrix(capture, camera, z))
-    umap = undistort_map(decoded.coord, decoded.valid, auto_smoother(decoded) if smoother is AUTO else smoother)
+    umap = undistort_map(decoded.coord, decoded.valid, auto_smoother([decoded]) if smoother is AUTO else smoother)
     umap.meta.update({"camera": camera, "dataset": str(capture.root), **capture.at(z)})
     umap.save(args.output)
     wrote(args.output, f"undistortion map of {camera} at {capture.label(z)}, {umap.valid.mean():.1%} of the "

@@ -348,6 +348,45 @@ def handheld_from(args):
                     disturbed=args.disturb)
 
 
+def add_flaw_options(p: argparse.ArgumentParser, unseen: bool = True) -> None:
+    """A real bench's flaws (`scanners.sim.flaws.Flaws`), each off by default, and --real-bench for all
+    of them at `REAL_BENCH`'s sizes (an option given as well overrides its flaw's size)."""
+    g = p.add_argument_group("a real bench's flaws (docs/simulator.md; each off by default)")
+    g.add_argument("--real-bench", action="store_true",
+                   help="every flaw below at the sizes of a careful user's bench (scanners.sim.flaws.REAL_BENCH)")
+    g.add_argument("--bow-mm", type=float, help="display bow: its centre this far behind the plane of its corners")
+    g.add_argument("--pitch-error", type=float, help="true pitch / stated pitch - 1, e.g. 1e-4")
+    g.add_argument("--falloff", type=float, help="viewing angle: luminance x (1 - FALLOFF sin^2 angle)")
+    g.add_argument("--gamma-tilt", type=float, help="viewing angle: gamma x (1 + GAMMA_TILT sin^2 angle)")
+    g.add_argument("--hot-pixels", type=float, help="fraction of hot pixels")
+    g.add_argument("--ambient", type=float, help="room light on the sensor, in units of a white display")
+    g.add_argument("--ambient-variation", type=float, help="its +- variation across the image (fraction)")
+    g.add_argument("--overexposure", type=float, help="fraction of the pixels seeing the display clipped at full scale")
+    if unseen:
+        g.add_argument("--unseen", type=float,
+                       help="fraction of the image rows the display misses at the last stage position")
+    g.add_argument("--stage-tilt-deg", type=float, help="RMS stage tilt per position (degrees)")
+    g.add_argument("--stage-lateral-um", type=float, help="RMS stage run-out per position (um)")
+
+
+def flaw_kwargs(args) -> dict:
+    """`simulate_calibration` keyword arguments of the flaw options (`add_flaw_options`); an option
+    not given keeps --real-bench's size, or off."""
+    import dataclasses
+
+    from scanners.sim.flaws import REAL_BENCH, Flaws
+    base = REAL_BENCH if args.real_bench else Flaws(bit_depth=None)
+    given = {f.name: getattr(args, f.name) for f in dataclasses.fields(Flaws)
+             if f.name != "bit_depth" and getattr(args, f.name, None) is not None}
+    flaws = dataclasses.replace(base, **given)
+    out = flaws.kwargs()
+    if args.real_bench and getattr(args, "bit_depth", None) is None:
+        out["bit_depth"] = REAL_BENCH.bit_depth
+    elif getattr(args, "bit_depth", None) is not None:
+        out["bit_depth"] = args.bit_depth
+    return out
+
+
 def parse_size(text: str) -> tuple[int, int]:
     """'1920x1080' -> (1920, 1080); argparse type."""
     try:

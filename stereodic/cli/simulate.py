@@ -10,7 +10,8 @@ from __future__ import annotations
 from stereodic.cli import simulate_dic as dic_mode
 from stereodic.cli import simulate_scan as scan_mode
 from stereodic.cli import simulate_stereo as stereo_mode
-from stereodic.cli.common import add_handheld_options, add_simulation_options, handheld_from, parse_floats, wrote
+from stereodic.cli.common import (add_flaw_options, add_handheld_options, add_simulation_options, flaw_kwargs,
+                                   handheld_from, parse_floats, wrote)
 
 
 def register(sub):
@@ -24,26 +25,25 @@ def register(sub):
     add_simulation_options(c, 1280, 1024, 3, "lens, pose, stage and noise")
     c.add_argument("--periods", type=parse_floats, default=[60, 360, 1920],
                    help="fringe periods in display pixels (default 60,360,1920)")
-    c.add_argument("--steps", type=int, default=3, help="phase steps per period, >= 3 (default 3)")
+    c.add_argument("--steps", type=parse_floats, default=[3],
+                   help="phase steps per period, >= 3: one number, or one per period (default 3)")
     c.add_argument("--positions", type=parse_floats, default=[0.0, 50.0],
                    help="nominal stage positions in mm (default 0,50)")
     c.add_argument("--flat-levels", type=parse_floats, default=None,
                    help="grey levels of the flat frames (default 0,32,...,224,255)")
     c.add_argument("--low", type=int, default=20, help="fringe minimum level (default 20)")
     c.add_argument("--high", type=int, default=240, help="fringe maximum level (default 240)")
-    c.add_argument("--bit-depth", type=int, default=8, help="camera bit depth: 8, 10, 12, 14, 16 (default 8)")
+    c.add_argument("--bit-depth", type=int, default=None,
+                   help="camera bit depth: 8, 10, 12, 14, 16 (default 8; 12 with --real-bench)")
     c.add_argument("--cover-glass", type=parse_floats, default=None, metavar="THICK,INDEX",
                    help="display cover glass thickness (mm) and refractive index, e.g. 0.7,1.5")
     c.add_argument("--stage-error-um", type=float, default=3.0, help="RMS stage position error (default 3 um)")
-    c.add_argument("--stage-tilt-deg", type=float, default=0.0,
-                   help="RMS tilt of the display about each of its x and y axes per stage position (default 0)")
-    c.add_argument("--stage-lateral-um", type=float, default=0.0,
-                   help="RMS lateral run-out of the stage along x and y per position (default 0)")
     c.add_argument("--bayer", choices=["RGGB", "BGGR", "GRBG", "GBRG"], default=None,
                    help="a colour camera with this raw Bayer mosaic (per-colour response and lateral "
                         "chromatic aberration); default monochrome")
     add_handheld_options(c)
     c.add_argument("--chessboard", action="store_true", help="also render chessboards (OpenCV comparison)")
+    add_flaw_options(c)
     c.set_defaults(func=run_calibration)
     stereo_mode.register(modes)                         # `simulate stereo`: stereodic/cli/simulate_stereo.py
     scan_mode.register(modes)                           # `simulate scan`: stereodic/cli/simulate_scan.py
@@ -56,13 +56,13 @@ def run_calibration(args) -> int:
     if args.cover_glass is not None and len(args.cover_glass) != 2:
         raise InputError("--cover-glass", f"expected THICKNESS_MM,INDEX, got {args.cover_glass}")
     from scanners.sim.bayer import BayerSensor
+    steps = args.steps[0] if len(args.steps) == 1 else args.steps
     cap = simulate_calibration(
         args.output, lens=args.lens, width=args.width, height=args.height, seed=args.seed,
-        periods=args.periods, steps=args.steps, z_positions=args.positions,
+        periods=args.periods, steps=steps, z_positions=args.positions,
         flat_levels=DEFAULT_FLATS if args.flat_levels is None else args.flat_levels, noise=args.noise,
-        bit_depth=args.bit_depth, supersample=args.supersample, cover_glass=args.cover_glass,
-        low=args.low, high=args.high, chessboard=args.chessboard, stage_error_um=args.stage_error_um,
-        stage_tilt_deg=args.stage_tilt_deg, stage_lateral_um=args.stage_lateral_um,
-        handheld=handheld_from(args), bayer=None if args.bayer is None else BayerSensor(args.bayer))
+        supersample=args.supersample, cover_glass=args.cover_glass, low=args.low, high=args.high,
+        chessboard=args.chessboard, stage_error_um=args.stage_error_um, handheld=handheld_from(args),
+        bayer=None if args.bayer is None else BayerSensor(args.bayer), **flaw_kwargs(args))
     wrote(cap.manifest_path, f"{len(cap.frames)} frames in {cap.root}, truth in {cap.root / 'truth.npz'}")
     return 0

@@ -62,11 +62,12 @@ def make_capture(root: Path, w=96, h=72, zs=(0.0, 40.0), periods=(480, 60, 12), 
     """Write a dataset under `root`; returns (capture manifest path, true PRVM).
 
     cover: optional (c0, c1, r0, r1) display pixel window that shows the pattern (default the whole
-    display); outside it the camera sees black. poses: instead of stage positions, display poses
-    [(R, t), ...] in the cameras' frame (X = R q + t), frames with `pose`, flats at pose 0 only; the
-    truth is then in the display's frame at pose 0. stage_poses: with `zs`, the display's true pose
-    [(R, t), ...] at each stage position (a stage with errors; the manifest keeps the nominal z). bayer: (pattern, {colour: (gain, gamma)}), a raw
-    Bayer camera whose colours see the display with their own gain and gamma (instead of `gamma`).
+    display); outside it the camera sees black. steps: one number, or one per period. poses: instead of
+    stage positions, display poses [(R, t), ...] in the cameras' frame (X = R q + t), frames with `pose`,
+    flats at pose 0 only; the truth is then in the display's frame at pose 0. stage_poses: with `zs`, the
+    display's true pose [(R, t), ...] at each stage position (a stage with errors; the manifest keeps the
+    nominal z). bayer: (pattern, {colour: (gain, gamma)}), a raw Bayer camera whose colours see the
+    display with their own gain and gamma (instead of `gamma`).
     """
     if cover is None:
         cover = (-0.5, display.width_px - 0.5, -0.5, display.height_px - 0.5)
@@ -105,8 +106,8 @@ def make_capture(root: Path, w=96, h=72, zs=(0.0, 40.0), periods=(480, 60, 12), 
             writer.add(f, shoot(np.full(c.shape, float(level)), c, r))
         for axis in axes:
             coord = c if axis == "x" else r
-            for period in periods:
-                for k, delta in enumerate(step_shifts(steps)):
+            for period, n in zip(periods, [steps] * len(periods) if np.isscalar(steps) else steps):
+                for k, delta in enumerate(step_shifts(n)):
                     code = low + (high - low) / 2 * (1 + np.cos(2 * np.pi * coord / period - delta))
                     f = Frame("cam0", f"z{zi}/{axis}_P{period}_s{k}.png",
                               Pattern("fringe", {"axis": axis, "period_px": period, "shift_rad": float(delta),

@@ -1,7 +1,9 @@
 import numpy as np
 import pytest
 
-from calib.regularise import Adaptive, Smoother, _base, smooth_fields
+from scipy import ndimage
+
+from calib.regularise import Adaptive, Smoother, _base, deepest_half, finest_scale, smooth_fields
 
 H, W = 256, 320
 SIGMA = 0.3                     # white noise of the raw field
@@ -160,3 +162,57 @@ def test_adaptive_handles_masked_pixels():
 def test_too_small_image_is_refused():
     with pytest.raises(ValueError, match="too small"):
         smooth_fields(np.zeros((1, 30, 30)), np.ones((30, 30), bool), Adaptive(half_window=20))
+
+
+def test_windows_stop_at_the_border_of_the_data():
+    """A band the display did not cover (its boundary a slanted line): the windows end there, one-sided
+    as at the image border, so the pixels next to it are as accurate as those next to the image's own
+    border, and a cubic is still reproduced exactly."""
+    field = _radial_field()
+    v, u = np.mgrid[0:H, 0:W].astype(float)
+    valid = v < 190 + 0.2 * (u - W / 2)
+    rng = np.random.default_rng(6)
+    errs = []
+    for _ in range(4):
+        raw = np.where(valid, field + rng.normal(0, SIGMA, (H, W)), np.nan)
+        errs.append(smooth_fields(raw[None], valid, Adaptive(half_window=10)).fields[0] - field)
+    err = np.stack(errs)
+    dist = ndimage.distance_transform_edt(valid)
+    near_band = valid & (dist <= 16) & (u > 20) & (u < W - 20)
+    near_border = valid & (v < 16) & (u > 20) & (u < W - 20)
+    rms = lambda sel: np.sqrt(np.mean(err[:, sel] ** 2))  # noqa: E731
+    assert rms(near_band) < 1.5 * rms(near_border) and rms(near_band) < SIGMA / 15
+    cubic = 1e-6 * (u ** 3 - 2 * v ** 3) + 1e-4 * u * v - 0.01 * u + 3.0
+    out = smooth_fields(np.where(valid, cubic, np.nan)[None], valid, Adaptive(half_window=10)).fields[0]
+    np.testing.assert_allclose(out[valid], cubic[valid], atol=1e-8)
+
+
+def _planes(rng, common=None, own=None):
+    """The decoded points of two stage planes (display px, (2, H, W) each): one Brown-Conrady field seen
+    on both (the second 1.1x larger, as from farther away), white noise, plus `common(u, v)` (lens
+    structure: the same ray displacement on both planes) or `own(u, v, plane)` (the display's own
+    systematic error: different on each plane)."""
+    v, u = np.mgrid[0:H, 0:W].astype(float)
+    out = []
+    for k, scale in enumerate((1.0, 1.1)):
+        f = np.stack([_radial_field(), 0.8 * _radial_field()]) * scale
+        if common is not None:
+            f = f + scale * common(u, v)
+        if own is not None:
+            f = f + own(u, v, k)
+        out.append(f + rng.normal(0, SIGMA, (2, H, W)))
+    return out
+
+
+def test_the_smallest_window_follows_lens_structure_common_to_both_planes_not_the_displays_own():
+    """`finest_scale` goes below the deepest default window only for structure the two stage planes
+    share (the lens's): a 15 px ripple of the rays takes it to the smallest windows; the same ripple
+    differing between the planes (what the display's pixel grid does) leaves it where a smooth lens is."""
+    rng = np.random.default_rng(7)
+    valid = np.ones((H, W), bool)
+    ripple = lambda u, v: 0.6 * np.sin(2 * np.pi * np.hypot(u - 150, v - 120) / 15.0)  # noqa: E731
+    smooth = finest_scale(*_planes(rng), valid)
+    assert smooth == deepest_half(H, W)
+    assert finest_scale(*_planes(rng, common=ripple), valid) <= 5
+    own = lambda u, v, k: ripple(u + 7.5 * k, v)  # noqa: E731 - other phase on the other plane
+    assert finest_scale(*_planes(rng, own=own), valid) == smooth

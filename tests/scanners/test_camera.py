@@ -142,3 +142,25 @@ def test_bad_camera_specs(spec, says):
 def test_missing_opencv_device():
     with pytest.raises(HardwareError, match="cannot open camera cv:97"):
         open_camera("cv:97", "cam0")
+
+
+def test_bit_depth_is_declared_reported_or_the_frames_own(tmp_path):
+    from scanners.camera import frame_bit_depth
+    lsb12 = np.array([[0, 4095]], np.uint16)
+    assert frame_bit_depth(np.zeros((2, 2), np.uint8), "cam0") == 8
+    assert frame_bit_depth(lsb12, "cam0") == 16                       # unknown: the frame's own
+    assert frame_bit_depth(lsb12, "cam0", reported=12) == 12          # what the driver reports (XIMEA)
+    assert frame_bit_depth(lsb12, "cam0", declared=12, reported=14) == 12
+    with pytest.raises(InputError, match="MSB-aligned"):
+        frame_bit_depth(lsb12 << 4, "cam0", declared=12)              # 12 bits in the top of 16
+    with pytest.raises(InputError, match="does not fit"):
+        frame_bit_depth(np.zeros((2, 2), np.uint8), "cam0", declared=12)
+    # a folder camera declares it in its spec; the full scale it checks saturation against follows
+    write_gray(tmp_path / "a.png", np.full((6, 8), 4095, np.uint16))
+    cam = open_camera(f"folder:{tmp_path}?bit_depth=12&timeout=0.2", "cam0")
+    assert cam.bit_depth == 12
+    with pytest.raises(SaturatedError):
+        capture(cam)
+    with pytest.raises(InputError, match="bit_depth"):
+        open_camera(f"folder:{tmp_path}?bit_depth=20", "cam0")
+    assert open_camera(f"folder:{tmp_path / 'none'}?size=8x6", "cam1").bit_depth is None

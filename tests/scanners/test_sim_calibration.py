@@ -153,11 +153,46 @@ def test_an_interrupted_run_leaves_no_manifest(tmp_path, monkeypatch):
     (dict(steps=2), "--steps"), (dict(periods=()), "--periods"), (dict(periods=(0, 60)), "--periods"),
     (dict(z_positions=()), "--positions"), (dict(z_positions=(0, 0)), "--positions"),
     (dict(bit_depth=9), "--bit-depth"), (dict(cover_glass=(1.0, 0.5)), "--cover-glass"),
-    (dict(lens="fisheye"), "--lens"), (dict(lens_options={"target_mm": (0, 0, 0)}), "does not cover"),
+    (dict(lens="fisheye"), "--lens"), (dict(lens_options={"target_mm": (-400, -400, 0)}), "does not see"),
+    (dict(steps=(3, 4, 5)), "--steps"), (dict(overexposure=1.5), "flaws"),
 ])
 def test_bad_arguments_are_input_errors(tmp_path, kwargs, where):
     with pytest.raises(InputError, match=where):
         simulate_calibration(tmp_path, **{**SMALL, **kwargs})
+
+
+def test_a_real_benchs_flaws_are_in_the_images_and_the_truth(tmp_path):
+    """Each flaw on: the display's (recorded pitch nominal, bow, angle), the sensor's (10 bits
+    LSB-aligned in 16-bit files, hot pixels, ambient light, over-exposure), the stage's, a display not
+    filling the view, unequal steps per period."""
+    from scanners.sim.display import SimDisplay
+    display = SimDisplay(bow_mm=0.1, pitch_error=1e-4, falloff=0.3, gamma_tilt=-0.1)
+    cap = simulate_calibration(tmp_path, lens="brown", width=160, height=128, periods=(20, 100, 1920),
+                               steps=(5, 3, 4), flat_levels=(0, 128, 255), bit_depth=10, display=display,
+                               hot_pixels=0.01, ambient=0.03, ambient_variation=0.5, overexposure=0.03,
+                               stage_tilt_deg=0.02, stage_lateral_um=5.0, unseen=0.15)
+    truth = load_prvm(tmp_path / "truth.npz")
+    assert cap.display.pitch_mm == (0.2745, 0.2745)                        # the manifest: nominal
+    d = truth.meta["display"]
+    assert d["bow_mm"] == 0.1 and d["pitch_error"] == 1e-4 and d["true_pitch_mm"][0] == pytest.approx(0.2745 * 1.0001)
+    assert d["falloff"] == 0.3 and truth.meta["sensor"]["ambient"] == 0.03
+    assert truth.meta["stage"]["tilt_deg"] == 0.02 and truth.extra["display_rotation"].shape == (2, 3, 3)
+    # 10 bits LSB-aligned: 16-bit files, values up to 1023, the crest of the over-exposed pixels there
+    frames = cap.select("cam0", z_mm=0.0, type="fringe", period_px=20)
+    assert len(frames) == 2 * 5 and len(cap.select("cam0", z_mm=0.0, type="fringe", period_px=100)) == 2 * 3
+    images = [cap.read(f) for f in frames]
+    assert images[0].dtype == np.uint16 and max(int(i.max()) for i in images) == 1023
+    hot = truth.extra["hot_pixels_e"] >= truth.meta["sensor"]["full_well_e"]
+    dark = cap.read(cap.select("cam0", z_mm=0.0, type="flat", level=0)[0])
+    assert hot.any() and (dark[hot] == 1023).all()
+    # ambient light: the black flat's dark pixels sit above the sensor's dark offset
+    assert np.median(dark) > 0.01 * 1023 + 0.02 * 1023
+    # the display leaves the stated share of rows unseen at the last position (by the true rays)
+    cr = truth.extra["display_cr"][-1]
+    unseen_rows = np.mean(cr[:, 80, 1] > 1080 - 0.5)
+    assert unseen_rows == pytest.approx(0.15, abs=0.03)
+    clipped = np.mean([np.mean(img == 1023) for img in images])
+    assert 0.003 < clipped < 0.05
 
 
 def test_command_line(tmp_path, capsys):

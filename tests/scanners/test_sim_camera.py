@@ -163,7 +163,56 @@ def test_the_default_bench_display_covers_the_camera_field():
         assert c.min() > 0 and r.min() > 0 and c.max() < 1919 and r.max() < 1079
 
 
-def test_a_display_that_does_not_cover_the_field_is_an_input_error():
-    cam = SimCamera(make_lens("brown", W, H, target_mm=(0.0, 0.0, 0.0)))     # aims at the display's corner
-    with pytest.raises(InputError, match="does not cover"):
+def test_a_display_that_does_not_fill_the_field_shows_its_bezel_beyond_it():
+    """Aimed at the display's corner, the camera sees the display in one quadrant, the bezel elsewhere,
+    and a blend of the two within the blur of the edge."""
+    display = SimDisplay(fill_factor=(1.0, 1.0), stripes=1, bezel=0.02)     # no pixel gaps: uniform
+    cam = SimCamera(make_lens("brown", W, H, target_mm=(0.0, 0.0, 0.0)))
+    view = cam.view(display, staged(0.0))
+    irr = cam.irradiance(flat(255), display, staged(0.0))
+    c, r = view.display_cr[..., 0], view.display_cr[..., 1]
+    # the edge distance of each pixel in camera pixels (display px per camera px from the view)
+    scale = np.median(np.abs(np.diff(c, axis=1)))
+    depth = np.minimum(c + 0.5, r + 0.5) / scale                  # > 0 on the display
+    lit = display.fill_factor[0] * display.fill_factor[1] * display.luminance(np.uint8(255))
+    reach = 2 + float(view.blur_px.max())                         # blur radius and the pixel, generously
+    np.testing.assert_allclose(irr[depth < -reach], 0.02, rtol=1e-4)
+    np.testing.assert_allclose(irr[depth > reach], lit, rtol=0.02)
+    edge = np.abs(depth) < 0.5
+    assert (irr[edge] > 0.02 * 1.5).all() and (irr[edge] < 0.9 * lit).all()
+    assert 0.1 < view.seen.mean() < 0.5 and (view.seen == (depth > 0)).mean() > 0.99
+
+
+def test_a_camera_that_does_not_see_the_display_is_an_input_error():
+    cam = SimCamera(make_lens("brown", W, H, target_mm=(-300.0, -300.0, 0.0)))
+    with pytest.raises(InputError, match="does not see the display"):
         cam.view(SimDisplay(), staged(0.0))
+
+
+def test_ambient_light_and_hot_pixels_add_their_recorded_signal():
+    lens = make_lens("brown", W, H)
+    plain = SimCamera(lens, Sensor(bit_depth=16), seed=2)
+    flawed = SimCamera(lens, Sensor(bit_depth=16, hot_pixels=0.01), seed=2, ambient=0.05, ambient_variation=0.3)
+    for cam in (plain, flawed):
+        cam.exposure_e = 5000.0
+    hot = flawed.hot_e > 0
+    assert 0.005 < hot.mean() < 0.015 and flawed.hot_e.max() > flawed.sensor.full_well_e
+    assert flawed.ambient.min() == pytest.approx(0.05 * 0.7, rel=0.02)
+    assert flawed.ambient.max() == pytest.approx(0.05 * 1.3, rel=0.02)
+    black = flat(0)
+    e0 = plain.electrons(black, SMOOTH, staged(0.0))
+    e1 = flawed.electrons(black, SMOOTH, staged(0.0))
+    expected = e0 + flawed.ambient * flawed.vignetting * flawed.gain * 5000.0 + flawed.hot_e
+    np.testing.assert_allclose(e1, expected, rtol=1e-5)
+    img = flawed.render(black, SMOOTH, staged(0.0), noise=False)
+    assert (img[flawed.hot_e >= flawed.sensor.full_well_e] == flawed.sensor.max_dn).all()
+
+
+def test_overexposure_clips_the_stated_share_of_the_pixels_that_see_the_display():
+    display = SimDisplay()
+    cam = SimCamera(make_lens("brown", W, H, target_mm=(0.0, 0.0, 0.0)), Sensor(bit_depth=12), seed=1)
+    cam.set_exposure(display, 240, staged(0.0), clipped=0.05)
+    img = cam.render(flat(240), display, staged(0.0), noise=False)
+    seen = cam.view(display, staged(0.0)).seen
+    assert 0.1 < seen.mean() < 0.9
+    assert np.mean(img[seen] == 4095) == pytest.approx(0.05, abs=0.005)

@@ -42,10 +42,69 @@ def test_a_window_mixes_the_two_neighbouring_display_pixels_by_their_lit_areas()
     assert np.allclose(got, [lo, 0.5 + 0.5 * lo, 1.0, lo], atol=1e-6)
 
 
-def test_outside_the_display_is_black():
-    d = SimDisplay(width_px=4, height_px=4)
+def test_outside_the_display_is_its_bezel_and_a_window_across_the_edge_sees_both():
     img = np.full((4, 4), 255, np.uint8)
-    assert d.luminance_at(img, np.array([-2.0, 7.0]), np.array([1.0, 1.0])).max() == 0
+    assert SimDisplay(width_px=4, height_px=4, bezel=0.0).luminance_at(
+        img, np.array([-2.0, 7.0]), np.array([1.0, 1.0])).max() == 0
+    d = SimDisplay(width_px=4, height_px=4, fill_factor=(1.0, 1.0), stripes=1, bezel=0.03)
+    got = d.luminance_at(img, np.array([-2.0, 7.0, -0.5, 3.5]), np.array([1.0, 1.0, 1.0, 1.0]), window=(0.5, 0.5))
+    np.testing.assert_allclose(got, [0.03, 0.03, 0.5 + 0.5 * 0.03, 0.5 + 0.5 * 0.03], rtol=1e-6)
+    assert SimDisplay().bezel > 0                      # a real bezel reflects some room light
+
+
+def test_a_bowed_display_is_hit_on_its_curved_surface():
+    """The hit lies on the ray and on the paraboloid z = bow (1 - rho^2) of the display frame (an
+    independent evaluation of the surface), with and without cover glass; its sagitta is the bow."""
+    bowed = SimDisplay(bow_mm=0.1)
+    w, h = (1920 - 1) * 0.2745, (1080 - 1) * 0.2745
+    surface = lambda x, y: 0.1 * (1 - ((x - w / 2) ** 2 + (y - h / 2) ** 2) / ((w / 2) ** 2 + (h / 2) ** 2))  # noqa
+    assert surface(w / 2, h / 2) == pytest.approx(0.1) and surface(0.0, 0.0) == pytest.approx(0.0)
+    rng = np.random.default_rng(3)
+    o = np.c_[rng.uniform(0, 500, (50, 2)), np.full(50, -400.0)]
+    d = np.c_[rng.uniform(-0.4, 0.4, (50, 2)), np.ones(50)]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    pose = DisplayPose(rotation("x", 0.05), (2.0, -1.0, 30.0))
+    c, r = bowed.hit(o, d, pose)
+    x, y = c * 0.2745, r * 0.2745
+    local_o, local_d = pose.to_display(o, d)
+    t = (x - local_o[:, 0]) / local_d[:, 0]
+    on_ray = local_o + t[:, None] * local_d
+    assert np.allclose(on_ray[:, 1], y, atol=1e-9) and np.allclose(on_ray[:, 2], surface(x, y), atol=1e-9)
+    flat_c, _ = SimDisplay().hit(o, d, pose)
+    assert 0.01 < np.abs(c - flat_c).max() * 0.2745 < 0.1       # ~slope x bow: tens of micrometres
+    # with glass lying on the bowed pixels: the flat display's refraction, the whole slab deeper by the
+    # bow, which the ray crosses in air first (the faces' ~1e-3 slope changes the refraction by a few
+    # tenths of a micrometre)
+    glass = CoverGlass(0.7, 1.5)
+    cg, rg = SimDisplay(bow_mm=0.1, cover_glass=glass).hit(o, d, pose)
+    c0, r0 = SimDisplay(cover_glass=glass).hit(o, d, pose)
+    depth = surface(cg * 0.2745, rg * 0.2745)
+    shift = np.stack([cg - c0, rg - r0], axis=1) * 0.2745
+    np.testing.assert_allclose(shift, depth[:, None] * local_d[:, :2] / local_d[:, 2:], atol=5e-4)
+
+
+def test_a_pitch_error_scales_the_display_but_not_its_record():
+    d = SimDisplay(pitch_error=1e-4)
+    assert d.record().pitch_mm == (0.2745, 0.2745)
+    o, dirn = np.array([[100.0, 80.0, -400.0]]), np.array([[0.1, -0.05, 1.0]])
+    c, r = d.hit(o, dirn, DisplayPose.staged(0.0))
+    c0, r0 = SimDisplay().hit(o, dirn, DisplayPose.staged(0.0))
+    assert c[0] == pytest.approx(c0[0] / (1 + 1e-4), rel=1e-12) and r[0] == pytest.approx(r0[0] / (1 + 1e-4), rel=1e-12)
+
+
+def test_viewing_angle_lowers_the_luminance_and_changes_the_gamma():
+    d = SimDisplay(width_px=4, height_px=4, fill_factor=(1.0, 1.0), stripes=1, bezel=0.0, falloff=0.4,
+                   gamma_tilt=-0.2, black_level=0.002)
+    img = np.full((4, 4), 128, np.uint8)
+    sin2 = np.array([0.0, 0.1, 0.3])
+    got = d.luminance_at(img, np.full(3, 1.0), np.full(3, 1.0), sin2=sin2)
+    gamma = 2.2 * (1 - 0.2 * sin2)
+    expected = (1 - 0.4 * sin2) * (0.002 + 0.998 * (128 / 255) ** gamma)
+    np.testing.assert_allclose(got, expected, rtol=1e-5)
+    with pytest.raises(ValueError, match="sin2"):
+        d.luminance_at(img, np.full(3, 1.0), np.full(3, 1.0))
+    dirn = np.array([[np.sin(0.3), 0.0, np.cos(0.3)]])
+    assert d.sin2_view(dirn, DisplayPose(rotation("y", 0.1))) == pytest.approx(np.sin(0.2) ** 2)
 
 
 @pytest.mark.parametrize("angle_deg", [0.0, 10.0, 25.0, 40.0])
