@@ -168,7 +168,7 @@ def smooth_planes(pattern: str, positions: list[DecodedPosition], smoother):
 
     def own(off):
         if smoother is None or smoother == AUTO:
-            return auto_smoother(_sub_position(positions[0], off))
+            return auto_smoother([_sub_position(p, off) for p in positions])
         return dataclasses.replace(smoother, half_window=max(2, smoother.half_window // 2))
 
     used = {off: own(off) for off in OFFSETS}
