@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -231,20 +230,6 @@ def wrote(path: str | os.PathLike, summary: str = "") -> None:
 # and stereodic.strain_measures.MEASURES.
 SWITCH_ZNCC = 0.9
 STRAIN_MEASURES = ("green-lagrange", "euler-almansi", "log", "engineering")
-
-
-def planned(sub, name: str, help_text: str, issue: int) -> argparse.ArgumentParser:
-    """Register a command of DESIGN.md that this version does not have yet: it says so and exits 1."""
-    p = sub.add_parser(name, help=f"{help_text} [not in this version yet]",
-                       description=f"{help_text}\n\nNot in this version yet (tracked as issue {issue}).")
-    p.add_argument("args", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
-
-    def run(args) -> int:
-        print(f"stereodic {name}: not in this version yet (issue {issue})", file=sys.stderr)
-        return 1
-
-    p.set_defaults(func=run)
-    return p
 
 
 def add_simulation_options(p: argparse.ArgumentParser, width: int, height: int, supersample: int | None,
