@@ -10,6 +10,7 @@ import pytest
 from stereodic.cli import main
 from stereodic.dic.maps import _decimals, pixel_axes, save_map, surface_axes
 from stereodic.dic3d.dataset import DicStates
+from stereodic.dic3d.store import RunStore
 from stereodic.strain_results import map_axes, open_result, state_labels
 
 XS, YS = np.arange(10, 300, 10.0), np.arange(5, 200, 10.0)
@@ -90,3 +91,5 @@ def test_a_run_records_its_state_names_and_maps_in_mm(dic_sim, tmp_path):
     assert np.abs(axes.x[ok] - reference[..., 0][ok]).max() < 0.05     # mm, grid step ~1 mm
     assert np.abs(axes.y[ok] - reference[..., 1][ok]).max() < 0.05
     assert sorted(p.name for p in (out / "maps").glob("*_exx.png")) == ["state0_exx.png", "state2_exx.png"]
+    # the maps' titles name the measure that the run folder's states are read back with
+    assert RunStore(out).attach().read_state(2).measure.measure == "green-lagrange"
