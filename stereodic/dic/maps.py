@@ -83,9 +83,7 @@ def save_map(path: str | os.PathLike, values: np.ndarray, axes: MapAxes, *, titl
     "microstrain"; unit "" for a pure number), `decimals` is the precision of the title's figures;
     `signed`: a change (displacement, strain) whose range across zero is centred on zero, not a
     position or a score."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure   # not pyplot: the caller's backend (a notebook's) stays as it is
     from matplotlib.ticker import FuncFormatter, MaxNLocator
 
     values = np.asarray(values, float)
@@ -104,7 +102,8 @@ def save_map(path: str | os.PathLike, values: np.ndarray, axes: MapAxes, *, titl
                    f"{fixed(p95, decimals)}; {finite.size} of {values.size} points measured")
     else:
         lo, hi, cmap, summary = -1.0, 1.0, "viridis", f"no point measured of {values.size}"
-    fig, ax = plt.subplots(figsize=(7.2, 5.6), layout="constrained")
+    fig = Figure(figsize=(7.2, 5.6), layout="constrained")
+    ax = fig.subplots()
     im = ax.pcolormesh(axes.x, axes.y, np.ma.masked_invalid(values), shading="nearest", cmap=cmap, vmin=lo,
                        vmax=hi)
     extend = {(False, False): "neither", (True, False): "min", (False, True): "max", (True, True): "both"}[
@@ -125,4 +124,3 @@ def save_map(path: str | os.PathLike, values: np.ndarray, axes: MapAxes, *, titl
     ax.set_title(f"{title}\n{summary}", fontsize=9.5)
     with atomic_output(path) as tmp:
         fig.savefig(tmp, dpi=100)
-    plt.close(fig)
