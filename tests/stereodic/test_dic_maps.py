@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from stereodic.cli import main
-from stereodic.dic.maps import _decimals, pixel_axes, save_map, surface_axes
+from stereodic.dic.maps import _decimals, active_box, pixel_axes, save_map, surface_axes
 from stereodic.dic3d.dataset import DicStates
 from stereodic.dic3d.store import RunStore
 from stereodic.strain_results import map_axes, open_result, state_labels
@@ -69,6 +69,18 @@ def test_a_map_is_written(tmp_path):
     save_map(tmp_path / "m.png", values, pixel_axes(XS, YS), title="state 3: tension - exx", quantity="exx",
              unit="microstrain", decimals=0)
     assert (tmp_path / "m.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_a_map_spans_its_grids_active_points():
+    """A grid over the whole image with a ROI (the active points) in one corner: the map is cut to the
+    ROI's rows and columns, and the axes carry the active points (the title counts them)."""
+    active = np.zeros((len(YS), len(XS)), bool)
+    active[2:7, 10:19] = True
+    active[4, 22] = True
+    assert active_box(active) == (slice(2, 7), slice(10, 23))
+    assert active_box(np.zeros_like(active)) == (slice(None), slice(None))
+    axes = surface_axes(XS, YS, _surface(lambda x, y: (0.2 * x, -0.2 * y)), active)
+    assert axes.active is active and pixel_axes(XS, YS, active).active is active
 
 
 def test_states_are_named_from_the_dataset_or_their_files():
