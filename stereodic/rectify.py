@@ -96,8 +96,7 @@ def plot_row_alignment(left: np.ndarray, right: np.ndarray, match: RowAlignment,
     three magnified crops of matches (left above right, the feature's row drawn through both); the
     vertical disparity of every match against its column. Returns the figure."""
     import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure   # not pyplot: the caller's backend (a notebook's) stays as it is
 
     from calib.numbers import fixed
 
@@ -106,7 +105,7 @@ def plot_row_alignment(left: np.ndarray, right: np.ndarray, match: RowAlignment,
         return np.clip(img * (255.0 / (float(img.max()) or 1.0)), 0, 255)
 
     h, w = left.shape
-    fig = plt.figure(figsize=(12, 8.2), layout="constrained")
+    fig = Figure(figsize=(12, 8.2), layout="constrained")
     grid = fig.add_gridspec(2, 4, height_ratios=[1.35, 1])
     ax = fig.add_subplot(grid[0, :])
     ax.imshow(np.hstack([to8(left), to8(right)]), cmap="gray", interpolation="nearest")
@@ -116,7 +115,7 @@ def plot_row_alignment(left: np.ndarray, right: np.ndarray, match: RowAlignment,
     ax.axvline(w - 0.5, color="white", lw=1.5)
     n = match.dy.size
     lim = max(0.05, float(np.abs(match.dy).max()) if n else 0.05)
-    cmap = plt.get_cmap("coolwarm")
+    cmap = matplotlib.colormaps["coolwarm"]
     ax.plot(match.x, match.y, "o", ms=3, mfc="none", mec="#06d6a0")
     ax.plot(w + match.x_right, match.y + match.dy, "o", ms=3, mfc="none", mec="#06d6a0")
     order = np.argsort(np.abs(match.dy))

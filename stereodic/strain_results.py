@@ -69,8 +69,8 @@ def map_axes(result: DicResult) -> MapAxes:
     image's pixels for a dic2d one (stereodic.dic.maps)."""
     g = result.grid
     if result.kind == "dic2d":
-        return pixel_axes(g.xs, g.ys)
-    return surface_axes(g.xs, g.ys, next(iter_slices(result.path, "points")))
+        return pixel_axes(g.xs, g.ys, g.active)
+    return surface_axes(g.xs, g.ys, next(iter_slices(result.path, "points")), g.active)
 
 
 def strains(result: DicResult, window: int, measure: str) -> Iterator[StrainMeasure]:

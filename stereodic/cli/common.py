@@ -52,6 +52,7 @@ SPELLINGS = {  # argparse dest -> its option strings, wherever a command has it
     "noise": ("--noise", "--no-noise"),
     "supersample": ("--supersample",),
     "scheduler": ("--scheduler",),
+    "prefilter": ("--prefilter",),
 }
 SYNONYMS = {  # second spellings of those meanings, refused by the test
     "--out": "output", "--outdir": "output", "--output-dir": "output", "--out-dir": "output", "-O": "output",
@@ -262,6 +263,21 @@ def add_grid_options(p: argparse.ArgumentParser, image: str) -> None:
               help=f"image of the {image}'s size: points where it is non-zero")
     p.add_argument("--seed", action="append", default=[], metavar="X,Y",
                    help=f"start point of the propagation in the {image} (repeatable; default: automatic)")
+
+
+def add_prefilter_option(p: argparse.ArgumentParser) -> None:
+    """--prefilter SIGMA: the Gaussian low-pass (pixels) of the images before their B-spline
+    interpolation (stereodic.dic.DicSettings.prefilter_sigma), checked by `check_prefilter`."""
+    p.add_argument("--prefilter", type=float, default=0.7, metavar="SIGMA",
+                   help="Gaussian low-pass of both images before interpolation, pixels (default 0.7, 0 = "
+                        "none); lowers the interpolation bias")
+
+
+def check_prefilter(args) -> None:
+    """InputError naming --prefilter unless it is >= 0."""
+    from calib.errors import InputError
+    if args.prefilter < 0:
+        raise InputError("--prefilter", f"must be >= 0, got {args.prefilter}")
 
 
 def add_scheduler_option(p: argparse.ArgumentParser, tasks: str) -> None:

@@ -10,7 +10,8 @@ Z, displacements and strains per state).
 
 from __future__ import annotations
 
-from stereodic.cli.common import add_grid_options, add_input, add_output, add_scheduler_option, dic_grid, parse_ints
+from stereodic.cli.common import (add_grid_options, add_input, add_output, add_prefilter_option, add_scheduler_option,
+                                  check_prefilter, dic_grid, parse_ints)
 
 
 def register(sub):
@@ -37,8 +38,16 @@ def register(sub):
                    help="subset shape function (default affine)")
     p.add_argument("--disparity", metavar="DMIN,DMAX",
                    help="row search range of the seeds, x_right - x_left in pixels (default +-half the width)")
+    p.add_argument("--vertical-search", type=int, default=0, metavar="ROWS",
+                   help="rows above and below the row that the seeds' stereo search also covers (default 0: the "
+                        "row only; more for a rig whose calibration no longer fits its images, whose matches sit "
+                        "off the rectified rows)")
+    p.add_argument("--max-gap", type=float, default=1.0, metavar="PITCHES",
+                   help="largest distance between the two rays of a trusted point, in virtual pixel pitches "
+                        "(default 1; points beyond are flagged ray_gap)")
     p.add_argument("--search", type=int, default=40, metavar="PIXELS",
                    help="search range of the temporal seeds (default 40)")
+    add_prefilter_option(p)
     p.add_argument("--min-zncc", type=float, default=0.8, help="points below are flagged (default 0.8)")
     p.add_argument("--strain-window", type=int, default=5, metavar="N",
                    help="strains fitted over N x N grid points, odd; 0 = none (default 5)")
@@ -75,14 +84,21 @@ def _settings(args):
         raise InputError("--switch-zncc", f"must be between 0 and 1, got {args.switch_zncc}")
     if args.plot_every < 1:
         raise InputError("--plot-every", f"must be >= 1, got {args.plot_every}")
+    if args.vertical_search < 0:
+        raise InputError("--vertical-search", f"must be >= 0 rows, got {args.vertical_search}")
+    if not args.max_gap > 0:
+        raise InputError("--max-gap", f"must be > 0 pixel pitches, got {args.max_gap}")
+    check_prefilter(args)
     disparity = None
     if args.disparity:
         disparity = tuple(parse_ints(args.disparity, 2, "--disparity"))
         if disparity[0] > disparity[1]:
             raise InputError("--disparity", f"DMIN must not exceed DMAX, got {args.disparity}")
-    dic = DicSettings(subset=args.subset, shape=args.shape, min_zncc=args.min_zncc, search_radius=args.search)
-    return StereoSettings(dic, disparity, args.strain_window or None, args.incremental,
-                          switch_zncc=args.switch_zncc, strain_measure=args.measure)
+    dic = DicSettings(subset=args.subset, shape=args.shape, min_zncc=args.min_zncc, search_radius=args.search,
+                      prefilter_sigma=args.prefilter)
+    return StereoSettings(dic, disparity, args.strain_window or None, args.incremental, max_gap_px=args.max_gap,
+                          switch_zncc=args.switch_zncc, strain_measure=args.measure,
+                          vertical_search=args.vertical_search)
 
 
 def _states(args, rig):

@@ -12,7 +12,8 @@ strain_valid is 0. Results are written image by image: memory holds one image's 
 
 from __future__ import annotations
 
-from stereodic.cli.common import add_grid_options, add_input, add_output, add_scheduler_option
+from stereodic.cli.common import (add_grid_options, add_input, add_output, add_prefilter_option, add_scheduler_option,
+                                  check_prefilter)
 
 
 def register(sub):
@@ -29,9 +30,7 @@ def register(sub):
                    help="subset shape function (default affine)")
     p.add_argument("--interp", choices=["cubic", "quintic"], default="cubic",
                    help="B-spline interpolation (default cubic)")
-    p.add_argument("--prefilter", type=float, default=0.7, metavar="SIGMA",
-                   help="Gaussian low-pass of both images before interpolation, pixels (default 0.7, 0 = "
-                        "none); lowers the interpolation bias")
+    add_prefilter_option(p)
     p.add_argument("--search", type=int, default=40, metavar="PIXELS",
                    help="search range of the seeds' integer displacement (default 40)")
     p.add_argument("--min-zncc", type=float, default=0.8, help="points below are flagged (default 0.8)")
@@ -62,8 +61,7 @@ def _check_args(args) -> None:
             raise InputError(name, f"must be between 0 and 1, got {value}")
     if args.search < 1:
         raise InputError("--search", f"must be >= 1 pixel, got {args.search}")
-    if args.prefilter < 0:
-        raise InputError("--prefilter", f"must be >= 0, got {args.prefilter}")
+    check_prefilter(args)
 
 
 def read_checked(path, shape: tuple[int, int], reference: str):

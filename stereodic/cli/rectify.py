@@ -35,8 +35,6 @@ def register(sub):
 def run(args) -> int:
     from pathlib import Path
 
-    import matplotlib.pyplot as plt
-
     from calib.atomic import atomic_output
     from calib.imageio import read_gray, write_gray
     from calib.numbers import fixed
@@ -54,7 +52,6 @@ def run(args) -> int:
     fig = plot_row_alignment(left, right, match, max(args.every, 2))
     with atomic_output(out / "overlay.png") as tmp:
         fig.savefig(tmp, dpi=100, bbox_inches="tight")
-    plt.close(fig)
     wrote(out / "overlay.png", f"row alignment: vertical disparity RMS {fixed(match.rms, 3)} px over "
                                f"{match.dy.size} matched features" if match.dy.size else
                                "row alignment: no feature with texture in both directions to measure it")

@@ -35,12 +35,9 @@ def run(args) -> int:
 
 
 def _save(fig, path: Path) -> Path:
-    import matplotlib.pyplot as plt
-
     from calib.atomic import atomic_output
     with atomic_output(path) as tmp:
         fig.savefig(tmp, dpi=110, bbox_inches="tight")
-    plt.close(fig)
     return path
 
 
@@ -57,11 +54,10 @@ def _panel(fig, ax, data, title: str, label: str, cmap="viridis", vmin=None, vma
 def _image(data, title: str, label: str, path: Path, cmap="viridis", vmax=None, quiver=None) -> Path:
     """A map of `data` (0 to vmax, default its 99.5th percentile); quiver (u, v, du, dv): arrows on it,
     magnified to be seen, with an arrow of a round length as the scale."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import numpy as np
-    fig, ax = plt.subplots(figsize=(7, 5.6))
+    from matplotlib.figure import Figure   # not pyplot: the caller's backend (a notebook's) stays as it is
+    fig = Figure(figsize=(7, 5.6))
+    ax = fig.subplots()
     finite = data[np.isfinite(data)]
     if vmax is None and finite.size:
         vmax = float(np.percentile(finite, 99.5))
@@ -76,11 +72,10 @@ def _image(data, title: str, label: str, path: Path, cmap="viridis", vmax=None, 
 def _signed_pair(x, y, title: str, label: str, path: Path) -> Path:
     """The x and y components of a signed error side by side, each with its own axes and colour bar
     (symmetric about zero, to its own 99.5th percentile)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import numpy as np
-    fig, axes = plt.subplots(1, 2, figsize=(12.5, 5.0), layout="constrained")
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=(12.5, 5.0), layout="constrained")
+    axes = fig.subplots(1, 2)
     for ax, data, comp in zip(axes, (x, y), ("x", "y")):
         finite = np.abs(data[np.isfinite(data)])
         vmax = float(np.percentile(finite, 99.5)) if finite.size else 1.0
@@ -156,12 +151,12 @@ def write_report(prvm, out_dir, truth=None) -> list[Path]:
 
 
 def _mask(valid, quality, names, path: Path) -> Path:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import numpy as np
     from matplotlib.colors import ListedColormap
-    fig, ax = plt.subplots(figsize=(7, 5.6))
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Rectangle
+    fig = Figure(figsize=(7, 5.6))
+    ax = fig.subplots()
     labels = ["calibrated", "not calibrated"] + list(names.values())
     code = np.where(valid, 0, 1)
     if quality is not None:
@@ -170,7 +165,7 @@ def _mask(valid, quality, names, path: Path) -> Path:
     colours = ["#2a9d8f", "#555555", "#264653", "#e76f51", "#f4a261", "#e9c46a", "#9b5de5"][:len(labels)]
     ax.imshow(code, cmap=ListedColormap(colours), vmin=-0.5, vmax=len(colours) - 0.5, interpolation="nearest")
     present = np.unique(code)
-    handles = [plt.Rectangle((0, 0), 1, 1, color=colours[i]) for i in present]
+    handles = [Rectangle((0, 0), 1, 1, color=colours[i]) for i in present]
     ax.legend(handles, [f"{labels[i]} ({np.mean(code == i):.1%})" for i in present], loc="lower right", fontsize=8)
     ax.set_title("calibrated pixels")
     return _save(fig, path)

@@ -5,7 +5,8 @@ DIC: X, Y of the reference surface in the reporting frame, mm, turned so that th
 camera sees the specimen), which load case it shows (the dataset's state name, or the image's file name)
 and what the colour is (the quantity and its unit on the colour bar, ticks to the precision the numbers
 carry, never "-0"). The title adds the median, the range of the middle 90 % (5th to 95th percentile) and
-how many points were measured. The colour range spans the 1st-99th percentile (arrows on the bar where values go beyond);
+how many of the grid's active points (its ROI and mask) were measured; the map shows the active points'
+extent. The colour range spans the 1st-99th percentile (arrows on the bar where values go beyond);
 a range across zero is centred on zero with a diverging colour map.
 """
 
@@ -23,7 +24,8 @@ from calib.numbers import fixed
 @dataclass(frozen=True)
 class MapAxes:
     """Where each grid point of a map is: x, y (ny, nx) float arrays in `unit` ("px" or "mm"), named
-    `names` on the axes; flip_x / flip_y: the axis runs right to left / top to bottom."""
+    `names` on the axes; flip_x / flip_y: the axis runs right to left / top to bottom; active (ny, nx)
+    bool: the grid points measured at all (the grid's ROI and mask), None = every one."""
 
     x: np.ndarray
     y: np.ndarray
@@ -31,21 +33,23 @@ class MapAxes:
     names: tuple[str, str]
     flip_x: bool
     flip_y: bool
+    active: np.ndarray | None = None
 
 
-def pixel_axes(xs: np.ndarray, ys: np.ndarray) -> MapAxes:
-    """The axes of a map on a grid of reference-image pixels: columns xs (nx,), rows ys (ny,)."""
+def pixel_axes(xs: np.ndarray, ys: np.ndarray, active: np.ndarray | None = None) -> MapAxes:
+    """The axes of a map on a grid of reference-image pixels: columns xs (nx,), rows ys (ny,); active
+    (ny, nx) the grid's active points (None: all)."""
     x, y = np.meshgrid(np.asarray(xs, float), np.asarray(ys, float))
-    return MapAxes(x, y, "px", ("x", "y"), False, True)
+    return MapAxes(x, y, "px", ("x", "y"), False, True, active)
 
 
-def surface_axes(xs: np.ndarray, ys: np.ndarray, points_mm: np.ndarray) -> MapAxes:
+def surface_axes(xs: np.ndarray, ys: np.ndarray, points_mm: np.ndarray, active: np.ndarray | None = None) -> MapAxes:
     """The axes of a map of a stereo result: the X, Y (mm, reporting frame) of each grid point's reference
     position `points_mm` (ny, nx, 3; NaN where not measured), smoothed by a least-squares cubic in the
     grid's pixel positions (points more than 3 sigma off refitted without them) so that every cell, measured
     or not, has a place and neighbours stay in order; each axis is flipped where it runs against the left
-    image's columns or rows."""
-    px = pixel_axes(xs, ys)
+    image's columns or rows; active (ny, nx) the grid's active points (None: all)."""
+    px = pixel_axes(xs, ys, active)
     X, Y = (np.asarray(points_mm[..., i], float) for i in (0, 1))
     ok = np.isfinite(X) & np.isfinite(Y)
     if ok.sum() < 12:
@@ -63,8 +67,16 @@ def surface_axes(xs: np.ndarray, ys: np.ndarray, points_mm: np.ndarray) -> MapAx
     X, Y = fit[..., 0], fit[..., 1]
     # which way X and Y run along the image's columns (coef[1]) and rows (coef[2])
     if abs(coef[1, 0]) >= abs(coef[1, 1]):
-        return MapAxes(X, Y, "mm", ("X", "Y"), coef[1, 0] < 0, coef[2, 1] > 0)
-    return MapAxes(Y, X, "mm", ("Y", "X"), coef[1, 1] < 0, coef[2, 0] > 0)   # the frame turned a quarter
+        return MapAxes(X, Y, "mm", ("X", "Y"), coef[1, 0] < 0, coef[2, 1] > 0, active)
+    return MapAxes(Y, X, "mm", ("Y", "X"), coef[1, 1] < 0, coef[2, 0] > 0, active)   # the frame turned a quarter
+
+
+def active_box(active: np.ndarray) -> tuple[slice, slice]:
+    """The rows and columns (slices) of a grid that hold its active points (all of it if none is)."""
+    rows, cols = np.flatnonzero(active.any(axis=1)), np.flatnonzero(active.any(axis=0))
+    if not rows.size:
+        return slice(None), slice(None)
+    return slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1)
 
 
 def _decimals(step: float) -> int:
@@ -83,13 +95,12 @@ def save_map(path: str | os.PathLike, values: np.ndarray, axes: MapAxes, *, titl
     "microstrain"; unit "" for a pure number), `decimals` is the precision of the title's figures;
     `signed`: a change (displacement, strain) whose range across zero is centred on zero, not a
     position or a score."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure   # not pyplot: the caller's backend (a notebook's) stays as it is
     from matplotlib.ticker import FuncFormatter, MaxNLocator
 
     values = np.asarray(values, float)
-    finite = values[np.isfinite(values)]
+    active = np.ones(values.shape, bool) if axes.active is None else np.asarray(axes.active, bool)
+    finite = values[np.isfinite(values) & active]
     label = f"{quantity} ({unit})" if unit else quantity
     if finite.size:
         lo, hi = np.percentile(finite, [1, 99])
@@ -101,12 +112,14 @@ def save_map(path: str | os.PathLike, values: np.ndarray, axes: MapAxes, *, titl
         median, p5, p95 = np.percentile(finite, [50, 5, 95])
         units = f" {unit}" if unit else ""
         summary = (f"median {fixed(median, decimals)}{units}; 90 % within {fixed(p5, decimals)} .. "
-                   f"{fixed(p95, decimals)}; {finite.size} of {values.size} points measured")
+                   f"{fixed(p95, decimals)}; {finite.size} of {active.sum()} points measured")
     else:
-        lo, hi, cmap, summary = -1.0, 1.0, "viridis", f"no point measured of {values.size}"
-    fig, ax = plt.subplots(figsize=(7.2, 5.6), layout="constrained")
-    im = ax.pcolormesh(axes.x, axes.y, np.ma.masked_invalid(values), shading="nearest", cmap=cmap, vmin=lo,
-                       vmax=hi)
+        lo, hi, cmap, summary = -1.0, 1.0, "viridis", f"no point measured of {active.sum()}"
+    box = active_box(active)
+    fig = Figure(figsize=(7.2, 5.6), layout="constrained")
+    ax = fig.subplots()
+    im = ax.pcolormesh(axes.x[box], axes.y[box], np.ma.masked_invalid(np.where(active, values, np.nan)[box]),
+                       shading="nearest", cmap=cmap, vmin=lo, vmax=hi)
     extend = {(False, False): "neither", (True, False): "min", (False, True): "max", (True, True): "both"}[
         (bool(finite.size and finite.min() < lo), bool(finite.size and finite.max() > hi))]
     bar = fig.colorbar(im, ax=ax, label=label, extend=extend, shrink=0.9)
@@ -125,4 +138,3 @@ def save_map(path: str | os.PathLike, values: np.ndarray, axes: MapAxes, *, titl
     ax.set_title(f"{title}\n{summary}", fontsize=9.5)
     with atomic_output(path) as tmp:
         fig.savefig(tmp, dpi=100)
-    plt.close(fig)

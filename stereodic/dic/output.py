@@ -108,7 +108,7 @@ def plot_field(folder: str | os.PathLike, k: int, f: DicField, m: StrainMeasure 
     (stereodic.dic.maps: axes in reference-image pixels, strains in microstrain)."""
     from stereodic.dic.maps import pixel_axes, save_map
     folder = Path(folder)
-    axes = pixel_axes(f.grid.xs, f.grid.ys)
+    axes = pixel_axes(f.grid.xs, f.grid.ys, f.grid.active)
     maps = {"u": (f.u, "px", 3), "v": (f.v, "px", 3), "zncc": (np.where(f.ok, f.zncc, np.nan), "", 4)}
     if m is not None:
         maps.update({c: (getattr(m, c) * 1e6, "microstrain", 0) for c in ("exx", "eyy", "exy")})

@@ -97,13 +97,12 @@ def speckle_quality(image: np.ndarray, *, subset: int = 21, target_px: float = 0
 def plot(quality: SpeckleQuality, path) -> None:
     """One PNG (atomic): the map of the predicted error at the chosen subset, and the error against the
     subset size (median, 95th percentile, target)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure   # not pyplot: the caller's backend (a notebook's) stays as it is
 
     from calib.atomic import atomic_output
     q = quality
-    fig, (a, b) = plt.subplots(1, 2, figsize=(12, 5))
+    fig = Figure(figsize=(12, 5))
+    a, b = fig.subplots(1, 2)
     im = a.imshow(q.noise_map, cmap="viridis", interpolation="nearest")
     fig.colorbar(im, ax=a, label="predicted random error (px)")
     a.set_title(f"predicted error, {q.subset} x {q.subset} subsets")
@@ -122,4 +121,3 @@ def plot(quality: SpeckleQuality, path) -> None:
     fig.tight_layout()
     with atomic_output(path) as tmp:
         fig.savefig(tmp, dpi=100)
-    plt.close(fig)

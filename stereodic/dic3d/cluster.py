@@ -139,7 +139,8 @@ def files_task(spec: RunSpec, k: int, vtk: bool, plot_every: int, label: str) ->
     axes = None
     if plot_every and k % plot_every == 0:
         axes = per_worker(f"{spec.token}-axes",
-                          lambda: surface_axes(spec.grid.xs, spec.grid.ys, store.read_state(0).points))
+                          lambda: surface_axes(spec.grid.xs, spec.grid.ys, store.read_state(0).points,
+                                                       spec.grid.active))
     write_state_files(spec.folder, st, vtk=vtk, plot_every=plot_every, axes=axes, label=label)
 
 

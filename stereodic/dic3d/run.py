@@ -90,7 +90,7 @@ def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: Ste
         for st in progress(store.states(), "writing", total=n, unit="state"):
             if state_files:
                 if axes is None:  # state 0: the reference surface gives every map its mm axes
-                    axes = surface_axes(grid.xs, grid.ys, st.points)
+                    axes = surface_axes(grid.xs, grid.ys, st.points, grid.active)
                 write_state_files(folder, st, vtk=vtk, plot_every=plot_every, axes=axes,
                                   label=labels[st.state] if labels else f"state {st.state}")
             if dice is not None:

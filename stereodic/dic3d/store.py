@@ -141,7 +141,7 @@ class RunStore:
 
     def read_state(self, k: int) -> StereoState:
         with np.load(self.state_path(k)) as z:
-            return state_from_arrays(z, self.manifest["settings"].get("strain_measure"))
+            return state_from_arrays(z, self.manifest["settings"].get("stereo", {}).get("strain_measure"))
 
     def values(self, key: str) -> Iterator[np.ndarray]:
         """One array of every state's result file, state by state."""

@@ -60,3 +60,30 @@ def test_a_bumped_rig_is_reported(dic_sim, tmp_path, capsys):
     median = float(line.split("median ")[1].split(" px")[0])
     assert abs(median) == pytest.approx(shift_px, rel=0.2)
     assert "warning" in out.err and "moved" in out.err and len(out.err.strip().splitlines()) == 1
+
+
+def test_a_rig_far_off_its_images_needs_the_wider_search(dic_sim, tmp_path, capsys):
+    """A right camera turned after its calibration by ~15 rows' worth (as in the dice-stereo-list case):
+    the seeds' search along the row finds nothing; --vertical-search finds the matches, whose rays no
+    longer meet (flagged ray_gap) until --max-gap admits them; the translation state's displacement is
+    then the simulated one to the rig's error (the rays' midpoints of a turned camera)."""
+    true = load_rig(dic_sim / "rig.npz")
+    rig = _rig(tmp_path / "moved.npz", dic_sim, 15 * true.sensor.pitch_mm[1] / true.working_distance_mm)
+    args = [str(tmp_path / "moved.npz"), str(dic_sim), "--step", "12", "--no-vtk", "--no-plot", "--strain-window", "0"]
+    runs = {"row": [], "band": ["--vertical-search", "25"], "band_gap": ["--vertical-search", "25", "--max-gap", "100"]}
+    found = {}
+    for name, extra in runs.items():
+        assert main(["dic", *args, *extra, "-o", str(tmp_path / name)]) == 0
+        with np.load(tmp_path / name / "dic.npz") as z:
+            found[name] = {k: z[k] for k in ("converged", "right_status", "displacement", "gap_mm", "active")}
+    capsys.readouterr()
+    n = found["row"]["active"].sum()
+    assert not found["row"]["converged"].any() and not (found["row"]["right_status"][0] == 0).any()
+    matched = found["band"]["right_status"][0] == 0
+    assert matched.sum() > 0.7 * n and not found["band"]["converged"].any()      # every one a ray gap
+    gap_px = np.nanmedian(found["band_gap"]["gap_mm"][0]) / rig.sensor.pitch_mm[0]
+    assert 1 < gap_px < 100
+    c = found["band_gap"]["converged"]
+    assert (c.sum(axis=(1, 2)) > 0.7 * n).all()
+    mean = found["band_gap"]["displacement"][1][c[1]].mean(axis=0)
+    assert np.abs(mean - (0.6, -0.4, 1.2)).max() < 0.05            # mm, of a 1.4 mm translation

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from stereodic.cli import main
-from stereodic.dic.maps import _decimals, pixel_axes, save_map, surface_axes
+from stereodic.dic.maps import _decimals, active_box, pixel_axes, save_map, surface_axes
 from stereodic.dic3d.dataset import DicStates
+from stereodic.dic3d.store import RunStore
 from stereodic.strain_results import map_axes, open_result, state_labels
 
 XS, YS = np.arange(10, 300, 10.0), np.arange(5, 200, 10.0)
@@ -70,6 +71,18 @@ def test_a_map_is_written(tmp_path):
     assert (tmp_path / "m.png").read_bytes()[:4] == b"\x89PNG"
 
 
+def test_a_map_spans_its_grids_active_points():
+    """A grid over the whole image with a ROI (the active points) in one corner: the map is cut to the
+    ROI's rows and columns, and the axes carry the active points (the title counts them)."""
+    active = np.zeros((len(YS), len(XS)), bool)
+    active[2:7, 10:19] = True
+    active[4, 22] = True
+    assert active_box(active) == (slice(2, 7), slice(10, 23))
+    assert active_box(np.zeros_like(active)) == (slice(None), slice(None))
+    axes = surface_axes(XS, YS, _surface(lambda x, y: (0.2 * x, -0.2 * y)), active)
+    assert axes.active is active and pixel_axes(XS, YS, active).active is active
+
+
 def test_states_are_named_from_the_dataset_or_their_files():
     files = [Path("pairs/img_0000_0.tif"), Path("pairs/img_0001_0.tif")]
     assert DicStates(files, files, "--images pairs").label(1) == "state 1 (img_0001_0.tif)"
@@ -90,3 +103,5 @@ def test_a_run_records_its_state_names_and_maps_in_mm(dic_sim, tmp_path):
     assert np.abs(axes.x[ok] - reference[..., 0][ok]).max() < 0.05     # mm, grid step ~1 mm
     assert np.abs(axes.y[ok] - reference[..., 1][ok]).max() < 0.05
     assert sorted(p.name for p in (out / "maps").glob("*_exx.png")) == ["state0_exx.png", "state2_exx.png"]
+    # the maps' titles name the measure that the run folder's states are read back with
+    assert RunStore(out).attach().read_state(2).measure.measure == "green-lagrange"

@@ -124,6 +124,10 @@ def test_bad_input_is_one_clear_line(small, tmp_path, capsys):
     rig = str(small / "rig.npz")
     assert main(["dic", rig, str(small), "--seed", "5000,10", "-o", str(tmp_path / "o")]) == 2
     assert "--seed" in capsys.readouterr().err
+    for option, value in (("--vertical-search", "-1"), ("--max-gap", "0"), ("--prefilter", "-0.5")):
+        assert main(["dic", rig, str(small), option, value, "-o", str(tmp_path / "o")]) == 2
+        err = capsys.readouterr().err
+        assert option in err and value in err and len(err.strip().splitlines()) == 1
     bad = _copy(small, tmp_path / "size")
     Image.fromarray(np.zeros((100, 120), np.uint8)).save(bad / "s001" / "cam1.png")
     assert main(["dic", rig, str(bad), "-o", str(tmp_path / "o")]) == 2

@@ -19,7 +19,7 @@ NUMBER = re.compile(r"^-?\d\.\d{4}E[+-]\d{2}$")
 
 def read_dice(path):
     """(names, rows) of a DICe solution file, the way DICe users' scripts read them."""
-    lines = [ln.rstrip("\n") for ln in open(path) if not ln.startswith("***")]
+    lines = [ln for ln in Path(path).read_text().splitlines() if not ln.startswith("***")]
     names = lines[0].split(",")
     return names, np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]])
 
@@ -28,7 +28,7 @@ def read_dice(path):
 def test_the_reader_reads_dices_own_files():
     names, rows = read_dice(GOLD / "DICe_solution_list_5.txt")
     assert names[:2] == ["COORDINATE_X", "COORDINATE_Y"] and rows.shape[1] == len(names) and len(rows) > 10
-    assert all(NUMBER.match(v) for v in open(GOLD / "DICe_solution_list_5.txt").readlines()[-1].strip().split(","))
+    assert all(NUMBER.match(v) for v in (GOLD / "DICe_solution_list_5.txt").read_text().splitlines()[-1].strip().split(","))
 
 
 def test_dic2d(tmp_path):
@@ -39,11 +39,12 @@ def test_dic2d(tmp_path):
     common = [str(tmp_path / "ref.png"), str(tmp_path / "d*.png"), "--step", "8", "--strain-window", "5"]
     assert main(["dic2d", *common, "-o", str(tmp_path / "ours.csv")]) == 0
     assert main(["dic2d", *common, "--columns", "dice", "-o", str(tmp_path / "DICe_solution.txt")]) == 0
-    ours = list(csv.DictReader(open(tmp_path / "ours.csv")))
+    with open(tmp_path / "ours.csv", newline="") as f:
+        ours = list(csv.DictReader(f))
     failed = 0
     for k in (0, 1):
         path = tmp_path / f"DICe_solution_{k}.txt"
-        assert open(path).readline().startswith("***")
+        assert path.read_text().startswith("***")
         names, rows = read_dice(path)
         assert names == ["SUBSET_ID", "COORDINATE_X", "COORDINATE_Y", "DISPLACEMENT_X", "DISPLACEMENT_Y", "SIGMA",
                          "GAMMA", "VSG_STRAIN_XX", "VSG_STRAIN_YY", "VSG_STRAIN_XY"]

@@ -26,7 +26,8 @@ def test_same_window_and_measure_give_the_runs_strains(result, tmp_path):
     with np.load(result / "dic.npz") as a, np.load(tmp_path / "s" / "strain.npz") as b:
         for k in ("exx", "eyy", "exy", "e_major", "e_vm", "strain_valid"):
             assert np.array_equal(a[k], b[k], equal_nan=True), k
-    rows = list(csv.DictReader(open(tmp_path / "s" / "strain.csv")))
+    with open(tmp_path / "s" / "strain.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
     assert list(rows[0])[:4] == ["state", "x", "y", "exx"] and {r["state"] for r in rows} == {"0", "1", "2"}
 
 
@@ -62,7 +63,8 @@ def test_2d_results(tmp_path):
         ok = b["strain_valid"][0]
         assert np.median(b["exx"][0][ok]) == pytest.approx(0.02, abs=1e-3)   # engineering: stretch - 1
         assert np.median(b["eyy"][0][ok]) == pytest.approx(-0.006, abs=1e-3)
-    rows = list(csv.DictReader(open(tmp_path / "s" / "strain.csv")))
+    with open(tmp_path / "s" / "strain.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
     assert list(rows[0])[0] == "image"
 
 
