@@ -272,15 +272,34 @@ def dropped_quality(positions: list[DecodedPosition]) -> np.ndarray:
     return quality
 
 
-def calibrate_camera(capture: Capture, camera: str | None = None, smoother: Smoother | Adaptive | None = AUTO,
-                     z_ref: float = 0.0, *, refine: bool = True) -> Calibration:
-    """Calibrate one camera of a calibration dataset.
+def calibrate_camera(capture: Capture, *, camera: str | None = None, smoother: Smoother | Adaptive | None = AUTO,
+                     z_ref: float = 0.0, refine: bool = True) -> Calibration:
+    """Calibrate one camera of a calibration dataset: its per-pixel rays (PRVM).
 
-    smoother: the regularisation (AUTO: `auto_smoother`; a `Smoother`: one fixed window; None: rays are
-    left unregularised, but the noise is still estimated with the automatic smoother for the
-    uncertainty). z_ref: the plane (WCS z, mm) of the rays' origins. refine: with 3 or more stage
-    positions, estimate the display's pose at each (`calib.stage_poses`) and use it where it lowers the
-    residual significantly. A stage-free capture (poses) is calibrated by `calib.handheld`.
+    A stage-free capture (display poses) is calibrated by `calib.handheld`.
+
+    Parameters
+    ----------
+    capture : Capture
+        A stereodic.capture/1 dataset of kind ``calibration`` (`calib.capture.load_capture`).
+    camera : str, optional
+        The camera to calibrate; None: the dataset's only camera.
+    smoother : Smoother or Adaptive or None
+        The regularisation. AUTO: windows chosen from the data (`auto_smoother`); a `Smoother`: one fixed
+        window; None: rays left unregularised (the noise is still estimated with the automatic smoother,
+        for the uncertainty).
+    z_ref : float
+        The plane of the rays' origins, WCS z, mm.
+    refine : bool
+        With 3 or more stage positions, estimate the display's pose at each (`calib.stage_poses`) and use
+        it where it lowers the residual significantly.
+
+    Returns
+    -------
+    calibration : Calibration
+        ``prvm``: the (H, W) rays in the WCS (origins on z = z_ref, mm), with their validity, uncertainty
+        and quality flags; and the raw and final lines, decoded positions, intensity matrix, notes and
+        estimated poses behind them.
     """
     if capture.kind != "calibration":
         raise InputError(capture.manifest_path, f"dataset kind is {capture.kind!r}, expected 'calibration'")

@@ -416,14 +416,26 @@ def _check_poses(where: Path, frames: list[Frame]) -> None:
                                             f"{period:g} px is incomplete ({have}; other poses have it)")
 
 
-def load_capture(path: str | os.PathLike, check_images: bool = True,
+def load_capture(path: str | os.PathLike, *, check_images: bool = True,
                  min_positions: int | None = None) -> Capture:
-    """Read and validate a dataset: `path` is its folder or its `capture.json`.
+    """Read and validate a stereodic.capture/1 dataset.
 
-    check_images: also check that every image exists, is readable and has its camera's size (reads the
-    file headers only). min_positions: the fewest distinct stage positions each camera must have
-    (default 2 for a calibration dataset, as a ray needs two points; 0 otherwise).
-    Raises InputError naming the manifest or the image and the problem.
+    Parameters
+    ----------
+    path : path
+        The dataset's folder or its ``capture.json``.
+    check_images : bool
+        Also check that every image exists, is readable and has its camera's size (reads the file
+        headers only).
+    min_positions : int, optional
+        The fewest distinct stage positions each camera must have; None: 2 for a calibration dataset (a
+        ray needs two points), 0 otherwise.
+
+    Returns
+    -------
+    capture : Capture
+        The manifest (cameras, display, stage, frames); images are read lazily (`Capture.read`).
+        InputError naming the manifest or the image, and the problem, if it is not valid.
     """
     path = Path(path)
     manifest = path / MANIFEST if path.is_dir() else path

@@ -54,10 +54,27 @@ def check_truth(estimate: PRVM, truth: PRVM, estimate_name: str, truth_name: str
                                      f"camera pixels apart (another camera, dataset or world frame?)")
 
 
-def ray_error_px(estimate: PRVM | tuple, truth: PRVM, z_mm: float | None = None,
+def ray_error_px(estimate: PRVM | np.ndarray, truth: PRVM, *, z_mm: float | None = None,
                  footprint: float | None = None) -> np.ndarray:
-    """(H, W) float64 error in camera pixels on the plane z = z_mm (default `working_plane`); NaN where
-    the estimate is not valid. estimate: a PRVM, or an (H, W, 3) array of its points on that plane."""
+    """Each pixel's ray error against the truth on one plane, in camera pixels (module docstring).
+
+    Parameters
+    ----------
+    estimate : PRVM or (H, W, 3) float64
+        The calibrated rays, or their points on the plane z = z_mm (WCS, mm; NaN where not valid).
+    truth : PRVM
+        The true rays of the same (H, W) camera, in the same WCS.
+    z_mm : float, optional
+        The plane, WCS z, mm; None: `working_plane` of the truth.
+    footprint : float, optional
+        The pixel footprint on that plane, mm; None: `footprint_mm` of the truth there.
+
+    Returns
+    -------
+    error : (H, W) float64
+        Distance between the estimated and true ray on the plane over the footprint, camera pixels; NaN
+        where the estimate is not valid.
+    """
     z = working_plane(truth) if z_mm is None else z_mm
     fp = footprint_mm(truth, z) if footprint is None else footprint
     if isinstance(estimate, PRVM):
@@ -86,7 +103,7 @@ def volume_error_px(estimate: PRVM, truth: PRVM, planes: np.ndarray | None = Non
     is not valid."""
     planes = volume_planes(truth) if planes is None else np.asarray(planes, float)
     fp = footprint_mm(truth, working_plane(truth))
-    sq = sum(ray_error_px(estimate, truth, z, fp) ** 2 for z in planes)
+    sq = sum(ray_error_px(estimate, truth, z_mm=z, footprint=fp) ** 2 for z in planes)
     return np.sqrt(sq / len(planes))
 
 
@@ -108,8 +125,22 @@ class ErrorStats:
     valid: float
 
     @classmethod
-    def of(cls, err: np.ndarray, margin: int = 0) -> "ErrorStats":
-        """Statistics of an error map, optionally leaving out `margin` pixels at the image border."""
+    def of(cls, err: np.ndarray, *, margin: int = 0) -> "ErrorStats":
+        """Statistics of an error map.
+
+        Parameters
+        ----------
+        err : (H, W) float64
+            An error map, pixels (`ray_error_px`); NaN where not valid.
+        margin : int
+            Pixels left out at each image border.
+
+        Returns
+        -------
+        stats : ErrorStats
+            RMS, 99th percentile and maximum (pixels) over the finite pixels, and their fraction
+            (NaN statistics and 0.0 when none is finite).
+        """
         e = err[margin:err.shape[0] - margin, margin:err.shape[1] - margin] if margin else err
         ok = np.isfinite(e)
         if not ok.any():

@@ -91,9 +91,30 @@ def fringe_profile(n: int, period_px: float, shift_rad: float, low: float = 20, 
     return response.inverse(y_low + (y_high - y_low) * wave)
 
 
-def fringe_image(display_w: int, display_h: int, axis: str, period_px: float, shift_rad: float,
+def fringe_image(display_w: int, display_h: int, *, axis: str, period_px: float, shift_rad: float,
                  low: float = 20, high: float = 240, response: DisplayResponse | None = None) -> np.ndarray:
-    """The fringe as a uint8 (display_h, display_w) image, rounded to the nearest code value."""
+    """One phase-shifted fringe as a display image (module docstring).
+
+    Parameters
+    ----------
+    display_w, display_h : int
+        The display's size, display pixels.
+    axis : {"x", "y"}
+        "x": the value varies along the display's columns (vertical fringes); "y": along its rows.
+    period_px : float
+        The period, display pixels.
+    shift_rad : float
+        The phase shift delta, radians.
+    low, high : float
+        The code values the cosine spans.
+    response : DisplayResponse, optional
+        The display's measured response: the emitted luminance, not the code value, follows the cosine.
+
+    Returns
+    -------
+    image : (display_h, display_w) uint8
+        Code values rounded to the nearest integer.
+    """
     if axis not in ("x", "y"):
         raise ValueError(f"axis must be 'x' or 'y', got {axis!r}")
     n = display_w if axis == "x" else display_h
@@ -118,21 +139,42 @@ def fringe_pattern(axis: str, period_px: float, shift_rad: float, low: float, hi
     return Pattern("fringe", params)
 
 
-def calibration_sequence(display_w: int, display_h: int, periods, steps: int = 3, axes=("x", "y"),
+def calibration_sequence(display_w: int, display_h: int, *, periods, steps: int = 3, axes=("x", "y"),
                          low: float = 20, high: float = 240, flat_levels=(),
                          response: DisplayResponse | None = None) -> list[tuple[Pattern, np.ndarray]]:
     """Every pattern of a calibration, in display order: flats first (intensity calibration before
     geometry, tip 3.6), then for each axis and each period (longest first) the N shifted fringes.
 
-    Returns (Pattern, uint8 image of display_h x display_w) pairs. periods: display pixels; the longest
-    should cover the display along each axis so that the phase is absolute.
+    Parameters
+    ----------
+    display_w, display_h : int
+        The display's size, display pixels.
+    periods : sequence of float
+        Fringe periods, display pixels; the longest should cover the display along each axis so that the
+        phase is absolute.
+    steps : int
+        Phase steps per period (N >= 3, `step_shifts`).
+    axes : sequence of {"x", "y"}
+        The fringe axes, in order (`fringe_image`).
+    low, high : float
+        The code values the fringes span.
+    flat_levels : sequence of int
+        Code values of the flat images shown first.
+    response : DisplayResponse, optional
+        Pre-compensate the fringes for the display's measured response.
+
+    Returns
+    -------
+    sequence : list of (Pattern, (display_h, display_w) uint8)
+        Each pattern's manifest description and its image.
     """
     seq = [(Pattern("flat", {"level": int(v)}), flat_image(display_w, display_h, int(v))) for v in flat_levels]
     for axis in axes:
         for period in sorted(periods, reverse=True):
             for delta in step_shifts(steps):
                 pat = fringe_pattern(axis, period, delta, low, high, response is not None)
-                seq.append((pat, fringe_image(display_w, display_h, axis, period, delta, low, high, response)))
+                seq.append((pat, fringe_image(display_w, display_h, axis=axis, period_px=period, shift_rad=delta,
+                                              low=low, high=high, response=response)))
     return seq
 
 

@@ -56,14 +56,34 @@ class PinholeCamera:
                            self.dist, self.R, self.t, self.width, self.height, name)
 
 
-def prvm_from_opencv(K, dist, rvec, tvec, width: int, height: int, reference_z_mm: float = 0.0,
+def prvm_from_opencv(K, dist, rvec, tvec, width: int, height: int, *, reference_z_mm: float = 0.0,
                      camera: str = "cam0") -> PRVM:
     """The PRVM of an OpenCV-calibrated camera: every pixel's ray through the optical centre.
 
-    K: 3x3 (K[0, 1] is the skew, which OpenCV itself ignores); dist: OpenCV distortion coefficients (any
-    supported length, or None); rvec (3,) Rodrigues vector or 3x3 matrix and tvec (3,) mm: the world-to-
-    camera pose. Ray origins on z = reference_z_mm. Pixels are inverted exactly through the model
-    (`calib.camera_models.unproject`, to 1e-10 pixel). InputError if the camera does not look along +z.
+    Pixels are inverted exactly through the model (`calib.camera_models.unproject`, to 1e-10 pixel).
+
+    Parameters
+    ----------
+    K : (3, 3) float
+        The camera matrix, pixels (K[0, 1] is the skew, which OpenCV itself ignores).
+    dist : (n,) float or None
+        OpenCV distortion coefficients, any supported length; None: no distortion.
+    rvec : (3,) float or (3, 3) float
+        The world-to-camera rotation: a Rodrigues vector or a matrix.
+    tvec : (3,) float
+        The world-to-camera translation, mm (x_cam = R x_world + t).
+    width, height : int
+        The image size, pixels.
+    reference_z_mm : float
+        The plane of the rays' origins, world z, mm.
+    camera : str
+        The camera's name in the PRVM's metadata.
+
+    Returns
+    -------
+    prvm : PRVM
+        (height, width) rays in the world frame, which must have the camera looking along +z (InputError
+        otherwise).
     """
     cam = PinholeCamera(K, np.zeros(5) if dist is None else dist, rvec, tvec, width, height)
     prvm = prvm_of(cam.model(camera), reference_z_mm=reference_z_mm,
@@ -120,9 +140,21 @@ def read_filestorage(path: str | os.PathLike) -> dict:
 
 
 def read_opencv_yaml(path: str | os.PathLike) -> PinholeCamera:
-    """A camera from OpenCV FileStorage YAML/XML/JSON as `opencv_yaml` writes it. Also accepted: K/D
-    for the matrices, rvec or R for the rotation, tvec or T for the translation (identity pose when
-    absent)."""
+    """A camera from OpenCV FileStorage YAML/XML/JSON as `opencv_yaml` writes it.
+
+    Parameters
+    ----------
+    path : path
+        The file: camera_matrix (or K), distortion_coefficients (or D), rotation_matrix (or R, rvec),
+        translation_vector (or T, tvec; mm), image_width, image_height; the pose is the identity when
+        absent.
+
+    Returns
+    -------
+    camera : PinholeCamera
+        K (3, 3) pixels, dist (n,), the world-to-camera R (3, 3) and t (3,) mm, the image size. InputError
+        naming the file if a matrix or the size is missing.
+    """
     nodes = read_filestorage(path)
 
     def mat(*names):

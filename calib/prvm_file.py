@@ -83,7 +83,20 @@ class PRVM:
 
 
 def load_prvm(path: str | os.PathLike) -> PRVM:
-    """Read and check a PRVM file; InputError naming the file if it is not one."""
+    """Read and check a stereodic.prvm/1 file.
+
+    Parameters
+    ----------
+    path : path
+        The file (``.npz``).
+
+    Returns
+    -------
+    prvm : PRVM
+        (H, W, 3) float64 ray origins (WCS mm, on z = reference_z_mm) and unit directions, (H, W) bool
+        validity, and the optional per-pixel arrays and metadata. InputError naming the file if it is not
+        a PRVM file.
+    """
     meta, arrays = read_npz(path, FORMAT, "PRVM")
     missing = [k for k in REQUIRED if k not in arrays]
     if missing:

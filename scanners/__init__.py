@@ -1,2 +1,2 @@
-"""scanners: the rigs. Hardware drivers (stage, display, camera), acquisition, the scan procedure and
-the simulated rig (`scanners.sim`). Top layer: may import `calib` and `stereodic`."""
+"""scanners: the rigs. Hardware drivers (stage, display, camera), acquisition, the alignment aid's live
+loop and the simulated rig (`scanners.sim`). Imports `calib` only (tests/test_layering.py)."""

@@ -77,7 +77,8 @@ def pattern_shots(size: tuple[int, int], periods: Sequence[float], steps: int, f
                   state: int | None = None) -> list[Shot]:
     """Flats, then fringes (each axis, each period longest first, each phase step) at one position or
     state, for a screen of `size` = (width, height)."""
-    seq = calibration_sequence(size[0], size[1], periods, steps, tuple(axes), low, high, tuple(flats))
+    seq = calibration_sequence(size[0], size[1], periods=periods, steps=steps, axes=tuple(axes), low=low,
+                               high=high, flat_levels=tuple(flats))
     return [Shot(p, img, folder, _stem(p, steps), z_mm, state) for p, img in seq]
 
 

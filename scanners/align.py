@@ -129,7 +129,8 @@ class AlignSession:
         self.intrinsics = PatternIntrinsics(*camera.size, focal_px=focal_px) if model is None else None
         self.shifts = step_shifts(settings.steps)
         w, h = screen.size
-        self.patterns = {(axis, float(p)): [fringe_image(w, h, axis, p, d, settings.low, settings.high)
+        self.patterns = {(axis, float(p)): [fringe_image(w, h, axis=axis, period_px=p, shift_rad=d,
+                                                         low=settings.low, high=settings.high)
                                             for d in self.shifts]
                          for axis in ("x", "y") for p in sorted(settings.periods, reverse=True)}
         self.shortest = {key: images for key, images in self.patterns.items() if key[1] == min(settings.periods)}

@@ -237,23 +237,24 @@ class SimulatedCamera(Camera):
         from scanners.sim.sensor import Sensor
         self.name, self.size, self.seed, self.noise = name, size, seed, noise
         self.screen, self.true_z_mm, self.stage_axis = screen, true_z_mm, tuple(stage_axis)
-        optics = make_lens(lens, size[0], size[1], seed, **({} if pixel_um is None else {"pixel_mm": pixel_um / 1000}))
+        optics = make_lens(lens, width=size[0], height=size[1], seed=seed,
+                           **({} if pixel_um is None else {"pixel_mm": pixel_um / 1000}))
         if aim is not None:
             optics = aim_lens(optics, *aim, display=screen.sim)
-        self.sim = SimCamera(optics, Sensor(bit_depth=8), supersample, seed=seed)
+        self.sim = SimCamera(optics, sensor=Sensor(bit_depth=8), supersample=supersample, seed=seed)
         self.bit_depth = self.sim.sensor.bit_depth
         self._seen: tuple[int, int] = (-1, 0)  # (screen serial, grabs of that image)
 
     def set_exposure(self, level: int, z_mm: float, fraction: float = 0.87) -> None:
         """Expose so that the brightest pixel seeing a flat screen at `level` reaches `fraction` of full
         scale at stage position z_mm."""
-        self.sim.set_exposure(self.screen.sim, level, self.true_pose(z_mm), fraction)
+        self.sim.set_exposure(self.screen.sim, level, self.true_pose(z_mm), fraction=fraction)
 
     def true_pose(self, z_mm: float | None = None):
         """The display's TRUE pose (`scanners.sim.pose.DisplayPose`) at stage position z_mm (default: where
         the stage truly is now)."""
         from scanners.sim.pose import DisplayPose
-        return DisplayPose.staged(self.true_z_mm() if z_mm is None else z_mm, self.stage_axis)
+        return DisplayPose.staged(self.true_z_mm() if z_mm is None else z_mm, axis=self.stage_axis)
 
     def grab(self) -> np.ndarray:
         if self.screen.image is None:
@@ -264,7 +265,7 @@ class SimulatedCamera(Camera):
         z = self.true_z_mm()
         rng = np.random.default_rng([self.seed, zlib.crc32(self.screen.image.tobytes()),
                                      round(z * 1e6) & 0xFFFFFFFF, k])
-        return self.sim.render(self.screen.image, self.screen.sim, self.true_pose(z), self.noise, rng=rng)
+        return self.sim.render(self.screen.image, self.screen.sim, self.true_pose(z), noise=self.noise, rng=rng)
 
 
 # ------------------------------------------------------------------------------------------ specs

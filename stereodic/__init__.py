@@ -1,7 +1,7 @@
 """stereodic: per-pixel rays -> virtual cameras, rectified stereo, matching, DIC and 3D.
 
-Depends on `calib` only; `stereodic.cli` and `stereodic.bench` are the two places that know all three
-packages (they drive the simulated rig of `scanners.sim`).
+Its processing modules depend on `calib` only; `stereodic.cli`, `stereodic.bench` and `stereodic.demo` are
+the one layer that knows all three packages (they drive the rigs of `scanners`; tests/test_layering.py).
 """
 
 import os

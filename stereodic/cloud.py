@@ -14,13 +14,33 @@ import numpy as np
 from calib.atomic import atomic_output
 
 
-def make_cloud(points: np.ndarray, scalars: dict[str, np.ndarray], viewpoint: np.ndarray,
+def make_cloud(points: np.ndarray, scalars: dict[str, np.ndarray], viewpoint: np.ndarray, *,
                neighbours: int = 20, std_ratio: float = 3.0, normal_neighbours: int = 12):
-    """An Open3D tensor PointCloud of (N, 3) WCS points with float32 attributes `scalars` (name -> (N,)),
-    after statistical outlier removal (points whose mean distance to their `neighbours` nearest is more
-    than `std_ratio` standard deviations above the mean; neighbours=0 skips it), with normals from the
-    `normal_neighbours` nearest points, oriented towards `viewpoint` (3,). Non-finite points are dropped.
-    Returns (cloud, keep): keep (N,) bool marks the input points that are in the cloud."""
+    """An Open3D tensor point cloud with per-point scalars, outliers removed, normals oriented.
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        WCS mm; non-finite points (or points with a non-finite scalar) are dropped.
+    scalars : dict of str to (N,) float
+        Per-point attributes (e.g. ``quality``, ``gap_mm``), stored as float32.
+    viewpoint : (3,) float
+        WCS mm: the normals are oriented towards it (the scanner).
+    neighbours : int
+        Statistical outlier removal: a point whose mean distance to its `neighbours` nearest is more than
+        `std_ratio` standard deviations above the mean is removed; 0 skips it.
+    std_ratio : float
+        See `neighbours`.
+    normal_neighbours : int
+        The nearest points each normal is fitted to.
+
+    Returns
+    -------
+    cloud : open3d.t.geometry.PointCloud
+        float32 positions (WCS mm), normals and the scalars.
+    keep : (N,) bool
+        The input points that are in the cloud.
+    """
     import open3d as o3d
     points = np.asarray(points, np.float64).reshape(-1, 3)
     keep = np.isfinite(points).all(axis=1)
@@ -40,16 +60,43 @@ def make_cloud(points: np.ndarray, scalars: dict[str, np.ndarray], viewpoint: np
 
 
 def write_cloud(path: str | os.PathLike, cloud) -> None:
-    """Write the cloud as a binary float32 PLY, atomically."""
+    """Write a cloud as a binary float32 PLY (module docstring), atomically.
+
+    Parameters
+    ----------
+    path : path
+        The output ``.ply``.
+    cloud : open3d.t.geometry.PointCloud
+        The cloud (`make_cloud`).
+
+    Returns
+    -------
+    None
+        OSError if Open3D cannot write the file.
+    """
     import open3d as o3d
     with atomic_output(path, suffix=".ply") as tmp:
         if not o3d.t.io.write_point_cloud(str(tmp), cloud, write_ascii=False):
             raise OSError(f"Open3D could not write {path}")
 
 
-def poisson_mesh(cloud, depth: int = 9, trim_quantile: float = 0.02):
-    """The Poisson surface (legacy Open3D TriangleMesh) of a cloud with normals: the
-    vertices of the lowest `trim_quantile` density (far from any point) are removed."""
+def poisson_mesh(cloud, *, depth: int = 9, trim_quantile: float = 0.02):
+    """The Poisson surface of a cloud with normals.
+
+    Parameters
+    ----------
+    cloud : open3d.t.geometry.PointCloud
+        A cloud with normals (`make_cloud`), WCS mm.
+    depth : int
+        The Poisson octree depth.
+    trim_quantile : float
+        The vertices of this lowest quantile of density (far from any point) are removed.
+
+    Returns
+    -------
+    mesh : open3d.geometry.TriangleMesh
+        A legacy Open3D mesh, WCS mm.
+    """
     import open3d as o3d
     mesh, density = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud.to_legacy(), depth=depth)
     density = np.asarray(density)

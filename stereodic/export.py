@@ -23,7 +23,19 @@ FORMATS = ("opencv", "colmap", "json", "vic3d", "mrcal")
 
 
 def pinhole_of(camera: VirtualCamera) -> PinholeCamera:
-    """The OpenCV pinhole camera that is `camera` (a pinhole virtual camera), distortion zero."""
+    """The OpenCV pinhole camera that is a pinhole virtual camera (module docstring).
+
+    Parameters
+    ----------
+    camera : VirtualCamera
+        A virtual camera of model "pinhole" (InputError otherwise), WCS mm.
+
+    Returns
+    -------
+    pinhole : PinholeCamera
+        K (3, 3) virtual pixels, distortion zero, the WCS-to-camera R (3, 3) and t (3,) mm, the virtual
+        size. InputError if the sensor plane is behind the optical centre.
+    """
     if camera.model != "pinhole":
         raise InputError(None, f"a {camera.model} virtual camera has no pinhole model (use the pinhole model)")
     s, c = camera.sensor, camera.centre
@@ -69,10 +81,23 @@ def camera_json(name: str, camera: VirtualCamera) -> dict:
     return d
 
 
-def export_text(cameras: dict[str, VirtualCamera], fmt: str, world_from_rig: np.ndarray | None = None) -> str:
-    """The file text of `cameras` (name -> virtual camera) in format `fmt` (one of FORMATS), poses moved
-    to the world frame by `world_from_rig` (4x4, rig frame -> world; identity when None). The OpenCV YAML
-    and the mrcal model hold one camera."""
+def export_text(cameras: dict[str, VirtualCamera], *, fmt: str, world_from_rig: np.ndarray | None = None) -> str:
+    """Virtual cameras as the text of another program's camera file.
+
+    Parameters
+    ----------
+    cameras : dict of str to VirtualCamera
+        Name -> virtual camera (pinhole, except for "json").
+    fmt : str
+        One of FORMATS: "opencv" and "mrcal" hold one camera, "colmap", "json", "vic3d" any number.
+    world_from_rig : (4, 4) float, optional
+        Rig frame -> world frame, mm: the poses are written in the world frame; None: the identity.
+
+    Returns
+    -------
+    text : str
+        The file's text. InputError for an unknown format or too many cameras for it.
+    """
     m = np.eye(4) if world_from_rig is None else np.asarray(world_from_rig, np.float64)
     if fmt == "json":
         return json.dumps({"format": "stereodic.virtual-cameras/1", "world_from_rig": m.tolist(),

@@ -51,8 +51,20 @@ def rig_pinholes(rig: Rig) -> tuple[PinholeCamera, PinholeCamera]:
 
 
 def stereo_matrices(rig: Rig) -> dict[str, np.ndarray]:
-    """OpenCV's stereo matrices of the rig (module docstring): M1 D1 M2 D2 R T R1 R2 P1 P2 Q, R_wcs,
-    T_wcs (float64; T, T_wcs as 3x1)."""
+    """OpenCV's stereo matrices of the rig (module docstring).
+
+    Parameters
+    ----------
+    rig : Rig
+        The rectified pair (`build_rig`, `load_rig`).
+
+    Returns
+    -------
+    matrices : dict of str to ndarray
+        float64: M1, M2 (3, 3) camera matrices, virtual px; D1, D2 (1, 5) zeros; R (3, 3) and T (3, 1)
+        mm, camera 1 -> camera 2; R1, R2 (3, 3) identity; P1, P2 (3, 4); Q (4, 4) for the disparity
+        xL - xR; R_wcs (3, 3) and T_wcs (3, 1) mm, the world frame -> camera 1 (x_cam1 = R_wcs X + T_wcs).
+    """
     left, right = rig_pinholes(rig)
     rot = right.R @ left.R.T
     t = right.t - rot @ left.t
@@ -129,8 +141,25 @@ def rig_json(rig: Rig) -> dict:
             "stereo": {k: v.tolist() for k, v in stereo_matrices(rig).items()}}
 
 
-def export_rig(path: str | os.PathLike, fmt: str, out: str | os.PathLike) -> None:
-    """Write the rig file at `path` to `out` in format `fmt` (one of FORMATS); colmap writes a folder."""
+def export_rig(path: str | os.PathLike, out: str | os.PathLike, *, fmt: str) -> None:
+    """Write the rig file at `path` to `out` in another program's format.
+
+    Parameters
+    ----------
+    path : path
+        A RIG.npz (`save_rig`).
+    out : path
+        The output file; a folder for ``mrcal`` (left/right.cameramodel) and ``colmap`` (cameras.txt,
+        images.txt, points3D.txt).
+    fmt : str
+        One of FORMATS: ``opencv``, ``dice``, ``json``, ``vic3d``, ``mrcal``, ``colmap`` (module
+        docstring); every pose in the rig's world frame, mm.
+
+    Returns
+    -------
+    None
+        The file (or folder) is written; an unknown `fmt` raises InputError.
+    """
     rig = load_rig(path)
     if fmt == "opencv":
         write_text(out, opencv_stereo_yaml(rig))

@@ -30,9 +30,23 @@ class PlaneFit:
     residuals: np.ndarray
 
 
-def fit_sphere(points: np.ndarray, iterations: int = 10) -> SphereFit:
+def fit_sphere(points: np.ndarray, *, iterations: int = 10) -> SphereFit:
     """Geometric least-squares sphere (minimises the sum of squared radial residuals): the algebraic fit
-    starts Gauss-Newton. ValueError for fewer than 4 points."""
+    starts Gauss-Newton.
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        N >= 4 points, mm (any Cartesian frame); ValueError for fewer.
+    iterations : int
+        The most Gauss-Newton steps (it stops when a step is below 1e-12 mm).
+
+    Returns
+    -------
+    fit : SphereFit
+        ``centre`` (3,) mm in the points' frame, ``radius_mm``, ``residuals`` (N,) mm (distance from the
+        centre minus the radius).
+    """
     p = np.asarray(points, np.float64).reshape(-1, 3)
     if len(p) < 4:
         raise ValueError(f"a sphere needs at least 4 points, got {len(p)}")
@@ -54,7 +68,18 @@ def fit_sphere(points: np.ndarray, iterations: int = 10) -> SphereFit:
 
 
 def fit_plane(points: np.ndarray) -> PlaneFit:
-    """Orthogonal least-squares plane. ValueError for fewer than 3 points."""
+    """Orthogonal least-squares plane.
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        N >= 3 points, mm; ValueError for fewer.
+
+    Returns
+    -------
+    fit : PlaneFit
+        ``centroid`` (3,) mm, unit ``normal`` (3,), signed ``residuals`` (N,) mm along it.
+    """
     p = np.asarray(points, np.float64).reshape(-1, 3)
     if len(p) < 3:
         raise ValueError(f"a plane needs at least 3 points, got {len(p)}")
@@ -63,9 +88,23 @@ def fit_plane(points: np.ndarray) -> PlaneFit:
     return PlaneFit(c, n, (p - c) @ n)
 
 
-def trimmed_range(residuals: np.ndarray, keep: float = 0.997) -> float:
-    """Range (max - min) of the residuals after removing the 1 - `keep` fraction with the largest
-    absolute values (VDI/VDE 2634-2 allows removing up to 0.3 %); keep=1 is the plain range."""
+def trimmed_range(residuals: np.ndarray, *, keep: float = 0.997) -> float:
+    """The form error: the range of the residuals after removing the largest (VDI/VDE 2634-2 allows
+    removing up to 0.3 %).
+
+    Parameters
+    ----------
+    residuals : (N,) float
+        Residuals of a fit, mm (`fit_sphere`, `fit_plane`).
+    keep : float
+        The fraction kept: the 1 - `keep` fraction with the largest absolute values is removed; 1: the
+        plain range.
+
+    Returns
+    -------
+    range : float
+        max - min of the kept residuals, mm.
+    """
     r = np.asarray(residuals, np.float64)
     if keep < 1:
         r = r[np.abs(r) <= np.quantile(np.abs(r), keep)]

@@ -97,11 +97,26 @@ class IMM:
         return index, weights * self.valid[..., None]
 
 
-def build_imm(prvm: PRVM, sensor: VirtualSensor, tol_px: float = 1e-6, iterations: int = 12) -> IMM:
-    """The IMM of `sensor` for the real camera `prvm`.
+def build_imm(prvm: PRVM, sensor: VirtualSensor, *, tol_px: float = 1e-6, iterations: int = 12) -> IMM:
+    """The IMM of a virtual sensor for a real camera (module docstring).
 
-    A virtual pixel is valid when the inversion converges (plane residual < tol_px virtual pixels) to a
-    real position inside [0, W-1] x [0, H-1] whose 4 neighbouring real pixels are valid.
+    Parameters
+    ----------
+    prvm : PRVM
+        The real camera's (H, W) rays, WCS mm.
+    sensor : VirtualSensor
+        The virtual sensor plane (Hv, Wv pixels), WCS mm.
+    tol_px : float
+        Convergence tolerance of the inversion: the residual on the plane, virtual pixels.
+    iterations : int
+        Newton iterations per virtual pixel.
+
+    Returns
+    -------
+    imm : IMM
+        ``map_x``, ``map_y`` (Hv, Wv) float32: the real column u and row v (pixels, integers at pixel
+        centres) each virtual pixel samples, -1 where blank; ``valid`` (Hv, Wv) bool: the inversion
+        converged to a position inside [0, W-1] x [0, H-1] whose 4 neighbouring real pixels are valid.
     """
     q = np.ascontiguousarray(project_to_plane(prvm, sensor))  # (H, W, 2) virtual coords of real pixels
     coarse = _coarse_inverse(q, sensor.width, sensor.height, tol_px)
@@ -195,9 +210,23 @@ def _invert(q, start, start_scale, target_step, iterations, tol_px, map_x, map_y
                 valid[row, col] = True
 
 
-def apply_imm(image: np.ndarray, imm: IMM, fixed_point: bool = False) -> np.ndarray:
-    """The virtual image of a real `image` (H, W) of any dtype cv2.remap takes: bilinear samples at the
-    IMM's positions, blank pixels 0; same dtype. `fixed_point` uses OpenCV's 1/32-pixel maps."""
+def apply_imm(image: np.ndarray, imm: IMM, *, fixed_point: bool = False) -> np.ndarray:
+    """The virtual image of a real image: bilinear samples at the IMM's positions (`cv2.remap`).
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, C) array
+        The real image, any dtype cv2.remap takes; (H, W) must be the IMM's real size.
+    imm : IMM
+        The Inverse Mapping Matrix (`build_imm`).
+    fixed_point : bool
+        Use OpenCV's fixed-point maps (positions rounded to 1/32 pixel) instead of the float maps.
+
+    Returns
+    -------
+    virtual : (Hv, Wv) or (Hv, Wv, C) array
+        The same dtype; blank virtual pixels 0. InputError if the image is not of the IMM's real size.
+    """
     if image.shape[:2] != (imm.real_size[1], imm.real_size[0]):
         raise InputError(None, f"image is {image.shape[1]}x{image.shape[0]} but the camera is "
                                f"{imm.real_size[0]}x{imm.real_size[1]}")

@@ -93,12 +93,31 @@ def phase_step(phase: np.ndarray) -> float:
     return float(np.median(d)) if d.size else 0.0
 
 
-def match_rows(left: np.ndarray, right: np.ndarray, max_step: float | None = None, max_ratio: float = 4.0,
+def match_rows(left: np.ndarray, right: np.ndarray, *, max_step: float | None = None, max_ratio: float = 4.0,
                tolerance_px: float = 0.5, check: bool = True) -> np.ndarray:
-    """(H, W) float32 sub-pixel column x_r in `right` matching each pixel of `left` (same row), NaN where
-    unmatched (module docstring). Phases may decrease along the rows (both maps then are negated).
-    max_step: the largest phase step between neighbouring pixels still taken as continuous (default 4 x
-    the median step); check: do the left-right consistency check."""
+    """Match a rectified pair's phase maps along the rows (module docstring).
+
+    Parameters
+    ----------
+    left, right : (H, W) float32
+        Absolute phase maps of the rectified pair (e.g. the projector column, projector pixels), NaN
+        where not measured; they may decrease along the rows (both are then negated).
+    max_step : float, optional
+        The largest phase step between neighbouring pixels still taken as continuous, phase units;
+        None: 4 x the median step.
+    max_ratio : float
+        The largest ratio of the right interval's phase step to the left pixel's.
+    tolerance_px : float
+        Left-right consistency: the back-match must return within this, pixels.
+    check : bool
+        Do the left-right consistency check.
+
+    Returns
+    -------
+    x_right : (H, W) float32
+        The sub-pixel column in `right` (same row) matching each left pixel, virtual pixels; NaN where
+        unmatched.
+    """
     left = np.ascontiguousarray(left, np.float32)
     right = np.ascontiguousarray(right, np.float32)
     if left.shape != right.shape or left.ndim != 2:

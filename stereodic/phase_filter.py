@@ -85,10 +85,24 @@ def continuous(phase: np.ndarray, max_step: float | None = None) -> np.ndarray:
     return ok
 
 
-def smooth_phase(phase: np.ndarray, sigma_px: float, max_step: float | None = None) -> np.ndarray:
-    """(H, W) float32: `phase` (float32, NaN = not measured) filtered by the masked local quadratic fit
-    of `sigma_px` pixels (module docstring); NaN where the window is not whole and continuous.
-    sigma_px <= 0 returns the phase unchanged."""
+def smooth_phase(phase: np.ndarray, *, sigma_px: float, max_step: float | None = None) -> np.ndarray:
+    """An absolute phase map filtered by the masked local quadratic fit (module docstring).
+
+    Parameters
+    ----------
+    phase : (H, W) float32
+        The phase (e.g. projector pixels) in a rectified virtual image, NaN where not measured.
+    sigma_px : float
+        The Gaussian weights' sigma, virtual pixels; <= 0 returns a copy of the phase unchanged.
+    max_step : float, optional
+        The largest phase step between neighbours still continuous, phase units; None: 4 x the median
+        step along the rows.
+
+    Returns
+    -------
+    smoothed : (H, W) float32
+        The filtered phase; NaN where the window is not whole and continuous.
+    """
     phase = np.asarray(phase, np.float32)
     if sigma_px <= 0:
         return phase.copy()

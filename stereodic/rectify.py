@@ -17,19 +17,38 @@ from stereodic.rig import Rig
 from stereodic.undistort import undistort_image
 
 
-def rectify_pair(rig: Rig, left: np.ndarray, right: np.ndarray, intensity: bool = True,
+def rectify_pair(rig: Rig, left: np.ndarray, right: np.ndarray, *, intensity: bool = True,
                  fixed_point: bool = False, where: tuple = ("left", "right"), exact: bool = False
                  ) -> tuple[np.ndarray, np.ndarray]:
-    """The rectified (virtual) images of a real image pair (8/16-bit, each its camera's size): same dtype,
-    (Hv, Wv), blank pixels 0. intensity: apply each camera's intensity matrix if the rig has one;
-    fixed_point: OpenCV's 1/32-pixel maps instead of exact float maps; where: the images' names for
-    error messages; exact: float32 images, the interpolated grey levels not rounded to the input's integer
-    type (for DIC: the rounding adds noise to every match)."""
+    """The rectified (virtual) images of a real image pair: intensity matrix, then IMM, per camera.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rectified pair (`stereodic.rig.build_rig`, `load_rig`).
+    left, right : (H, W) uint8 or uint16
+        The real images, each its camera's size.
+    intensity : bool
+        Apply each camera's intensity matrix, where the rig has one.
+    fixed_point : bool
+        OpenCV's 1/32-pixel maps instead of the exact float maps.
+    where : (str, str)
+        The images' names in messages.
+    exact : bool
+        float32 images: the interpolated grey levels not rounded to the input's integer type (for DIC:
+        the rounding adds noise to every match).
+
+    Returns
+    -------
+    left_v, right_v : (Hv, Wv) arrays
+        The rectified images on the rig's common virtual sensor, the input's dtype (float32 with
+        `exact`); blank pixels 0.
+    """
     out = []
     for side, image, name in zip(("left", "right"), (left, right), where):
         cam = rig.camera(side)
-        out.append(undistort_image(image, cam.imm, cam.im if intensity else None, fixed_point, where=name,
-                                   exact=exact))
+        out.append(undistort_image(image, cam.imm, im=cam.im if intensity else None, fixed_point=fixed_point,
+                                   where=name, exact=exact))
     return out[0], out[1]
 
 
@@ -83,9 +102,9 @@ def row_alignment(left: np.ndarray, right: np.ndarray, *, max_dy: int = 6, half:
         return RowAlignment(*(np.empty(0) for _ in range(5)))
     x, y, du, dv = np.array(seeds, np.float64).T
     settings = DicSettings(subset=side, min_zncc=min_zncc)
-    res = correlate_points(BSplineImage.from_image(left, 3, settings.prefilter_sigma),
-                           BSplineImage.from_image(right, 3, settings.prefilter_sigma), x, y,
-                           np.stack([du, dv], 1), settings)
+    res = correlate_points(BSplineImage.from_image(left, order=3, prefilter_sigma=settings.prefilter_sigma),
+                           BSplineImage.from_image(right, order=3, prefilter_sigma=settings.prefilter_sigma), x, y,
+                           np.stack([du, dv], 1), settings=settings)
     ok = np.isfinite(res.u) & (np.abs(res.v) <= max_dy)
     return RowAlignment(x[ok], y[ok], x[ok] + res.u[ok], res.v[ok], res.zncc[ok])
 

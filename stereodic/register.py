@@ -36,10 +36,30 @@ class Registration:
     pixels: int
 
 
-def estimate_registration(own: PRVM, common: PRVM, max_rays: int = 100_000, iterations: int = 8,
+def estimate_registration(own: PRVM, common: PRVM, *, max_rays: int = 100_000, iterations: int = 8,
                           where=None) -> Registration:
-    """The rigid transform from `own`'s WCS into `common`'s (module docstring). InputError naming
-    `where` if the two are not the same camera (sizes differ) or share too few valid pixels."""
+    """The rigid transform from one camera's own WCS into a common WCS (module docstring).
+
+    Parameters
+    ----------
+    own : PRVM
+        The camera's careful calibration, in its own WCS (mm).
+    common : PRVM
+        The same camera's (same pixels) calibration in the common WCS.
+    max_rays : int
+        The fit uses an even sub-grid of at most this many pixels valid in both.
+    iterations : int
+        Re-weighting iterations.
+    where : str or path, optional
+        The name of `common` (a file) in messages.
+
+    Returns
+    -------
+    registration : Registration
+        X_common = rotation (3, 3) @ X_own + translation_mm (3,), mm; the RMS distance (mm) between the
+        transformed and common rays and the number of pixels used. InputError naming `where` if the two
+        are not the same camera (sizes differ) or share fewer than 100 valid pixels.
+    """
     if (own.width, own.height) != (common.width, common.height):
         raise InputError(where, f"is {common.width}x{common.height} but the camera is {own.width}x{own.height}: "
                                 f"not the same camera")

@@ -110,9 +110,20 @@ class Rig:
         return float((self.sensor.origin - self.left.centre) @ self.sensor.normal)
 
     def to_world(self, points: np.ndarray, *, vector: bool = False) -> np.ndarray:
-        """(..., 3) rig-frame points (mm) in the reporting frame: world_from_rig applied (its rotation
-        alone with `vector`, for directions and displacements). An identity transform returns the input
-        unchanged."""
+        """Rig-frame points in the reporting frame: world_from_rig applied.
+
+        Parameters
+        ----------
+        points : (..., 3) float
+            Points in the rig's frame (the WCS of its rays), mm; or vectors, with `vector`.
+        vector : bool
+            Apply the rotation alone (directions, displacements).
+
+        Returns
+        -------
+        points : (..., 3) float64
+            In the world frame, mm; the input itself when world_from_rig is the identity.
+        """
         T = np.asarray(self.world_from_rig, np.float64)
         if np.array_equal(T, np.eye(4)):
             return points
@@ -275,15 +286,33 @@ def common_field(prvms: list[PRVM], plane: VirtualSensor, width: int, height: in
 
 # --------------------------------------------------------------------------------------- building
 
-def build_rig(left: PRVM, right: PRVM, model: str = "pinhole", width: int | None = None,
+def build_rig(left: PRVM, right: PRVM, *, model: str = "pinhole", width: int | None = None,
               height: int | None = None, pitch_mm=None, plane_z_mm: float | None = None,
               where: tuple = ("left", "right")) -> Rig:
-    """The rectified virtual stereo pair of two calibrated cameras in one WCS.
+    """The rectified virtual stereo pair of two calibrated cameras in one WCS (module docstring).
 
-    width, height: virtual image size (default: the left camera's); pitch_mm: virtual pixel pitch on the
-    plane (default: the largest common field); plane_z_mm: the working point's z (default: the left
-    PRVM's reference_z_mm); where: names of the two inputs for error messages (file names).
-    InputError for PRVMs that do not share a WCS, coincident centres or fields that do not overlap.
+    Parameters
+    ----------
+    left, right : PRVM
+        The two cameras' rays, in one WCS (mm).
+    model : {"pinhole", "modelless"}
+        The rays of the Virtual PRVMs: the pinhole rays (EVM = model-less - pinhole) or the model-less
+        ones (EVM zero); the rectified images are the same.
+    width, height : int, optional
+        The virtual image size; None: the left camera's.
+    pitch_mm : float or (float, float), optional
+        The virtual pixel pitch on the common plane, mm; None: the largest common field.
+    plane_z_mm : float, optional
+        WCS z of the working point, mm; None: the left PRVM's reference_z_mm.
+    where : (str, str)
+        Names of the two inputs (file names) for messages and the cameras' ``info``.
+
+    Returns
+    -------
+    rig : Rig
+        One (Hv, Wv) VirtualSensor on the Rectified Common FOV Plane (WCS, mm) and the two cameras on it
+        (centre, IMM, model-less directions, intensity matrix). InputError for PRVMs that do not share a
+        WCS, coincident centres or fields that do not overlap.
     """
     if model not in RIG_MODELS:
         raise InputError("--model", f"a stereo rig is {' or '.join(RIG_MODELS)} (a telecentric pair has no "
@@ -319,16 +348,41 @@ def build_rig(left: PRVM, right: PRVM, model: str = "pinhole", width: int | None
 def rig_from_files(left: str | os.PathLike, right: str | os.PathLike, *, model: str = "pinhole",
                    width: int | None = None, height: int | None = None, pitch_mm=None,
                    plane_z_mm: float | None = None) -> Rig:
-    """`build_rig` of the two PRVM files `left` and `right` (paths; the files name the cameras in
-    messages and in the rig's `info`); the options as in `build_rig`."""
-    return build_rig(load_prvm(left), load_prvm(right), model, width, height, pitch_mm, plane_z_mm,
-                     (os.fspath(left), os.fspath(right)))
+    """`build_rig` of two PRVM files.
+
+    Parameters
+    ----------
+    left, right : path
+        The two cameras' PRVM files, in one WCS; their paths name the cameras in messages and in the
+        rig's ``info``.
+    model, width, height, pitch_mm, plane_z_mm
+        As in `build_rig`.
+
+    Returns
+    -------
+    rig : Rig
+        As `build_rig`.
+    """
+    return build_rig(load_prvm(left), load_prvm(right), model=model, width=width, height=height,
+                     pitch_mm=pitch_mm, plane_z_mm=plane_z_mm, where=(os.fspath(left), os.fspath(right)))
 
 
 # ------------------------------------------------------------------------------------------- file
 
 def save_rig(path: str | os.PathLike, rig: Rig) -> None:
-    """Write the RIG file (module docstring), atomically."""
+    """Write the RIG file (module docstring), atomically.
+
+    Parameters
+    ----------
+    path : path
+        The output ``.npz``.
+    rig : Rig
+        The rectified pair (`build_rig`).
+
+    Returns
+    -------
+    None
+    """
     arrays = {"meta": np.array(json.dumps(rig.meta()))}
     for side in SIDES:
         cam = rig.camera(side)
@@ -342,7 +396,18 @@ def save_rig(path: str | os.PathLike, rig: Rig) -> None:
 
 
 def load_rig(path: str | os.PathLike) -> Rig:
-    """Read a RIG file; InputError naming the file if it is missing or not one."""
+    """Read a RIG file (module docstring).
+
+    Parameters
+    ----------
+    path : path
+        A file written by `save_rig` (``stereodic rig``, ``stereodic import``).
+
+    Returns
+    -------
+    rig : Rig
+        The sensor and both cameras. InputError naming the file if it is missing or not a rig file.
+    """
     meta, arrays = read_npz(path, FORMAT, "rig", advice={
         PRVM_FORMAT: "a camera file: build a rig with `stereodic rig LEFT.npz RIGHT.npz`"})
     sensor = VirtualSensor.from_dict(meta["sensor"])

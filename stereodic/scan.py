@@ -242,13 +242,37 @@ def match_and_triangulate(rig: Rig, phase_left: np.ndarray, phase_right: np.ndar
                       xl[good].astype(np.float64), xrs[good])
 
 
-def scan_state(rig: Rig, capture: Capture, state: int, cameras: tuple[str, str] | None = None,
+def scan_state(rig: Rig, capture: Capture, state: int, *, cameras: tuple[str, str] | None = None,
                corrected: bool = True, images=None, smooth_px: float = SMOOTH_PX) -> tuple[ScanResult, dict]:
-    """One scan: decode both cameras, rectify, filter the phase (`stereodic.phase_filter`, Gaussian
-    sigma `smooth_px` virtual pixels; 0: none), match, triangulate. Returns the result and the
-    intermediate maps: "phase" (filtered), "modulation" (left, right) virtual maps, "matches"
-    x_right, "real" (left, right) PhaseMaps (for comparisons and noise estimates). InputError if nothing
-    matched (the object is outside the common field of view, or unlit)."""
+    """One scan: decode both cameras, rectify, filter the phase, match, triangulate (module docstring).
+
+    Parameters
+    ----------
+    rig : Rig
+        The rectified pair of the dataset's two cameras.
+    capture : Capture
+        A dataset of kind ``scan`` (`calib.capture.load_capture`).
+    state : int
+        The state (scan) to process.
+    cameras : (str, str), optional
+        The dataset's left and right cameras; None: the rig's camera names.
+    corrected : bool
+        Triangulate with the EVM-corrected (real) rays; False: the pinhole rays.
+    images : dict of str to ndarray, optional
+        Frames already in memory, by file name; None: read from disk.
+    smooth_px : float
+        The phase filter's Gaussian sigma, virtual pixels (`stereodic.phase_filter`); 0: none.
+
+    Returns
+    -------
+    result : ScanResult
+        The N matched points: ``points`` (N, 3) float64 WCS mm, ``gap_mm``, ``quality``, and their
+        virtual positions ``row``, ``x_left``, ``x_right`` (pixels).
+    maps : dict
+        "phase" (left, right) filtered and "modulation" (left, right) (Hv, Wv) float32 virtual maps,
+        "matches" (Hv, Wv) x_right, "real" (left, right) PhaseMaps of the real images. InputError if
+        nothing matched (the object is outside the common field of view, or unlit).
+    """
     cameras = cameras or (rig.left.name, rig.right.name)
     sets = check_scan_dataset(capture, cameras, state)
     phases, mods, real = [], [], []
@@ -260,7 +284,7 @@ def scan_state(rig: Rig, capture: Capture, state: int, cameras: tuple[str, str] 
         except InputError as exc:
             raise InputError(capture.manifest_path, f"camera {cam!r}: {exc.problem}") from None
         mods.append(virtual_phase(rig, side, pm.modulation))
-    phases = [smooth_phase(p, smooth_px) for p in phases]
+    phases = [smooth_phase(p, sigma_px=smooth_px) for p in phases]
     xr = match_rows(phases[0], phases[1])
     result = match_and_triangulate(rig, phases[0], phases[1], mods[0], mods[1], corrected, matches=xr)
     if len(result.points) == 0:
@@ -315,9 +339,9 @@ def scan_job(rig: Rig, job: ScanJob, cameras: tuple[str, str] | None = None, cor
     from stereodic.cloud import make_cloud, poisson_mesh, write_cloud, write_mesh
     capture = capture or load_capture(job.dataset)
     viewpoint = (rig.left.centre + rig.right.centre) / 2
-    result, _ = scan_state(rig, capture, job.state, cameras, corrected, smooth_px=smooth_px)
+    result, _ = scan_state(rig, capture, job.state, cameras=cameras, corrected=corrected, smooth_px=smooth_px)
     cloud, _ = make_cloud(result.points, {"quality": result.quality, "gap_mm": result.gap_mm}, viewpoint,
-                          neighbours, std_ratio)
+                          neighbours=neighbours, std_ratio=std_ratio)
     write_cloud(job.cloud, cloud)
     written = [(job.cloud, len(cloud.point.positions), "points")]
     if job.mesh is not None:

@@ -43,11 +43,27 @@ def _box_sum(a: np.ndarray, window: int) -> np.ndarray:
     return ndimage.uniform_filter(a, size=size, mode="constant", cval=0.0) * (window * window)
 
 
-def strain_3d(X: np.ndarray, D: np.ndarray, window: int = 5, min_fraction: float = 0.6) -> Strain:
-    """Strain of surface points X (ny, nx, 3) displaced by D (ny, nx, 3) (NaN where not measured),
-    fitted in `window` x `window` grid neighbourhoods (odd) holding at least `min_fraction` valid
-    points."""
-    return StrainFit(X, window, min_fraction)(D)
+def strain_3d(X: np.ndarray, D: np.ndarray, *, window: int = 5, min_fraction: float = 0.6) -> Strain:
+    """Surface strain of a 3-D displacement field, fitted on the local tangent plane (module docstring).
+
+    Parameters
+    ----------
+    X : (ny, nx, 3) float
+        The surface points on a grid, any length unit (e.g. mm); NaN where not measured.
+    D : (ny, nx, 3) float
+        Their displacements, the same unit and frame; NaN where not measured.
+    window : int
+        Grid points per side of each fit (odd, >= 3; ValueError otherwise).
+    min_fraction : float
+        The least fraction of valid points in a window for a fit.
+
+    Returns
+    -------
+    strain : Strain
+        Green-Lagrange ``exx``, ``eyy``, ``exy`` (ny, nx), dimensionless, in the tangent frame (e1 the
+        projection of x on the plane, e2 = n x e1), NaN where not ``valid``; ``grad``, ``normal``, ``e1``.
+    """
+    return StrainFit(X, window=window, min_fraction=min_fraction)(D)
 
 
 @dataclass
@@ -64,18 +80,39 @@ class _Frame:
 
 
 class StrainFit:
-    """`strain_3d` of displacements of the surface X (ny, nx, 3): calling it with D (ny, nx, 3) gives the
-    Strain. What depends on X and on which points are valid only - the local frames and the fits'
-    normal matrices, most of the work - is kept for the last set of valid points, so that the states of
-    a sequence (all fitted on the reference surface, mostly with the same points) share it."""
+    """`strain_3d` of many displacement fields on one surface: calling it with D gives the Strain.
 
-    def __init__(self, X: np.ndarray, window: int = 5, min_fraction: float = 0.6):
+    What depends on X and on which points are valid only - the local frames and the fits' normal
+    matrices, most of the work - is kept for the last set of valid points, so that the states of a
+    sequence (all fitted on the reference surface, mostly with the same points) share it.
+
+    Parameters
+    ----------
+    X : (ny, nx, 3) float
+        The surface points on a grid, any length unit; NaN where not measured.
+    window, min_fraction
+        As `strain_3d`.
+    """
+
+    def __init__(self, X: np.ndarray, *, window: int = 5, min_fraction: float = 0.6):
         if window < 3 or window % 2 == 0:
             raise ValueError(f"strain window must be odd and >= 3, got {window}")
         self.X, self.window, self.min_fraction = X, window, min_fraction
         self._frame: _Frame | None = None
 
     def __call__(self, D: np.ndarray) -> Strain:
+        """The strain of one displacement field of the surface.
+
+        Parameters
+        ----------
+        D : (ny, nx, 3) float
+            The displacements of X, its unit and frame; NaN where not measured.
+
+        Returns
+        -------
+        strain : Strain
+            As `strain_3d(X, D)`.
+        """
         valid = np.isfinite(self.X).all(-1) & np.isfinite(D).all(-1)
         if self._frame is None or not np.array_equal(valid, self._frame.valid):
             self._frame = self._frame_of(valid)
@@ -139,11 +176,28 @@ class StrainFit:
         return _Frame(valid, Xc, normal, e1, E, ok, N_inv)
 
 
-def strain_2d(xs: np.ndarray, ys: np.ndarray, u: np.ndarray, v: np.ndarray, window: int = 5,
+def strain_2d(xs: np.ndarray, ys: np.ndarray, u: np.ndarray, v: np.ndarray, *, window: int = 5,
               min_fraction: float = 0.6) -> Strain:
-    """In-plane strain of the displacement (u, v) (ny, nx), NaN where not measured, on the grid of
-    positions xs (nx,), ys (ny,) (same units as u, v); frame e1 = x, e2 = y."""
+    """In-plane strain of a 2-D displacement field on a grid (module docstring).
+
+    Parameters
+    ----------
+    xs : (nx,) float
+        The grid's x positions (e.g. pixels, `Grid.xs`).
+    ys : (ny,) float
+        Its y positions, the same unit.
+    u, v : (ny, nx) float
+        The displacement along x and y, the same unit; NaN where not measured.
+    window, min_fraction
+        As `strain_3d`.
+
+    Returns
+    -------
+    strain : Strain
+        Green-Lagrange ``exx``, ``eyy``, ``exy`` (ny, nx), dimensionless, frame e1 = x, e2 = y; NaN where
+        not ``valid``.
+    """
     Xg, Yg = np.meshgrid(np.asarray(xs, np.float64), np.asarray(ys, np.float64))
     X = np.stack([Xg, Yg, np.zeros_like(Xg)], -1)
     D = np.stack([u, v, np.zeros_like(u)], -1)
-    return strain_3d(X, D, window, min_fraction)
+    return strain_3d(X, D, window=window, min_fraction=min_fraction)

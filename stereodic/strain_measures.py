@@ -62,8 +62,23 @@ def cauchy_green(strain: Strain) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.sum(g1 * g1, -1), np.sum(g2 * g2, -1), np.sum(g1 * g2, -1)
 
 
-def measure_strain(strain: Strain, measure: str = "green-lagrange") -> StrainMeasure:
-    """The strain `measure` (module docstring) of a fitted strain (`strain_3d`, `strain_2d`)."""
+def measure_strain(strain: Strain, *, measure: str = "green-lagrange") -> StrainMeasure:
+    """A strain measure, its principal strains and von Mises equivalent, of a fitted strain.
+
+    Parameters
+    ----------
+    strain : Strain
+        The fit (`strain_3d`, `strain_2d`), (ny, nx).
+    measure : str
+        One of MEASURES: "green-lagrange", "euler-almansi", "log", "engineering" (module docstring).
+
+    Returns
+    -------
+    measure : StrainMeasure
+        ``exx``, ``eyy``, ``exy`` (ny, nx) in the fit's frame (e1, e2), principal ``major`` >= ``minor``,
+        ``angle_deg`` (e1 to the major direction, degrees), ``von_mises``; dimensionless, NaN exactly
+        where not ``valid``. ValueError for an unknown measure.
+    """
     if measure not in MEASURES:
         raise ValueError(f"strain measure must be one of {MEASURES}, got {measure!r}")
     ok = strain.valid

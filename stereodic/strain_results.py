@@ -78,9 +78,9 @@ def strains(result: DicResult, window: int, measure: str) -> Iterator[StrainMeas
     g = result.grid
     if result.kind == "dic2d":
         for u, v in zip(iter_slices(result.path, "u"), iter_slices(result.path, "v")):
-            yield measure_strain(strain_2d(g.xs, g.ys, u, v, window), measure)
+            yield measure_strain(strain_2d(g.xs, g.ys, u, v, window=window), measure=measure)
         return
     points = iter_slices(result.path, "points")
-    fit = StrainFit(next(points), window)
+    fit = StrainFit(next(points), window=window)
     for disp in iter_slices(result.path, "displacement"):
-        yield measure_strain(fit(disp), measure)
+        yield measure_strain(fit(disp), measure=measure)

@@ -32,10 +32,29 @@ class Triangulation:
     gap_mm: np.ndarray
 
 
-def rays_at(rig: Rig, side: str, x: np.ndarray, row: np.ndarray, corrected: bool = True
+def rays_at(rig: Rig, side: str, x: np.ndarray, row: np.ndarray, *, corrected: bool = True
             ) -> tuple[np.ndarray, np.ndarray]:
-    """Rays of virtual positions (x, row) of camera `side`: (points on the common plane (N, 3) WCS mm,
-    unit directions (N, 3)); see the module docstring for `corrected`."""
+    """The rays of virtual positions of one camera of the rig (module docstring).
+
+    Parameters
+    ----------
+    rig : Rig
+        The rectified pair.
+    side : {"left", "right"}
+        The camera.
+    x, row : (...) float
+        Virtual column and row, pixels (sub-pixel; integers at virtual pixel centres).
+    corrected : bool
+        True: the model-less (EVM-corrected, real) rays; False: the pinhole rays from the camera's
+        optical centre.
+
+    Returns
+    -------
+    points : (..., 3) float64
+        Where the rays cross the common plane, WCS mm.
+    directions : (..., 3) float64
+        Unit directions, WCS; NaN where blank.
+    """
     p = rig.sensor.points(x, row)
     if corrected:
         d = bilinear(rig.camera(side).direction, x, row)
@@ -121,10 +140,29 @@ def _triangulate(xl, rl, xr, rr, origin, eu, ev, dir_l, dir_r, c_l, c_r, correct
         gap[k] = np.sqrt(g)
 
 
-def triangulate(rig: Rig, x_left, x_right, row, row_right=None, corrected: bool = True) -> Triangulation:
-    """3D points of matches (x_left, row) <-> (x_right, row_right) (arrays of one shape; row_right
-    defaults to row, the rectified case). Returns points (..., 3) WCS mm and gap_mm (...). A numba kernel
-    (matches in parallel) that equals `closest_points(*rays_at(left), *rays_at(right))`."""
+def triangulate(rig: Rig, x_left, x_right, row, *, row_right=None, corrected: bool = True) -> Triangulation:
+    """3D points of matched virtual positions (x_left, row) <-> (x_right, row_right).
+
+    A numba kernel (matches in parallel) that equals `closest_points(*rays_at(left), *rays_at(right))`.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rectified pair.
+    x_left, x_right, row : (...) float
+        Matched virtual columns in the left and right images and the left row, pixels (sub-pixel;
+        broadcast to one shape).
+    row_right : (...) float, optional
+        The right row, pixels, where it differs (non-central lenses); None: `row` (the rectified case).
+    corrected : bool
+        True: the EVM-corrected (real) rays; False: the pinhole rays (what the Q matrix computes).
+
+    Returns
+    -------
+    triangulation : Triangulation
+        ``points`` (..., 3) float64, WCS mm: the midpoints of the two rays' closest points; ``gap_mm``
+        (...) float64: the rays' distance, mm. NaN where a ray is blank or the two are parallel.
+    """
     x_left, x_right, row = np.broadcast_arrays(*(np.asarray(a, np.float64) for a in (x_left, x_right, row)))
     row_right = row if row_right is None else np.broadcast_to(np.asarray(row_right, np.float64), row.shape)
     shape = row.shape

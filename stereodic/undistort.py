@@ -18,7 +18,18 @@ from stereodic.imm import IMM, apply_imm
 
 
 def intensity_matrix(prvm: PRVM) -> IntensityMatrix | None:
-    """The IM kept in a PRVM file's extra arrays, or None."""
+    """The intensity matrix a PRVM file keeps (module docstring).
+
+    Parameters
+    ----------
+    prvm : PRVM
+        A calibration (`calib.prvm_file.load_prvm`).
+
+    Returns
+    -------
+    im : IntensityMatrix or None
+        Each (H, W) pixel's offset, gain and response, from its ``im_*`` arrays; None when it has none.
+    """
     return IntensityMatrix.from_arrays(prvm.extra) if "im_offset" in prvm.extra else None
 
 
@@ -48,14 +59,35 @@ def linearise(image: np.ndarray, im: IntensityMatrix) -> np.ndarray:
     return np.clip(np.rint(out), 0, top).astype(image.dtype)
 
 
-def undistort_image(image: np.ndarray, imm: IMM, im: IntensityMatrix | None = None,
+def undistort_image(image: np.ndarray, imm: IMM, *, im: IntensityMatrix | None = None,
                     fixed_point: bool = False, where=None, exact: bool = False) -> np.ndarray:
-    """The virtual image of a real 8/16-bit image: checked, linearised by the IM if given, mapped. Same
-    dtype, or with `exact` float32 (no rounding of the interpolated grey levels back to integers: for
-    measuring on the virtual image, e.g. DIC, where that rounding would add its noise)."""
+    """The virtual image of a real image: checked, linearised by the intensity matrix if given, mapped.
+
+    Parameters
+    ----------
+    image : (H, W) uint8 or uint16
+        The real image, the camera's size.
+    imm : IMM
+        The virtual camera's Inverse Mapping Matrix (`stereodic.imm.build_imm`).
+    im : IntensityMatrix, optional
+        The camera's intensity matrix (`intensity_matrix`); its bit depth must be the image's.
+    fixed_point : bool
+        OpenCV's 1/32-pixel maps instead of the exact float maps.
+    where : str or path, optional
+        The image's name in messages.
+    exact : bool
+        float32 output: the interpolated grey levels not rounded back to integers (for measuring on the
+        virtual image, e.g. DIC, where that rounding would add its noise).
+
+    Returns
+    -------
+    virtual : (Hv, Wv) array
+        The image's dtype (float32 with `exact`); blank pixels 0. InputError naming `where` if the size,
+        pixel type or bit depth does not fit.
+    """
     check_image(image, imm, im, where)
     if im is not None:
         image = linearise(image, im)
     if exact:
         image = image.astype(np.float32)
-    return apply_imm(image, imm, fixed_point)
+    return apply_imm(image, imm, fixed_point=fixed_point)

@@ -179,14 +179,28 @@ def _cauchy_weights(r: np.ndarray, floor: float) -> np.ndarray:
     return 1.0 / (1.0 + (r / c) ** 2)
 
 
-def fit_optical_centre(prvm: PRVM, iterations: int = 12, max_rays: int = 250_000
+def fit_optical_centre(prvm: PRVM, *, iterations: int = 12, max_rays: int = 250_000
                        ) -> tuple[np.ndarray, np.ndarray]:
     """The point nearest to all rays, and how far each ray misses it.
 
     Minimises sum w_i * dist(C, ray_i)^2 (a 3x3 linear system) with iteratively re-weighted Cauchy
-    weights, so that a few bad pixels do not pull the centre. Fitted on an even sub-grid of at most
-    `max_rays` rays. Returns (centre (3,) WCS mm, miss_mm (H, W) float64: the distance from the centre to
-    each ray, NaN where the pixel is not valid).
+    weights, so that a few bad pixels do not pull the centre.
+
+    Parameters
+    ----------
+    prvm : PRVM
+        The camera's (H, W) rays, WCS mm.
+    iterations : int
+        Re-weighting iterations.
+    max_rays : int
+        The fit uses an even sub-grid of at most this many valid rays.
+
+    Returns
+    -------
+    centre : (3,) float64
+        The optical centre, WCS mm.
+    miss_mm : (H, W) float64
+        Distance from the centre to each pixel's ray, mm; NaN where the pixel is not valid.
     """
     if not prvm.valid.any():
         raise InputError(None, "the PRVM has no valid pixel")
@@ -208,16 +222,45 @@ def _miss(o: np.ndarray, d: np.ndarray, point: np.ndarray) -> np.ndarray:
 
 
 def miss_distance(prvm: PRVM, centre: np.ndarray) -> np.ndarray:
-    """(H, W) mm: distance from `centre` (WCS mm) to each pixel's ray; NaN where not valid."""
+    """How far each pixel's ray misses a point (the non-centrality about an optical centre).
+
+    Parameters
+    ----------
+    prvm : PRVM
+        The camera's (H, W) rays, WCS mm.
+    centre : (3,) float
+        The point, WCS mm.
+
+    Returns
+    -------
+    miss_mm : (H, W) float64
+        Distance from `centre` to each pixel's ray, mm; NaN where not valid.
+    """
     return np.where(prvm.valid, _miss(prvm.origin, prvm.direction, np.asarray(centre, np.float64)), np.nan)
 
 
 def miss_in_pixels(prvm: PRVM, centre: np.ndarray, miss_mm: np.ndarray, z_mm: float) -> np.ndarray:
-    """(H, W) pixels: the image error a pinhole at `centre` makes for a point on the plane z = z_mm.
+    """The image error a pinhole at `centre` makes for a point on the plane z = z_mm.
 
     For the point P where a ray crosses z = z_mm, the pinhole ray C->P differs from the real ray by the
     angle asin(miss / |P - C|); divided by the pixel's angular pitch (the mean angle between its ray and
-    its neighbours' rays) it is the displacement in pixels. NaN where not valid.
+    its neighbours' rays) it is the displacement in pixels.
+
+    Parameters
+    ----------
+    prvm : PRVM
+        The camera's (H, W) rays, WCS mm.
+    centre : (3,) float
+        The pinhole's centre, WCS mm (`fit_optical_centre`).
+    miss_mm : (H, W) float
+        Each ray's distance from `centre`, mm (`miss_distance`).
+    z_mm : float
+        The plane, WCS z, mm.
+
+    Returns
+    -------
+    error_px : (H, W) float64
+        Camera pixels; NaN where not valid.
     """
     p = prvm.at_z(z_mm)
     with np.errstate(invalid="ignore"):
@@ -329,14 +372,33 @@ def largest_field(prvm: PRVM, plane: VirtualSensor, width: int, height: int, pit
     return plane.with_field((centre[0], centre[1] / aspect), pitch_mm, width, height)
 
 
-def default_camera(prvm: PRVM, model: str = "pinhole", width: int | None = None, height: int | None = None,
+def default_camera(prvm: PRVM, *, model: str = "pinhole", width: int | None = None, height: int | None = None,
                    pitch_mm=None, plane_z_mm: float | None = None) -> VirtualCamera:
-    """The default virtual camera of a real one: the real pixel count (unless width/height are given),
-    the largest field inside the real one (no blank pixel), on a plane through the point where the real
-    image's central ray crosses z = plane_z_mm (default: the PRVM's reference_z_mm).
+    """The default virtual camera of a real one: the largest field inside the real one (no blank pixel)
+    on a plane through the point where the real image's central ray crosses z = plane_z_mm.
 
     The plane faces the camera's mean viewing direction (pinhole, modelless) or the telecentric
     direction (telecentric), with its columns along the real image's columns.
+
+    Parameters
+    ----------
+    prvm : PRVM
+        The real camera's (H, W) rays, WCS mm.
+    model : {"pinhole", "modelless", "telecentric"}
+        The model of the virtual rays (module docstring).
+    width, height : int, optional
+        The virtual pixel count; None: the real one's.
+    pitch_mm : float or (float, float), optional
+        The virtual pixel pitch (u, v), mm; None: the largest that fits. InputError if the grid does not
+        fit inside the real field at the pitch given.
+    plane_z_mm : float, optional
+        WCS z, mm, where the central ray meets the plane; None: the PRVM's reference_z_mm.
+
+    Returns
+    -------
+    camera : VirtualCamera
+        The sensor (origin, axes, pitch in the WCS, mm) and the model, with the fitted optical centre
+        (pinhole) or ray direction (telecentric).
     """
     width = prvm.width if width is None else int(width)
     height = prvm.height if height is None else int(height)

@@ -45,19 +45,48 @@ class VirtualSetup:
 
 
 def make_virtual(real: PRVM, camera: VirtualCamera) -> VirtualSetup:
-    """Build the IMM, the Virtual PRVM and the EVM of `camera` for the real camera `real`."""
+    """Build the IMM, the Virtual PRVM and the EVM of a virtual camera for a real one.
+
+    Parameters
+    ----------
+    real : PRVM
+        The real camera's (H, W) rays, WCS mm.
+    camera : VirtualCamera
+        The virtual sensor (Hv, Wv) and ray model (`stereodic.virtual.default_camera`).
+
+    Returns
+    -------
+    setup : VirtualSetup
+        The camera, its IMM (`build_imm`), its modelled (Hv, Wv) rays (`virtual_rays`) and its EVM
+        (`error_vectors`).
+    """
     imm = build_imm(real, camera.sensor)
     modelless = virtual_rays(real, camera, imm, modelled=False)
     modelled = virtual_rays(real, camera, imm, modelled=True)
     return VirtualSetup(camera, imm, modelled, error_vectors(modelless, modelled))
 
 
-def virtual_rays(real: PRVM, camera: VirtualCamera, imm: IMM, modelled: bool = True) -> PRVM:
-    """The Virtual PRVM: a ray for every virtual pixel, through its centre on the sensor plane, with its
-    origin on the real PRVM's reference plane z = reference_z_mm (WCS mm).
+def virtual_rays(real: PRVM, camera: VirtualCamera, imm: IMM, *, modelled: bool = True) -> PRVM:
+    """The Virtual PRVM: a ray for every virtual pixel, through its centre on the sensor plane.
 
-    modelled=False gives the model-less rays (real directions interpolated at the IMM's positions);
-    modelled=True the camera's model (the same as model-less for a model-less camera). valid = not blank.
+    Parameters
+    ----------
+    real : PRVM
+        The real camera's (H, W) rays, WCS mm.
+    camera : VirtualCamera
+        The virtual sensor (Hv, Wv) and ray model.
+    imm : IMM
+        The camera's Inverse Mapping Matrix (`build_imm`).
+    modelled : bool
+        True: the camera's model (pinhole through its centre, telecentric along its direction; the same
+        as model-less for a model-less camera); False: the model-less rays (the real directions
+        interpolated at the IMM's positions).
+
+    Returns
+    -------
+    prvm : PRVM
+        (Hv, Wv) rays, WCS mm, origins on the real PRVM's plane z = reference_z_mm; valid where the
+        virtual pixel is not blank (NaN directions elsewhere).
     """
     p = camera.sensor.grid()
     if not modelled or camera.model == "modelless":
@@ -80,22 +109,56 @@ def virtual_rays(real: PRVM, camera: VirtualCamera, imm: IMM, modelled: bool = T
 
 
 def error_vectors(modelless: PRVM, modelled: PRVM) -> np.ndarray:
-    """The EVM: (Hv, Wv, 3) model-less minus modelled unit directions (WCS, dimensionless); NaN where
-    either is not valid."""
+    """The Error Vector Matrix of a virtual camera.
+
+    Parameters
+    ----------
+    modelless, modelled : PRVM
+        Its (Hv, Wv) model-less and modelled rays (`virtual_rays`), WCS.
+
+    Returns
+    -------
+    evm : (Hv, Wv, 3) float64
+        Model-less minus modelled unit directions, WCS, dimensionless; NaN where either is not valid.
+    """
     evm = modelless.direction - modelled.direction
     evm[~(modelless.valid & modelled.valid)] = np.nan
     return evm
 
 
 def save_virtual(path: str | os.PathLike, setup: VirtualSetup) -> None:
-    """Write the virtual camera file (see the module docstring), atomically."""
+    """Write the virtual camera file (module docstring), atomically.
+
+    Parameters
+    ----------
+    path : path
+        The output ``.npz``.
+    setup : VirtualSetup
+        The virtual camera (`make_virtual`).
+
+    Returns
+    -------
+    None
+    """
     prvm = setup.prvm
     extra = dict(prvm.extra, imm_map_x=setup.imm.map_x, imm_map_y=setup.imm.map_y, evm=setup.evm)
     PRVM(prvm.origin, prvm.direction, prvm.valid, prvm.residual_mm, prvm.meta, extra).save(path)
 
 
 def load_virtual(path: str | os.PathLike) -> VirtualSetup:
-    """Read a virtual camera file; InputError if `path` is a PRVM file but not a virtual camera's."""
+    """Read a virtual camera file.
+
+    Parameters
+    ----------
+    path : path
+        A file written by `save_virtual` (``stereodic undistort``).
+
+    Returns
+    -------
+    setup : VirtualSetup
+        The camera, IMM, Virtual PRVM and EVM. InputError if `path` is a PRVM file but not a virtual
+        camera's.
+    """
     prvm = load_prvm(path)
     if not is_virtual(prvm):
         raise InputError(path, "not a virtual camera file (a real camera's PRVM?)")

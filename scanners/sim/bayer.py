@@ -88,15 +88,15 @@ class BayerCamera(SimCamera):
     """A SimCamera whose sensor is a Bayer mosaic (`BayerSensor`); its lens should carry the sensor's
     `LateralColour` (`Lens.colour`)."""
 
-    def __init__(self, lens, *args, bayer: BayerSensor, **kwargs):
-        super().__init__(lens, *args, **kwargs)
+    def __init__(self, lens, *, bayer: BayerSensor, **kwargs):
+        super().__init__(lens, **kwargs)
         self.bayer = bayer
         h, w = self.shape
         v, u = np.mgrid[0:h, 0:w]
         self.colour = colour_index(bayer.pattern, v, u)
         # one camera per colour, for its views (every sub-sample traced with that colour's rays)
         self._colours = [SimCamera(dataclasses.replace(lens, colour=dataclasses.replace(lens.colour, only=i)),
-                                   *args, **kwargs) for i in range(3)]
+                                   **kwargs) for i in range(3)]
 
     def irradiance(self, display_image: np.ndarray, display: SimDisplay, pose: DisplayPose) -> np.ndarray:
         """Each photosite's irradiance through its own filter: its colour's image of the display's white

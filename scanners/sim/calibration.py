@@ -41,7 +41,7 @@ DEFAULT_FLATS = (0, 32, 64, 96, 128, 160, 192, 224, 255)
 CHESS_SQUARES = (9, 7)          # columns, rows: 8 x 6 inner corners
 
 
-def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown", width: int = 1280,
+def simulate_calibration(out_dir: str | os.PathLike, *, lens: str | Lens = "brown", width: int = 1280,
                          height: int = 1024, seed: int = 0, periods=(60, 360, 1920), steps=3,
                          z_positions=(0.0, 50.0), flat_levels=DEFAULT_FLATS, noise: bool = True,
                          bit_depth: int = 8, supersample: int = 3,
@@ -54,32 +54,84 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
                          ambient_variation: float = 0.0, hot_pixels: float = 0.0, overexposure: float = 0.0,
                          unseen: float = 0.0, board_lenses: tuple[Lens, ...] = (), handheld: HandHeld | None = None,
                          bayer: BayerSensor | None = None) -> Capture:
-    """Write a simulated calibration dataset to `out_dir` and return it (as load_capture reads it).
+    """Write a simulated calibration dataset (and its truth.npz) and return it.
 
-    lens: a family of scanners.sim.lenses (with `lens_options` passed to make_lens) or a Lens;
-    periods: fringe periods in display pixels; steps: phase shifts per period (>= 3), one number or one
-    per period; z_positions: nominal stage positions (mm, >= 1 of them); flat_levels: grey levels of
-    the flat frames; cover_glass: (thickness_mm, refractive_index) or a CoverGlass; low/high: fringe
-    (and chessboard) levels; chessboard: add chessboards (squares CHESS_SQUARES) at 5 placements per
-    position, inside the field at that position;
-    stage_error_um, stage_tilt_deg, stage_lateral_um: RMS stage errors per position: along the axis,
-    tilt about each of the display's x and y axes (about the display's centre), and across the axis
-    (`scanners.sim.stage.SimStage`); exposure_fraction: brightest fringe pixel / full scale;
-    sensor_seed: seed of the camera's gain map, hot pixels and noise (default `seed`; cameras of one
-    rig share the stage's seed but each has its own sensor); board_lenses: further lenses (a stereo
-    rig's other cameras) that must see every chessboard whole too: one display shows one board to all
-    of them; handheld: hold the display by hand in random poses (`scanners.sim.handheld.HandHeld`)
-    instead of the stage (z_positions and the stage errors unused); bayer: a colour camera with that raw
-    Bayer mosaic (`scanners.sim.bayer.BayerSensor`; its lens gets the sensor's lateral chromatic
-    aberration).
-    A real bench's flaws (all off by default; docs/simulator.md): `display` (a SimDisplay: bow, pitch
-    error, viewing-angle falloff and gamma, bezel); ambient, ambient_variation: room light on the
-    sensor (`SimCamera`); hot_pixels: their fraction (`Sensor`); overexposure: the fraction of the
-    pixels seeing the display that exceed full scale at a flat of level `high` (instead of
-    `exposure_fraction`); unseen: the fraction of the image rows beyond the display's lower edge at
-    the last stage position (a lens family on a stage only: the camera and its aim are moved along the
-    display's rows until they are).
-    Raises InputError naming the argument for bad arguments or a camera that does not see the display.
+    A real bench's flaws (`display`, `ambient`, `ambient_variation`, `hot_pixels`, `overexposure`,
+    `unseen`) are all off by default (docs/simulator.md).
+
+    Parameters
+    ----------
+    out_dir : path
+        The dataset's folder (created).
+    lens : str or Lens
+        A family of `scanners.sim.lenses` (made with `lens_options`) or a Lens.
+    width, height : int
+        The image size, pixels (for a lens family).
+    seed : int
+        Seeds the lens, stage errors, poses and (unless `sensor_seed`) the sensor.
+    periods : sequence of float
+        Fringe periods, display pixels.
+    steps : int or sequence of int
+        Phase shifts per period (>= 3): one number, or one per period.
+    z_positions : sequence of float
+        Nominal stage positions, mm (one or more).
+    flat_levels : sequence of int
+        Grey levels of the flat frames.
+    noise : bool
+        Sensor noise (False: the expected images, rounded).
+    bit_depth : int
+        The sensor's bits per pixel.
+    supersample : int
+        Sub-samples per pixel side (1..16).
+    cover_glass : CoverGlass or (thickness_mm, refractive_index), optional
+        The display's cover glass.
+    low, high : int
+        The fringe (and chessboard) code values.
+    chessboard : bool
+        Add chessboards (squares CHESS_SQUARES) at 5 placements per position, inside the field there.
+    stage_error_um, stage_tilt_deg, stage_lateral_um : float
+        RMS stage errors per position: along the axis (um), tilt about each of the display's x and y
+        axes about its centre (degrees), across the axis (um) (`scanners.sim.stage.SimStage`).
+    stage_axis : (3,) float
+        The stage's direction of travel, WCS.
+    exposure_fraction : float
+        The brightest fringe pixel as a fraction of full scale.
+    display : SimDisplay, optional
+        The display and its flaws (bow, pitch error, viewing-angle falloff and gamma, bezel); None: the
+        default 24" 1080p display.
+    lens_options : dict, optional
+        Overrides passed to `make_lens`.
+    camera : str
+        The camera's name in the manifest.
+    sensor_seed : int, optional
+        Seed of the camera's gain map, hot pixels and noise; None: `seed` (cameras of one rig share the
+        stage's seed but each has its own sensor).
+    ambient, ambient_variation : float
+        Room light on the sensor, relative to a white display, and its variation across the image
+        (`SimCamera`).
+    hot_pixels : float
+        Their fraction (`Sensor`).
+    overexposure : float
+        The fraction of the pixels seeing the display that exceed full scale at a flat of level `high`
+        (instead of `exposure_fraction`).
+    unseen : float
+        The fraction of the image rows beyond the display's lower edge at the last stage position (a lens
+        family on a stage only: the camera and its aim are moved along the display's rows until they are).
+    board_lenses : tuple of Lens
+        Further lenses (a stereo rig's other cameras) that must see every chessboard whole too.
+    handheld : HandHeld, optional
+        Hold the display by hand in random poses (`scanners.sim.handheld`) instead of the stage
+        (`z_positions` and the stage errors unused).
+    bayer : BayerSensor, optional
+        A colour camera with that raw Bayer mosaic (its lens gets the sensor's lateral chromatic
+        aberration).
+
+    Returns
+    -------
+    capture : Capture
+        The dataset as `calib.capture.load_capture` reads it; ``truth.npz`` beside it holds the true rays
+        (WCS mm) and poses. InputError naming the argument for bad arguments, or a camera that does not
+        see the display.
     """
     periods = _check_list("--periods", periods, positive=True)
     z_nominal = _check_list("--positions", z_positions)
@@ -112,7 +164,7 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
         raise InputError("--unseen", "needs a lens family on a stage (the camera is moved), not a Lens or a "
                                      "hand-held display")
     if isinstance(lens, str):
-        lens = make_lens(lens, width, height, seed, **(lens_options or {}))
+        lens = make_lens(lens, width=width, height=height, seed=seed, **(lens_options or {}))
         if unseen > 0:
             lens = _shifted_for_unseen(lens, display, seed, unseen, z_nominal[-1], stage_axis, lens_options)
     if handheld is not None and chessboard:
@@ -129,16 +181,17 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
                           ambient_variation=ambient_variation)
     if bayer is not None:
         lens = dataclasses.replace(lens, colour=bayer.colour(lens.width, lens.height))
-        cam = BayerCamera(lens, sensor, supersample, bayer=bayer, **sensor_options)
+        cam = BayerCamera(lens, sensor=sensor, supersample=supersample, bayer=bayer, **sensor_options)
     else:
-        cam = SimCamera(lens, sensor, supersample, **sensor_options)
+        cam = SimCamera(lens, sensor=sensor, supersample=supersample, **sensor_options)
     poses = list(stage.poses) if stage is not None else handheld_poses(lens, display, handheld, seed)
-    cam.set_exposure(display, high, poses[0], exposure_fraction, clipped=overexposure)
+    cam.set_exposure(display, high, poses[0], fraction=exposure_fraction, clipped=overexposure)
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / MANIFEST).unlink(missing_ok=True)     # an old manifest must not describe half-new images
-    others = [SimCamera(ln, Sensor(bit_depth=bit_depth), cam.supersample) for ln in board_lenses]
+    others = [SimCamera(ln, sensor=Sensor(bit_depth=bit_depth),
+                        supersample=cam.supersample) for ln in board_lenses]
     boards = [_chess_placements([cam, *others], display, pose) if chessboard else [] for pose in poses]
     places = ([{"z_mm": z} for z in z_nominal] if stage is not None else
               [{"pose": i} for i in range(len(poses))])
@@ -146,7 +199,7 @@ def simulate_calibration(out_dir: str | os.PathLike, lens: str | Lens = "brown",
     shown = _shown_poses(frames, poses, stage, handheld, display, seed)
     for f, pose in progress(list(zip(frames, shown)), "simulating", total=len(frames)):
         image = screen_image(f.pattern, display.width_px, display.height_px)
-        write_gray(out / f.file, cam.render(image, display, pose, noise))
+        write_gray(out / f.file, cam.render(image, display, pose, noise=noise))
 
     truth = _truth(cam, display, poses, seed, noise, camera, stage, ambient, ambient_variation, overexposure)
     simulated = {"lens": lens.family, "seed": seed, "noise": noise, "supersample": cam.supersample,
@@ -182,12 +235,13 @@ def _shifted_for_unseen(lens: Lens, display: SimDisplay, seed: int, unseen: floa
     z_last (nominal, an ideal stage), judged along the middle column."""
     v = np.arange(lens.height, dtype=np.float64)
     o, d = lens.rays(np.full_like(v, (lens.width - 1) / 2), v)
-    r = display.hit(o, d, DisplayPose.staged(z_last, axis))[1]
+    r = display.hit(o, d, DisplayPose.staged(z_last, axis=axis))[1]
     row = min(int(round((1 - unseen) * lens.height)), lens.height - 1)
     shift = (display.height_px - 0.5 - r[row]) * display.true_pitch_mm[1] * np.sign(r[-1] - r[0])
     options = dict(lens_options or {})
     target = np.asarray(options.get("target_mm", DEFAULT_TARGET_MM), float) + [0.0, shift, 0.0]
-    return make_lens(lens.family, lens.width, lens.height, seed, **{**options, "target_mm": tuple(target)})
+    return make_lens(lens.family, width=lens.width, height=lens.height, seed=seed,
+                     **{**options, "target_mm": tuple(target)})
 
 
 def _frames(camera, places, flats, periods, steps, low, high, boards) -> list[Frame]:

@@ -54,17 +54,33 @@ class View:
 
 
 class SimCamera:
-    """A camera: `lens` (true rays) + `sensor`, supersampling S x S per pixel.
+    """A simulated camera: a lens (its true rays) and a sensor, supersampling S x S per pixel.
 
-    exposure_e: expected photo-electrons of a pixel with unit gain and unit relative illumination
-    looking at unit mean display luminance (see `set_exposure`). seed draws the PRNU gain map, the hot
-    pixels, the ambient light's gradient and the noise. diffraction: include the Airy blur
-    (wavelength_mm). ambient: room light reaching the sensor through the lens (a veiling offset, in the
-    display's relative luminance: 0.02 = 2 % of a white display), varying linearly across the image by
-    +-ambient_variation (a fraction) along a seeded direction.
+    Parameters
+    ----------
+    lens : Lens
+        The true rays (`scanners.sim.lenses.make_lens`), WCS mm; the image size.
+    sensor : Sensor, optional
+        Bit depth, full well, noise, PRNU, hot pixels; None: `Sensor()`.
+    supersample : int
+        S, sub-samples per pixel side (1..16; InputError otherwise).
+    exposure_e : float
+        Expected photo-electrons of a pixel with unit gain and unit relative illumination looking at unit
+        mean display luminance (`set_exposure` chooses it).
+    seed : int
+        Draws the PRNU gain map, the hot pixels, the ambient light's gradient and the noise.
+    diffraction : bool
+        Include the Airy blur of `wavelength_mm`.
+    wavelength_mm : float
+        The light's wavelength, mm.
+    ambient : float
+        Room light reaching the sensor through the lens (a veiling offset, in the display's relative
+        luminance: 0.02 = 2 % of a white display).
+    ambient_variation : float
+        Its linear variation across the image, +- this fraction, along a seeded direction.
     """
 
-    def __init__(self, lens: Lens, sensor: Sensor | None = None, supersample: int = 3,
+    def __init__(self, lens: Lens, *, sensor: Sensor | None = None, supersample: int = 3,
                  exposure_e: float = 10_000.0, seed: int = 0, diffraction: bool = True,
                  wavelength_mm: float = 550e-6, ambient: float = 0.0, ambient_variation: float = 0.0):
         if int(supersample) != supersample or not 1 <= supersample <= 16:
@@ -157,20 +173,55 @@ class SimCamera:
         e = irr * (self.vignetting * self.gain * np.float32(self.exposure_e))
         return e if self.hot_e is None else e + self.hot_e
 
-    def render(self, display_image: np.ndarray, display: SimDisplay, pose: DisplayPose, noise: bool = True,
+    def render(self, display_image: np.ndarray, display: SimDisplay, pose: DisplayPose, *, noise: bool = True,
                rng: np.random.Generator | None = None) -> np.ndarray:
-        """The camera image (uint8, or uint16 above 8 bits) of `display` showing `display_image`
-        ((height_px, width_px) uint8) at its TRUE `pose`; noise=False gives the expected image, rounded.
-        rng: the noise generator for this frame (default: the camera's own stream)."""
+        """The camera's image of a display showing an image.
+
+        Parameters
+        ----------
+        display_image : (height_px, width_px) uint8
+            What the display shows.
+        display : SimDisplay
+            The display.
+        pose : DisplayPose
+            Its TRUE pose, WCS mm.
+        noise : bool
+            Shot and read noise; False: the expected image, rounded.
+        rng : numpy.random.Generator, optional
+            The noise generator for this frame; None: the camera's own stream.
+
+        Returns
+        -------
+        image : (H, W) uint8, or uint16 above 8 bits
+            The camera image.
+        """
         e = self.electrons(display_image, display, pose)
         return self.sensor.digitise(e, (self.rng if rng is None else rng) if noise else None)
 
-    def set_exposure(self, display: SimDisplay, level: int, pose: DisplayPose, fraction: float = 0.87,
+    def set_exposure(self, display: SimDisplay, level: int, pose: DisplayPose, *, fraction: float = 0.87,
                      clipped: float = 0.0) -> float:
-        """Choose exposure_e so that the brightest pixel seeing a flat display at `level` at `pose`
-        reaches `fraction` of full scale (dark offset included); returns it. clipped > 0 over-exposes
-        instead: that fraction of the pixels seeing the display exceeds full scale there (hot pixels
-        aside)."""
+        """Choose the exposure for a flat display.
+
+        Parameters
+        ----------
+        display : SimDisplay
+            The display.
+        level : int
+            The flat's code value.
+        pose : DisplayPose
+            The display's TRUE pose, WCS mm.
+        fraction : float
+            The brightest pixel seeing the flat reaches this fraction of full scale (dark offset
+            included).
+        clipped : float
+            > 0: over-expose instead: this fraction of the pixels seeing the display exceeds full scale
+            there (hot pixels aside).
+
+        Returns
+        -------
+        exposure_e : float
+            The chosen exposure (also set on the camera), photo-electrons (class docstring).
+        """
         flat = np.full((display.height_px, display.width_px), level, np.uint8)
         irr = self.irradiance(flat, display, pose)
         if self.ambient is not None:

@@ -285,7 +285,19 @@ def truth_arrays(truth: DicTruth, step_units: float = 10.0) -> dict:
 
 
 def load_dic_truth(dataset: str | os.PathLike) -> DicTruth:
-    """The truth of a simulated DIC dataset (its truth.npz)."""
+    """The truth of a simulated DIC dataset.
+
+    Parameters
+    ----------
+    dataset : path
+        The dataset's folder (``stereodic simulate dic``).
+
+    Returns
+    -------
+    truth : DicTruth
+        From its truth.npz: the specimen and its states; positions (WCS mm) and strains of any material
+        point (`DicTruth.position`, ...). InputError if the file is missing.
+    """
     path = Path(dataset) / "truth.npz"
     if not path.is_file():
         raise InputError(path, "truth file is missing (not a simulated DIC dataset?)")
@@ -364,7 +376,7 @@ def simulate_dic(out_dir: str | os.PathLike, states: list[DicState] | None = Non
     sensor = Sensor(bit_depth=bit_depth)
     cams = []
     for k, ln in enumerate((left, right)):
-        cam = SimCamera(ln, sensor, supersample, seed=seed + 7919 * (k + 1))
+        cam = SimCamera(ln, sensor=sensor, supersample=supersample, seed=seed + 7919 * (k + 1))
         cam.exposure_e = 0.9 * (1 - sensor.dark_offset) * sensor.full_well_e
         cams.append(cam)
     out = Path(out_dir)

@@ -271,23 +271,36 @@ def scheimpflug_tilt_deg(camera_to_wcs: np.ndarray, focus_mm: float, focal_mm: f
     return float(np.degrees(np.arctan2(-focal_mm * n[0], (focus_mm - focal_mm) * n[2])))
 
 
-def make_lens(family: str, width: int = 1280, height: int = 1024, seed: int = 0, **overrides) -> Lens:
-    """A lens of `family` (one of LENS_FAMILIES) on a width x height sensor, with realistic parameters
-    drawn from `seed`, posed ~400 mm in front of the default display's centre, looking at it.
+def make_lens(family: str, *, width: int = 1280, height: int = 1024, seed: int = 0, **overrides) -> Lens:
+    """A lens of one family with realistic parameters drawn from a seed, posed ~400 mm in front of the
+    default display's centre, looking at it.
 
-    Overrides (all optional): pixel_mm; distance_mm (camera to target along -z); focus_mm (in-focus
-    distance along the axis, default: to the display plane 25 mm beyond the target, distance + 25 for
-    a camera facing it); target_mm (WCS point on the axis); offset_mm (x, y of the camera relative to
-    the target; scheimpflug: default -distance * tan(view_deg) in x, an oblique view); roll_deg;
-    vignetting (mechanical r^2 coefficient);
-    principal_offset_px (cx, cy offset from the sensor centre); and per family: focal_mm, f_number,
-    k (k1, k2, k3), p (p1, p2), bumps ((n, 5) array of (u, v, sigma, du, dv) in pixels, or a count),
-    bump_sigma_px (lo, hi), bump_amplitude_px (lo, hi), ripple ((amplitude_px, wavelength_px): a radial
-    ripple about the principal point, finer than any of our families' distortion, e.g. (0.3, 15);
-    not for telecentric), window (a Window), magnification,
-    numerical_aperture, sensor_tilt_deg (default for scheimpflug: the Scheimpflug condition for the
-    display plane in focus, `scheimpflug_tilt_deg`), view_deg (angle between the scheimpflug camera's
-    axis and the display normal, from which its default offset follows).
+    Parameters
+    ----------
+    family : str
+        One of LENS_FAMILIES (InputError otherwise).
+    width, height : int
+        The sensor's pixel count.
+    seed : int
+        Draws the lens's parameters and pose.
+    **overrides
+        All optional: pixel_mm; distance_mm (camera to target along -z); focus_mm (in-focus distance along the
+        axis, default: to the display plane 25 mm beyond the target, distance + 25 for a camera facing it);
+        target_mm (WCS point on the axis); offset_mm (x, y of the camera relative to the target; scheimpflug:
+        default -distance * tan(view_deg) in x, an oblique view); roll_deg; vignetting (mechanical r^2
+        coefficient); principal_offset_px (cx, cy offset from the sensor centre); and per family: focal_mm,
+        f_number, k (k1, k2, k3), p (p1, p2), bumps ((n, 5) array of (u, v, sigma, du, dv) in pixels, or a
+        count), bump_sigma_px (lo, hi), bump_amplitude_px (lo, hi), ripple ((amplitude_px, wavelength_px): a
+        radial ripple about the principal point, finer than any of our families' distortion, e.g. (0.3, 15);
+        not for telecentric), window (a Window), magnification, numerical_aperture, sensor_tilt_deg (default
+        for scheimpflug: the Scheimpflug condition for the display plane in focus, `scheimpflug_tilt_deg`),
+        view_deg (angle between the scheimpflug camera's axis and the display normal, from which its default
+        offset follows).
+
+    Returns
+    -------
+    lens : Lens
+        Its true rays (`Lens.true_prvm`, WCS mm) and projection.
     """
     if family not in LENS_FAMILIES:
         raise InputError("--lens", f"unknown lens family {family!r} (known: {', '.join(LENS_FAMILIES)})")

@@ -35,8 +35,21 @@ class DisplayPose:
         object.__setattr__(self, "translation", tuple(float(x) for x in np.asarray(self.translation, float)))
 
     @classmethod
-    def staged(cls, z_mm: float, axis=(0.0, 0.0, 1.0)) -> DisplayPose:
-        """The display moved by an ideal stage to position z_mm (a z coordinate, mm) along `axis`."""
+    def staged(cls, z_mm: float, *, axis=(0.0, 0.0, 1.0)) -> DisplayPose:
+        """The display moved by an ideal stage.
+
+        Parameters
+        ----------
+        z_mm : float
+            The stage position: the display's z coordinate, WCS mm.
+        axis : (3,) float
+            The stage's direction of travel, WCS (any length, z component not 0).
+
+        Returns
+        -------
+        pose : DisplayPose
+            No rotation; the display's origin at z_mm along `axis`.
+        """
         ax, ay, az = (float(a) for a in axis)
         return cls(IDENTITY, (z_mm * ax / az, z_mm * ay / az, float(z_mm)))
 

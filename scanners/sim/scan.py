@@ -68,18 +68,43 @@ class ScanRig:
         distance, fully lit, reaches 95 % of full scale."""
         cams = []
         for k, lens in enumerate((self.left, self.right)):
-            cam = SimCamera(lens, self.sensor, self.supersample, seed=seed + 7919 * k)
+            cam = SimCamera(lens, sensor=self.sensor, supersample=self.supersample, seed=seed + 7919 * k)
             cam.exposure_e = 0.95 * (1 - self.sensor.dark_offset) * self.sensor.full_well_e / (1 + self.ambient)
             cams.append(cam)
         return cams
 
 
-def default_scan_rig(width: int = 1280, height: int = 1024, seed: int = 0, lens: str = "brown",
+def default_scan_rig(*, width: int = 1280, height: int = 1024, seed: int = 0, lens: str = "brown",
                      baseline_mm: float = 200.0, distance_mm: float = 400.0, supersample: int = 2,
                      bit_depth: int = 8, ambient: float = 0.05) -> ScanRig:
-    """The default scanner: ~200 mm field of view (a `width` x `height` sensor spans the 1280-pixel field
-    of 5.3 um pixels with a 12 mm lens at `distance_mm`), cameras `baseline_mm` apart, 8-bit with noise;
-    a 1280 x 800 projector 420 mm from the target, 60 mm above the baseline, gamma 2.2."""
+    """The default scanner: ~200 mm field of view, two cameras and a 1280 x 800 projector 420 mm from
+    the target, 60 mm above the baseline, gamma 2.2.
+
+    Parameters
+    ----------
+    width, height : int
+        The cameras' image size, pixels: the sensor spans the 1280-pixel field of 5.3 um pixels with a
+        12 mm lens at `distance_mm`, whatever the pixel count.
+    seed : int
+        Seeds the lenses.
+    lens : str
+        The cameras' lens family (`scanners.sim.lenses`).
+    baseline_mm : float
+        The cameras' distance, mm.
+    distance_mm : float
+        Their distance from the target, mm.
+    supersample : int
+        Sub-samples per pixel side.
+    bit_depth : int
+        The sensors' bits per pixel.
+    ambient : float
+        Ambient light relative to the projector's full irradiance at its nominal distance.
+
+    Returns
+    -------
+    rig : ScanRig
+        The two lenses (WCS mm), the projector, the sensor, the supersampling and the ambient light.
+    """
     left, right = stereo_lenses(lens, lens, width, height, seed, baseline_mm, distance_mm,
                                 pixel_mm=0.0053 * 1280 / width)
     return ScanRig(left, right, make_projector(TARGET), Sensor(bit_depth=bit_depth), supersample, ambient)
@@ -158,12 +183,23 @@ PLANE_POSES = (((0, 0, 0), (0, 0, -1)), ((0, 0, -30), (0.3, 0, -1)), ((0, 0, 30)
                ((0, 0, 0), (0, 0.3, -1)))
 
 
-def standard_scenes(objects=("sphere", "ballbar", "plane", "freeform"), background: bool = True) -> list[Scene]:
-    """The acceptance scenes (VDI/VDE 2634-2 style), in the measuring volume VOLUME_MM about the target:
-    sphere: a 50 mm sphere at the centre and 30 mm nearer; ballbar: a bar of two 25 mm spheres 150 mm
-    apart in 7 orientations; plane: a 180 x 40 mm plate in 4 poses; freeform: a smooth part 90 mm wide.
-    With `background`, the sphere and free-form scenes stand in front of a plate that takes their
-    shadows."""
+def standard_scenes(*, objects=("sphere", "ballbar", "plane", "freeform"), background: bool = True) -> list[Scene]:
+    """The acceptance scenes (VDI/VDE 2634-2 style), in the measuring volume VOLUME_MM about the target.
+
+    Parameters
+    ----------
+    objects : sequence of str
+        Which: "sphere" (a 50 mm sphere at the centre and 30 mm nearer: 2 scenes), "ballbar" (a bar of
+        two 25 mm spheres 150 mm apart in 7 orientations), "plane" (a 180 x 40 mm plate in 4 poses),
+        "freeform" (a smooth part 90 mm wide).
+    background : bool
+        The sphere and free-form scenes stand in front of a plate that takes their shadows.
+
+    Returns
+    -------
+    scenes : list of Scene
+        Their exact surfaces, WCS mm, in the order of `objects`' kinds above.
+    """
     back = [_background()] if background else []
     scenes = []
     if "sphere" in objects:
@@ -210,12 +246,38 @@ def scan_frames(state: int, periods, steps, low: int, high: int) -> list[Frame]:
     return frames
 
 
-def simulate_scan(out_dir: str | os.PathLike, scenes: list[Scene] | None = None, rig: ScanRig | None = None,
+def simulate_scan(out_dir: str | os.PathLike, *, scenes: list[Scene] | None = None, rig: ScanRig | None = None,
                   periods=DEFAULT_PERIODS, steps=None, seed: int = 0, noise: bool = True, low: int = 10,
                   high: int = 250) -> Capture:
-    """Render a scan dataset (module docstring) of `scenes` (default `standard_scenes()`) with `rig`
-    (default `default_scan_rig(seed=seed)`), with the true PRVMs of its cameras (`truth_cam0.npz`,
-    `truth_cam1.npz`; `stereodic rig` makes the rectified pair of them). Returns the loaded dataset."""
+    """Render a scan dataset (module docstring) with the true PRVMs of its cameras.
+
+    Parameters
+    ----------
+    out_dir : path
+        The dataset's folder (created).
+    scenes : list of Scene, optional
+        One state per scene; None: `standard_scenes()`.
+    rig : ScanRig, optional
+        The scanner; None: `default_scan_rig(seed=seed)`.
+    periods : sequence of float
+        Fringe periods, projector pixels; the longest must cover the projector's columns.
+    steps : int or sequence of int, optional
+        Phase steps, one for all periods or one per period; None: FINE_STEPS for the shortest period,
+        COARSE_STEPS for the others.
+    seed : int
+        Seeds the sensors' noise (and the default rig).
+    noise : bool
+        Sensor noise (False: the expected images, rounded).
+    low, high : int
+        The fringes' code values, 0 <= low < high <= 255.
+
+    Returns
+    -------
+    capture : Capture
+        The loaded dataset (kind "scan", cameras cam0 = left, cam1 = right); beside it truth_cam0.npz and
+        truth_cam1.npz (true rays, WCS mm; `stereodic.rig.build_rig` makes their rectified pair) and
+        truth.npz (`load_truth`).
+    """
     rig = rig or default_scan_rig(seed=seed)
     scenes = standard_scenes() if scenes is None else scenes
     periods = [int(p) if float(p) == int(p) else float(p) for p in periods]
@@ -260,8 +322,20 @@ def simulate_scan(out_dir: str | os.PathLike, scenes: list[Scene] | None = None,
 
 
 def load_truth(dataset: str | os.PathLike) -> dict:
-    """The truth.npz meta of a simulated scan dataset (JSON data; surfaces via
-    `scan_scene.surface_from_dict`)."""
+    """The truth of a simulated scan dataset.
+
+    Parameters
+    ----------
+    dataset : path
+        The dataset's folder (`simulate_scan`).
+
+    Returns
+    -------
+    truth : dict
+        truth.npz's meta (JSON data, WCS mm): the measuring volume, the projector, and every state's
+        exact surfaces (``states[k]["surfaces"]``; objects via `scan_scene.surface_from_dict`).
+        InputError if the file is missing.
+    """
     path = Path(dataset) / "truth.npz"
     if not path.is_file():
         raise InputError(path, "truth file is missing (not a simulated scan dataset?)")

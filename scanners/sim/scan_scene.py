@@ -270,7 +270,18 @@ def ball_bar(centre, direction, length_mm: float = 150.0, radius_mm: float = 12.
 
 
 def surface_from_dict(d: dict):
-    """The surface of a `describe()` record (for truth files)."""
+    """A surface from its `describe()` record (for truth files).
+
+    Parameters
+    ----------
+    d : dict
+        The record (`load_truth(...)["states"][k]["surfaces"]`), WCS mm.
+
+    Returns
+    -------
+    surface : Plane, Sphere or HeightField
+        The exact surface. ValueError for an unknown type.
+    """
     kind = d["type"]
     if kind == "plane":
         return Plane(centre=d["centre_mm"], normal=d["normal"], axis=d["axis"], size_mm=tuple(d["size_mm"]))

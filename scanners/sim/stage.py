@@ -50,7 +50,7 @@ class SimStage:
         self.lateral_mm = np.random.default_rng([self.seed, 9]).normal(0.0, self.lateral_um * 1e-3, (m, 2))
         poses = []
         for z, (tx, ty), (lx, ly) in zip(self.true_mm, np.radians(self.tilts_deg), self.lateral_mm):
-            staged = DisplayPose.staged(z, self.axis)
+            staged = DisplayPose.staged(z, axis=self.axis)
             if tx == 0 and ty == 0 and lx == 0 and ly == 0:
                 poses.append(staged)
                 continue

@@ -48,7 +48,7 @@ def stereo_lenses(left: str = "brown", right: str = "brown", width: int = 1280, 
         raise InputError("--baseline", f"must be positive, got {baseline_mm}")
     lenses = []
     for k, (family, sign) in enumerate(((left, -1.0), (right, 1.0))):
-        lenses.append(make_lens(family, width, height, seed + 1000 * k, distance_mm=distance_mm,
+        lenses.append(make_lens(family, width=width, height=height, seed=seed + 1000 * k, distance_mm=distance_mm,
                                 offset_mm=(sign * baseline_mm / 2, 0.0), **overrides))
     return lenses[0], lenses[1]
 
@@ -113,12 +113,40 @@ def project_true(lens: Lens, points: np.ndarray, iterations: int = 12, coarse: i
     return uv
 
 
-def simulate_stereo(out_dir: str | os.PathLike, left: str = "brown", right: str = "brown", width: int = 1280,
+def simulate_stereo(out_dir: str | os.PathLike, *, left: str = "brown", right: str = "brown", width: int = 1280,
                     height: int = 1024, seed: int = 0, separate: bool = False, baseline_mm: float = 200.0,
                     distance_mm: float = 400.0, lens_options: dict | None = None, **calibration) -> Path:
-    """Write a simulated stereo calibration (module docstring) to `out_dir`; `calibration` goes to every
-    `simulate_calibration` call (periods, steps, z_positions, noise, supersample, ...). Returns the
-    folder."""
+    """Write a simulated stereo calibration (module docstring).
+
+    Parameters
+    ----------
+    out_dir : path
+        The folder (created).
+    left, right : str
+        The two cameras' lens families (`scanners.sim.lenses`).
+    width, height : int
+        The image size of both, pixels.
+    seed : int
+        Seeds the lenses, stage and sensors.
+    separate : bool
+        Each camera calibrated on its own (left/, right/) plus a registration dataset (register/);
+        False: one joint dataset.
+    baseline_mm : float
+        The cameras' distance along the WCS x axis, mm.
+    distance_mm : float
+        Their distance in front of the display's centre, mm.
+    lens_options : dict, optional
+        Overrides passed to both `make_lens` calls (e.g. pixel_mm).
+    **calibration
+        Passed to every `simulate_calibration` call (periods, steps, z_positions, noise, supersample,
+        handheld, ...).
+
+    Returns
+    -------
+    folder : Path
+        `out_dir`: the joint dataset with truth_cam0.npz and truth_cam1.npz (true rays, WCS mm), or the
+        separate datasets and registration_truth.json.
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     lenses = stereo_lenses(left, right, width, height, seed, baseline_mm, distance_mm, **(lens_options or {}))

@@ -88,8 +88,8 @@ def _scan_batch(root: Path, datasets: int, width: int, height: int) -> Path:
     from scanners.sim.scan import default_scan_rig, simulate_scan, standard_scenes
     from stereodic.rig import rig_from_files, save_rig
     sim = root / "sim"
-    simulate_scan(sim, standard_scenes(("sphere",))[:1] + standard_scenes(("plane",))[:1],
-                  default_scan_rig(width, height), SCAN_PERIODS)
+    simulate_scan(sim, scenes=standard_scenes(objects=("sphere",))[:1] + standard_scenes(objects=("plane",))[:1],
+                  rig=default_scan_rig(width=width, height=height), periods=SCAN_PERIODS)
     save_rig(root / "rig.npz", rig_from_files(sim / "truth_cam0.npz", sim / "truth_cam1.npz"))
     for d in range(datasets):
         folder = root / "batch" / f"line{d:02d}"

@@ -42,8 +42,9 @@ def _real_images(quick: bool) -> list[Figure]:
     for name, truth in (("shift_x0.10_y0.10.tif", 0.10), ("shift_x0.00_y0.00.tif", 0.0)):
         dfm = read_gray(SAMPLE5 / name)
         for subset in (21, 35):
-            grid = make_grid(ref.shape[1], ref.shape[0], subset, 10 if quick else 5, roi=(40, 40, 471, 471))
-            f = correlate_pair(ref, dfm, grid, DicSettings(subset=subset))
+            grid = make_grid(ref.shape[1], ref.shape[0], subset=subset, step=10 if quick else 5,
+                             roi=(40, 40, 471, 471))
+            f = correlate_pair(ref, dfm, grid, settings=DicSettings(subset=subset))
             label = f"sample5 {truth:.2f} px, {subset}x{subset}"
             for comp, vals in (("u", f.u[f.ok]), ("v", f.v[f.ok])):
                 mean = float(np.mean(vals))
@@ -70,11 +71,11 @@ def _synthetic_errors(quick: bool) -> list[Figure]:
     sp = make_speckle(n, n, seed=5)
     clean = render(sp, bits=None)
     figures = []
-    pix = BSplineImage.from_image(clean, 3, 0.0).pixel_gradients().astype(np.float64)
+    pix = BSplineImage.from_image(clean, order=3, prefilter_sigma=0.0).pixel_gradients().astype(np.float64)
     shifts = [0.2, 0.5] if quick else list(np.arange(0.0, 1.0, 0.1))
     for subset in (21, 33):
         h = subset // 2
-        grid = make_grid(n, n, subset, subset, roi=(20, 20, n - 21, n - 21))
+        grid = make_grid(n, n, subset=subset, step=subset, roi=(20, 20, n - 21, n - 21))
         X, Y = grid.points()
         gx2 = np.array([np.sum(pix[1, y - h:y + h + 1, x - h:x + h + 1] ** 2)
                         for x, y in zip(X.astype(int), Y.astype(int))])
@@ -84,15 +85,15 @@ def _synthetic_errors(quick: bool) -> list[Figure]:
             for rep in range(1 if quick else 3):
                 r = render(sp, noise_sigma=sigma_noise, bits=None, seed=2 * rep + 1)
                 d = render(sp, (t, 0.0), noise_sigma=sigma_noise, bits=None, seed=2 * rep + 2)
-                f = correlate_pair(r, d, grid, DicSettings(subset=subset))
+                f = correlate_pair(r, d, grid, settings=DicSettings(subset=subset))
                 ratios.append(((f.u - t) / bound)[f.ok])
         ratio = float(np.sqrt(np.mean(np.concatenate(ratios) ** 2)))
         figures.append(Figure("dic", f"random error / noise bound, {subset}x{subset}, noise 2 GL", ratio, "",
                               goal="<= 1.3", ok=ratio <= 1.3))
-    grid = make_grid(n, n, 21, 7, roi=(16, 16, n - 17, n - 17))
+    grid = make_grid(n, n, subset=21, step=7, roi=(16, 16, n - 17, n - 17))
     worst = 0.0
     for t in (np.arange(0.05, 1.0, 0.1) if quick else np.arange(0.0, 1.001, 0.05)):
-        f = correlate_pair(clean, render(sp, (t, t), bits=None), grid, DicSettings(subset=21))
+        f = correlate_pair(clean, render(sp, (t, t), bits=None), grid, settings=DicSettings(subset=21))
         worst = max(worst, abs(float(np.mean(f.u[f.ok])) - t), abs(float(np.mean(f.v[f.ok])) - t))
     figures.append(Figure("dic", "systematic error, worst sub-pixel shift, 21x21", worst, "px",
                           goal="< 0.005", ok=worst < 0.005))
@@ -111,13 +112,14 @@ def _speed(quick: bool) -> list[Figure]:
                  supersample=4)
     figures = []
     for subset in (21, 33):
-        grid = make_grid(n, n, subset, 5)
+        grid = make_grid(n, n, subset=subset, step=5)
         settings = DicSettings(subset=subset)
-        correlate_pair(ref[:256, :256], dfm[:256, :256], make_grid(256, 256, subset, 5), settings)  # JIT
+        correlate_pair(ref[:256, :256], dfm[:256, :256], make_grid(256, 256, subset=subset, step=5),
+                       settings=settings)  # JIT
         result = {}
 
         def run():
-            result["f"] = correlate_pair(ref, dfm, grid, settings)
+            result["f"] = correlate_pair(ref, dfm, grid, settings=settings)
 
         seconds = best_time(run, repeat=1 if quick else 3, warmup=0)
         pts = int(grid.active.sum())
@@ -178,10 +180,10 @@ def _stereo(quick: bool) -> list[Figure]:
         truth = load_dic_truth(tmp)
     W, H = rig.sensor.width, rig.sensor.height
     fov = W * rig.sensor.pitch_mm[0]
-    grid = make_grid(W, H, 21, 5, roi=(20, 20, W - 21, H - 21))
+    grid = make_grid(W, H, subset=21, step=5, roi=(20, 20, W - 21, H - 21))
     X, Y = grid.points()
     true = truth_at_pixels(truth, rig.left.imm.real_position(X, Y))
-    dic = StereoDic(rig, grid, StereoSettings(DicSettings(subset=21), strain_window=9))
+    dic = StereoDic(rig, grid, settings=StereoSettings(DicSettings(subset=21), strain_window=9))
     label = f"stereo {width}x{height}, 21x21, step 5"
     worst_z = 0.0
     for st in dic.run(pairs):

@@ -50,7 +50,7 @@ def _states_per_second(root: str) -> tuple[float, float, int]:
     from stereodic.rig import load_rig
     rig = load_rig(f"{root}/rig.npz")
     data = load_states(root, rig)
-    grid = make_grid(rig.sensor.width, rig.sensor.height, 25, 10)
+    grid = make_grid(rig.sensor.width, rig.sensor.height, subset=25, step=10)
     settings = StereoSettings(DicSettings(subset=25), strain_window=5)
     with tempfile.TemporaryDirectory(dir=root) as out:
         store = RunStore(out)

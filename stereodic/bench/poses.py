@@ -42,7 +42,7 @@ def _stats(prvm, truth) -> dict:
     """Plane (z = 0) and volume (`PLANES`) error statistics (camera px) of a PRVM against a truth in
     the same frame."""
     from calib.evaluate import ErrorStats, ray_error_px, volume_error_px
-    return {"plane": ErrorStats.of(ray_error_px(prvm, truth, 0.0)),
+    return {"plane": ErrorStats.of(ray_error_px(prvm, truth, z_mm=0.0)),
             "volume": ErrorStats.of(volume_error_px(prvm, truth, PLANES))}
 
 
@@ -157,7 +157,7 @@ def bayer_accuracy(lens: str, width: int, height: int, root: Path) -> dict:
         out = root / f"{name}_{lens}"
         simulate_calibration(out, lens=lens, width=width, height=height, bayer=bayer, **_field(width))
         cal, truth = calibrate_camera(load_capture(out)), load_prvm(out / "truth.npz")
-        err = ray_error_px(cal.prvm, _staged_truth(truth), 0.0)
+        err = ray_error_px(cal.prvm, _staged_truth(truth), z_mm=0.0)
         if bayer is None:
             res["mono"] = ErrorStats.of(err).rms
         else:

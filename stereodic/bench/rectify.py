@@ -52,7 +52,7 @@ def imm_speed(quick: bool) -> list[Figure]:
     img = (np.random.default_rng(0).random(size[::-1]) * 255).astype(np.uint8)
     m1, m2 = imm.fixed_point()
     for kind, fixed, maps in (("float32", False, (imm.map_x, imm.map_y)), ("fixed-point", True, (m1, m2))):
-        ours, ref = _paired_best(lambda: apply_imm(img, imm, fixed),
+        ours, ref = _paired_best(lambda: apply_imm(img, imm, fixed_point=fixed),
                                  lambda: cv2.remap(img, maps[0], maps[1], cv2.INTER_LINEAR,
                                                    borderMode=cv2.BORDER_CONSTANT))
         figs.append(Figure(GROUP, f"IMM apply, {mp:.1f} MP 8-bit, {kind} maps", ours * 1e3, "ms",
@@ -79,7 +79,7 @@ def imm_accuracy(quick: bool) -> list[Figure]:
     img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX)
     exact = bilinear(img, imm.map_x, imm.map_y)
     for kind, fixed in (("float32", False), ("fixed-point", True)):
-        err = float(np.sqrt(np.mean((apply_imm(img, imm, fixed) - exact) ** 2)))
+        err = float(np.sqrt(np.mean((apply_imm(img, imm, fixed_point=fixed) - exact) ** 2)))
         figs.append(Figure(GROUP, f"{kind} maps: grey error vs exact bilinear, RMS (texture "
                                   f"{np.sqrt(np.mean(np.square(np.gradient(img)))):.0f} grey/px)", err, "grey"))
     return figs
@@ -92,7 +92,7 @@ def straightness(quick: bool) -> list[Figure]:
     for family in LENS_FAMILIES:
         lens = _lens(family, size)
         prvm = lens.true_prvm()
-        cam = default_camera(prvm, _model(family))
+        cam = default_camera(prvm, model=_model(family))
         imm = build_imm(prvm, cam.sensor)
         pitch = cam.sensor.pitch_mm[0]
         rms = []

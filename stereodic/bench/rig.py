@@ -94,7 +94,7 @@ def evm_triangulation(quick: bool) -> list[Figure]:
         ok = _inside(rig, pl, pr)
         err = {}
         for corrected in (True, False):
-            t = triangulate(rig, pl[ok, 0], pr[ok, 0], pl[ok, 1], pr[ok, 1], corrected=corrected)
+            t = triangulate(rig, pl[ok, 0], pr[ok, 0], pl[ok, 1], row_right=pr[ok, 1], corrected=corrected)
             err[corrected] = float(np.sqrt(np.mean(np.sum((t.points - x[ok]) ** 2, axis=1))))
         figs.append(Figure(GROUP, f"3D error +-50 mm, {left}+{right}, EVM-corrected rays, RMS", err[True] * 1e3,
                            "um", "pinhole rays (Q matrix)", err[False] * 1e3, "<= 1/10 of pinhole",
@@ -161,7 +161,7 @@ def _boards(lenses, capture, seed: int, supersample: int, squares=(9, 7)):
     slack = (field - board) / 2 * 0.8
     cams = []
     for k, lens in enumerate(lenses):
-        cam = SimCamera(lens, Sensor(), supersample, seed=seed + 17 * k)
+        cam = SimCamera(lens, sensor=Sensor(), supersample=supersample, seed=seed + 17 * k)
         cam.set_exposure(display, 240, stage.poses[0])
         cams.append(cam)
     out = []
@@ -209,10 +209,10 @@ def opencv_comparison(quick: bool) -> list[Figure]:
     for left, right in (("brown", "brown"), ("freeform", "freeform")):
         with tempfile.TemporaryDirectory(prefix="bench_rig_") as root:
             supersample = max(3, -(-1280 // width))
-            out = simulate_stereo(Path(root) / "st", left, right, width, height, seed=3,
+            out = simulate_stereo(Path(root) / "st", left=left, right=right, width=width, height=height, seed=3,
                                   lens_options={"pixel_mm": 0.0053 * 1280 / width}, supersample=supersample)
             capture = load_capture(out)
-            prvms = [calibrate_camera(capture, cam).prvm for cam in ("cam0", "cam1")]
+            prvms = [calibrate_camera(capture, camera=cam).prvm for cam in ("cam0", "cam1")]
             lenses = stereo_lenses(left, right, width, height, 3, pixel_mm=0.0053 * 1280 / width)
             rig = build_rig(*prvms)
             x = _volume(rig, POINTS // 4, 60.0)

@@ -88,8 +88,8 @@ class Setup:
 
 def _setup(folder: str, quick: bool, lens: str = "brown", objects=("sphere", "ballbar", "plane")) -> Setup:
     size, periods = ((320, 256), (1280, 160, 32)) if quick else ((1280, 1024), DEFAULT_PERIODS)
-    scanner = default_scan_rig(*size, lens=lens)
-    cap = simulate_scan(folder, standard_scenes(objects), scanner, periods)
+    scanner = default_scan_rig(width=size[0], height=size[1], lens=lens)
+    cap = simulate_scan(folder, scenes=standard_scenes(objects=objects), rig=scanner, periods=periods)
     save_rig(f"{folder}/rig.npz", rig_from_files(f"{folder}/truth_cam0.npz", f"{folder}/truth_cam1.npz"))
     # the phase filter keeps its footprint on the object: SMOOTH_PX at 1280 pixels across
     return Setup(scanner, cap, load_rig(f"{folder}/rig.npz"), load_truth(folder), periods, lens,
@@ -137,7 +137,7 @@ def opencv_points(pair: OpenCVPair, real_left: np.ndarray, real_right: np.ndarra
     the rectified phase filtered as the scan filters ours (`smooth_phase`), so that only the geometry
     differs."""
     rect = [smooth_phase(cv2.remap(img, m[0], m[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                                   borderValue=float("nan")), smooth_px)
+                                   borderValue=float("nan")), sigma_px=smooth_px)
             for img, m in zip((real_left, real_right), pair.maps)]
     xr = match_rows(rect[0], rect[1])
     row, xl = np.nonzero(np.isfinite(xr))
@@ -291,8 +291,8 @@ def speed(quick: bool, folder: str) -> list[Figure]:
     2592 x 2048 (5.3 MP) cameras rendered without supersampling (the sampling does not change the work
     of the scan) of the 50 mm sphere before the plate."""
     size = (640, 512) if quick else (2592, 2048)
-    scanner = default_scan_rig(*size, supersample=1)
-    scene = standard_scenes(("sphere",))[0]
+    scanner = default_scan_rig(width=size[0], height=size[1], supersample=1)
+    scene = standard_scenes(objects=("sphere",))[0]
     periods = (1280, 160, 32) if quick else (1280, 120, 12)
     frames = scan_frames(0, periods, 3, 10, 250)
     images = {}

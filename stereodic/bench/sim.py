@@ -17,7 +17,7 @@ def _render_setup(width: int, height: int):
     from scanners.sim.camera import SimCamera
     from scanners.sim.display import SimDisplay
     from scanners.sim.lenses import make_lens
-    cam = SimCamera(make_lens("brown", width, height), supersample=3)
+    cam = SimCamera(make_lens("brown", width=width, height=height), supersample=3)
     display = SimDisplay()
     x = np.arange(display.width_px)
     fringe = np.tile(np.uint8(np.rint(130 + 110 * np.cos(2 * np.pi * x / 60))), (display.height_px, 1))

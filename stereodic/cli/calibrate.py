@@ -74,7 +74,7 @@ def run(args) -> int:
     if args.no_refine_poses and capture.posed:
         raise InputError("--no-refine-poses", "a hand-held (stage-free) capture has no nominal poses to keep: "
                                               "its poses are always estimated")
-    cal = calibrate_camera(capture, args.camera, smoother, refine=not args.no_refine_poses)
+    cal = calibrate_camera(capture, camera=args.camera, smoother=smoother, refine=not args.no_refine_poses)
     for note in cal.notes:
         print(f"stereodic calibrate: warning: {note}", file=sys.stderr)
     cal.prvm.save(args.output)

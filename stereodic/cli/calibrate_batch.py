@@ -29,7 +29,7 @@ def calibrate_task(dataset: str, camera: str, smoother, output: str, report_dir:
     from stereodic.batch import Done
     from stereodic.cli.calibrate import report, summary
     capture = load_capture(dataset)
-    cal = calibrate_camera(capture, camera, smoother, refine=refine and not capture.posed)
+    cal = calibrate_camera(capture, camera=camera, smoother=smoother, refine=refine and not capture.posed)
     cal.prvm.save(output)
     outputs = [(output, summary(cal))]
     if report_dir is not None:

@@ -461,7 +461,7 @@ def dic_grid(args, width: int, height: int, image: str, source: str):
         if mask is not None and not mask[y, x]:
             raise InputError("--seed", "a seed lies outside the mask")
         seeds.append((x, y))
-    grid = make_grid(width, height, args.subset, args.step, roi, mask)
+    grid = make_grid(width, height, subset=args.subset, step=args.step, roi=roi, mask=mask)
     if not grid.active.any():
         raise InputError(args.roi and "--roi" or source,
                          f"no point of the grid has its {args.subset}-pixel subset inside the {image}")

@@ -119,7 +119,8 @@ def run(args) -> int:
     writer = CsvWriter(out, has_strain) if args.columns == "stereodic" else contextlib.nullcontext()
     with cluster as client, tempfile.TemporaryDirectory(prefix=".dic2d-", dir=out.parent) as tmp, writer as csv:
         if client is None:
-            fields = correlate_sequence(ref, (read(p) for p in defs), grid, settings, seeds, args.incremental,
+            fields = correlate_sequence(ref, (read(p) for p in defs), grid, settings=settings, seeds=seeds,
+                                        incremental=args.incremental,
                                         switch_zncc=args.switch_zncc)
         else:
             fields = correlate_sequence_on(client, args.ref, [str(p) for p in defs], read, grid, settings, seeds,
@@ -127,7 +128,8 @@ def run(args) -> int:
         for k, f in enumerate(progress(fields, "dic2d", total=len(defs), unit="image")):
             m = None
             if has_strain:
-                m = measure_strain(strain_2d(grid.xs, grid.ys, f.u, f.v, args.strain_window), args.measure)
+                m = measure_strain(strain_2d(grid.xs, grid.ys, f.u, f.v, window=args.strain_window),
+                                   measure=args.measure)
             if csv is not None:
                 csv.write(k, f, m)
             else:

@@ -65,17 +65,17 @@ def run(args) -> int:
         raise InputError(args.output, f"is a file; the {args.format} export of a rig is a folder" if folder else
                          "is a directory; -o/--output expects a file name")
     if rig:  # a stereo rig (RIG.npz): stereodic.export_rig, every format
-        export_rig(args.file, args.format, args.output)
+        export_rig(args.file, args.output, fmt=args.format)
         wrote(args.output, f"{args.format} stereo rig of {args.file}")
         return 0
     if args.format == "dice":
         raise InputError("--format", "dice export needs a stereo rig (RIG.npz), not a single camera")
     prvm = load_prvm(args.file)
     camera = VirtualCamera.from_dict(prvm.meta["virtual"]) if is_virtual(prvm) else \
-        default_camera(prvm, args.model)
+        default_camera(prvm, model=args.model)
     name = prvm.meta.get("camera", Path(args.file).stem)
     try:
-        text = export_text({name: camera}, args.format, world_from_rig(prvm.meta, args.file))
+        text = export_text({name: camera}, fmt=args.format, world_from_rig=world_from_rig(prvm.meta, args.file))
     except InputError as exc:
         raise InputError(args.file, exc.problem) from None
     write_text(args.output, text)

@@ -56,8 +56,8 @@ def run(args) -> int:
             response = DisplayResponse.from_json(d)
         except (ValueError, TypeError) as exc:
             raise InputError(args.response, f"not a usable display response: {exc}") from None
-    seq = calibration_sequence(w, h, args.periods, args.steps, axes, args.low, args.high,
-                               [int(v) for v in args.flat_levels], response)
+    seq = calibration_sequence(w, h, periods=args.periods, steps=args.steps, axes=axes, low=args.low,
+                               high=args.high, flat_levels=[int(v) for v in args.flat_levels], response=response)
     path = write_patterns(args.output, w, h, seq)
     wrote(path, f"{len(seq)} patterns for a {w}x{h} display, images in {args.output}")
     return 0

@@ -42,8 +42,8 @@ def run(args) -> int:
     from stereodic.rig import load_rig
 
     rig = load_rig(args.rig)
-    left, right = rectify_pair(rig, read_gray(args.left), read_gray(args.right), not args.no_intensity,
-                               args.fixed_point, (args.left, args.right))
+    left, right = rectify_pair(rig, read_gray(args.left), read_gray(args.right), intensity=not args.no_intensity,
+                               fixed_point=args.fixed_point, where=(args.left, args.right))
     out = Path(args.output)
     for side, image, source in (("left", left, args.left), ("right", right, args.right)):
         write_gray(out / side / Path(source).name, image)

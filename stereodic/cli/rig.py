@@ -58,7 +58,8 @@ def run(args) -> int:
             prvms[k] = apply_registration(prvms[k], reg, wcs or args.register[0])
             print(f"{names[k]}: registered with {reg.pixels} rays, RMS {reg.rms_mm * 1e3:.2f} um")
     width, height = args.size if args.size else (None, None)
-    rig = build_rig(prvms[0], prvms[1], args.model, width, height, args.pitch, args.plane_z, tuple(names))
+    rig = build_rig(prvms[0], prvms[1], model=args.model, width=width, height=height, pitch_mm=args.pitch,
+                    plane_z_mm=args.plane_z, where=tuple(names))
     save_rig(args.output, rig)
     s = rig.sensor
     wrote(args.output, f"{s.width}x{s.height} virtual pixels of {s.pitch_mm[0] * 1e3:.1f} um, baseline "

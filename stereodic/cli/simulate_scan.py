@@ -38,10 +38,12 @@ def run(args) -> int:
         raise InputError("--objects", f"unknown object(s) {', '.join(bad) or '(none)'}; known: {', '.join(OBJECTS)}")
     if args.width < 16 or args.height < 16:
         raise InputError("--width/--height", f"sensor must be at least 16x16, got {args.width}x{args.height}")
-    rig = default_scan_rig(args.width, args.height, args.seed, args.lens, supersample=args.supersample)
-    cap = simulate_scan(args.output, standard_scenes(objects), rig, args.periods or DEFAULT_PERIODS,
-                        args.steps[0] if args.steps and len(args.steps) == 1 else args.steps,
-                        args.seed, args.noise)
+    rig = default_scan_rig(width=args.width, height=args.height, seed=args.seed, lens=args.lens,
+                           supersample=args.supersample)
+    cap = simulate_scan(args.output, scenes=standard_scenes(objects=objects), rig=rig,
+                        periods=args.periods or DEFAULT_PERIODS,
+                        steps=args.steps[0] if args.steps and len(args.steps) == 1 else args.steps,
+                        seed=args.seed, noise=args.noise)
     save_rig(cap.root / "rig.npz", rig_from_files(cap.root / "truth_cam0.npz", cap.root / "truth_cam1.npz"))
     wrote(cap.manifest_path, f"{len(cap.frames)} frames of {len(cap.states('cam0'))} scan states in {cap.root}, "
                              f"with truth.npz and rig.npz")

@@ -56,8 +56,9 @@ def run(args) -> int:
     supersample = args.supersample or max(3, int(np.ceil(1280 / args.width * reach)))
     pixel_mm = args.pixel_mm if args.pixel_mm else 0.0053 * 1280 / args.width
     steps = args.steps[0] if len(args.steps) == 1 else args.steps
-    out = simulate_stereo(args.output, left, right, args.width, args.height, args.seed, args.separate,
-                          args.baseline, args.distance, {"pixel_mm": pixel_mm}, periods=args.periods,
+    out = simulate_stereo(args.output, left=left, right=right, width=args.width, height=args.height,
+                          seed=args.seed, separate=args.separate, baseline_mm=args.baseline,
+                          distance_mm=args.distance, lens_options={"pixel_mm": pixel_mm}, periods=args.periods,
                           z_positions=args.positions, noise=args.noise, supersample=supersample, steps=steps,
                           handheld=held, **{k: v for k, v in flaw_kwargs(args).items() if k != "unseen"})
     what = "left/, right/ (own WCS each), register/ and registration_truth.json" if args.separate else \

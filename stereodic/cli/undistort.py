@@ -72,7 +72,7 @@ def run(args) -> int:
         wrote(args.save_virtual, f"virtual camera ({args.model}), {setup.imm.valid.shape[1]}x"
                                  f"{setup.imm.valid.shape[0]}")
     for path, name in progress(list(zip(args.images, names)), "undistort"):
-        virtual = undistort_image(read_gray(path), setup.imm, im, args.fixed_point, where=path)
+        virtual = undistort_image(read_gray(path), setup.imm, im=im, fixed_point=args.fixed_point, where=path)
         write_gray(out / name, virtual)
         wrote(out / name, f"{path} without distortion, {virtual.shape[1]}x{virtual.shape[0]}")
     return 0
@@ -86,7 +86,8 @@ def virtual_setup(prvm, args):
 
     width, height = args.size if args.size else (None, None)
     try:
-        camera = default_camera(prvm, args.model, width, height, args.pitch, args.plane_z)
+        camera = default_camera(prvm, model=args.model, width=width, height=height, pitch_mm=args.pitch,
+                                plane_z_mm=args.plane_z)
     except InputError as exc:
         raise InputError(args.camera, exc.problem) from None
     setup = make_virtual(prvm, camera)

@@ -7,12 +7,13 @@ of one subset, ZNSSD), `initial_guess` (integer ZNCC searches, also along rows f
 `output` (CSV, NPZ, PNG).
 
 Public API (pixels; x = column, y = row; u along x):
-- `BSplineImage.from_image(img, order, prefilter_sigma)`: interpolant of an image.
-- `correlate_points(ref, dfm, xs, ys, guess, settings) -> PointResult`: register a list of points from
+- `BSplineImage.from_image(img, *, order, prefilter_sigma)`: interpolant of an image.
+- `correlate_points(ref, dfm, xs, ys, guess, *, settings) -> PointResult`: register a list of points from
   initial guesses (the building block for stereo matching).
-- `row_search(ref_img, dfm_img, xs, ys, half, dmin, dmax)`: integer match along rows (rectified stereo);
-  `row_seed_search(dmin, dmax)`: the same as the seed search of `correlate_pair(..., search=)`.
-- `make_grid`, `correlate_pair`, `correlate_sequence`: full-field DIC.
+- `row_search(ref_img, dfm_img, xs, ys, *, half, dmin, dmax)`: integer match along rows (rectified
+  stereo); `row_seed_search(dmin, dmax)`: the same as the seed search of `correlate_pair(..., search=)`.
+- `make_grid(width, height, *, subset, step)`, `correlate_pair(ref, dfm, grid, *, settings)`,
+  `correlate_sequence`: full-field DIC.
 """
 
 try:

@@ -55,7 +55,8 @@ def _reference(spec: SequenceSpec) -> ImageRef:
 def prepare_task(spec: SequenceSpec, path: str) -> tuple[np.ndarray, BSplineImage]:
     """dic2d-prepare: one image and its B-spline."""
     img = spec.read(path)
-    return img, BSplineImage.from_image(img, spec.settings.order, spec.settings.prefilter_sigma)
+    return img, BSplineImage.from_image(img, order=spec.settings.order,
+                                        prefilter_sigma=spec.settings.prefilter_sigma)
 
 
 def track_task(spec: SequenceSpec, carry: TrackCarry, image, previous) -> tuple[DicField, TrackCarry]:

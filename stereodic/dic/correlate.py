@@ -113,12 +113,32 @@ def _arrays(n: int, nparams: int):
 
 
 def correlate_points(ref: BSplineImage, dfm: BSplineImage, xs: np.ndarray, ys: np.ndarray,
-                     guess: np.ndarray, settings: DicSettings = DicSettings(), *, subsets: np.ndarray | None = None,
-                     rows: np.ndarray | None = None) -> PointResult:
-    """Register the subsets centred on (xs[k], ys[k]) (reference pixels, sub-pixel allowed) starting from
-    `guess`: (N, 2) displacements (u, v) or (N, n) full warps. Runs in parallel over points. subsets: the
-    reference side of the subsets computed beforehand (`reference_subsets`), row rows[k] (int64) for
-    point k (row k without rows); the result is the same as without."""
+                     guess: np.ndarray, *, settings: DicSettings = DicSettings(),
+                     subsets: np.ndarray | None = None, rows: np.ndarray | None = None) -> PointResult:
+    """Register the subsets centred on given points by IC-GN (`stereodic.dic.icgn`), in parallel.
+
+    Parameters
+    ----------
+    ref, dfm : BSplineImage
+        The reference and deformed images' B-splines (`BSplineImage.from_image`).
+    xs, ys : (N,) float
+        The subset centres in the reference image, pixels (x = column, y = row; sub-pixel allowed).
+    guess : (N, 2) or (N, n) float
+        Starting displacements (u, v), pixels, or full warps (n parameters of `settings.shape`).
+    settings : DicSettings
+        Subset size, shape function, iterations, tolerance, ZNCC threshold.
+    subsets : (M, k) float64, optional
+        The reference side of the subsets computed beforehand (`reference_subsets`); the result is the
+        same as without.
+    rows : (N,) int64, optional
+        The row of `subsets` of each point; None: row k for point k.
+
+    Returns
+    -------
+    result : PointResult
+        ``warp`` (N, n) parameters (u, v in pixels), ``zncc`` (N,), ``iterations`` (N,), ``status`` (N,)
+        int8 (`stereodic.dic.icgn` codes); ``u``, ``v`` (N,) pixels, NaN where the status is not OK.
+    """
     xs = np.ascontiguousarray(xs, np.float64)
     ys = np.ascontiguousarray(ys, np.float64)
     n = settings.nparams
@@ -179,7 +199,7 @@ class _PairSolver:
     def solve(self, idx: np.ndarray) -> None:
         """Solve points `idx` from the warps already in self.warp."""
         s = self.s
-        res = correlate_points(self.ref, self.dfm, self.xs[idx], self.ys[idx], self.warp[idx], s,
+        res = correlate_points(self.ref, self.dfm, self.xs[idx], self.ys[idx], self.warp[idx], settings=s,
                                subsets=self.subsets, rows=None if self.subsets is None else np.asarray(idx, np.int64))
         self.warp[idx], self.zncc[idx], self.iters[idx], self.status[idx] = (
             res.warp, res.zncc, res.iterations, res.status)
@@ -345,7 +365,8 @@ class ImageRef:
                 bspline: BSplineImage | None = None, *, keep_subsets: bool = False) -> "ImageRef":
         """The reference data of `image` (its B-spline is computed unless given)."""
         if bspline is None:
-            bspline = BSplineImage.from_image(image, settings.order, settings.prefilter_sigma)
+            bspline = BSplineImage.from_image(image, order=settings.order,
+                                              prefilter_sigma=settings.prefilter_sigma)
         return cls(image, bspline, keep_subsets)
 
     @property
@@ -423,14 +444,36 @@ def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid
     return solver.result(), noise
 
 
-def correlate_pair(ref_img: np.ndarray, def_img: np.ndarray, grid: Grid,
+def correlate_pair(ref_img: np.ndarray, def_img: np.ndarray, grid: Grid, *,
                    settings: DicSettings = DicSettings(), seeds: Iterable[tuple[float, float]] = (),
                    search: Callable | None = None, start: PointResult | None = None) -> DicField:
-    """DIC of one deformed image against the reference on `grid`: `register_image` from `start` (full
-    warps), seeds near the (x, y) positions `seeds` and automatic ones."""
+    """2D DIC of one deformed image against the reference on a grid (`register_image`).
+
+    Parameters
+    ----------
+    ref_img, def_img : (H, W) array
+        The reference and deformed images, any real dtype.
+    grid : Grid
+        The points to measure, reference pixels (`make_grid`).
+    settings : DicSettings
+        Subset, shape function, interpolation, thresholds.
+    seeds : iterable of (x, y)
+        Start points of the propagation, reference pixels (besides the automatic seeds).
+    search : callable, optional
+        The seeds' integer search, `search_integer`'s signature; None: that 2-D search.
+    start : PointResult, optional
+        Warps (grid order) to start from, as if a previous image's result (its points with status OK).
+
+    Returns
+    -------
+    field : DicField
+        ``u``, ``v`` (ny, nx) displacements of the grid points, pixels (u along x, v along y), NaN where
+        not OK; ``points`` (the PointResult in grid order), ``noise_px`` (ny, nx) predicted random error,
+        pixels; ``zncc``, ``status``.
+    """
     X, Y = grid.points()
     ref = ImageRef.prepare(ref_img, settings)
-    def_b = BSplineImage.from_image(def_img, settings.order, settings.prefilter_sigma)
+    def_b = BSplineImage.from_image(def_img, order=settings.order, prefilter_sigma=settings.prefilter_sigma)
     res, noise = register_image(ref, def_img, def_b, grid, X, Y, settings, seeds=seed_indices(grid, seeds),
                                 search=search, start=start)
     return DicField(grid, res, res.u.reshape(grid.shape), res.v.reshape(grid.shape), noise.reshape(grid.shape))

@@ -26,11 +26,29 @@ class Grid:
         return X.ravel().copy(), Y.ravel().copy()
 
 
-def make_grid(width: int, height: int, subset: int, step: int,
+def make_grid(width: int, height: int, *, subset: int, step: int,
               roi: tuple[int, int, int, int] | None = None, mask: np.ndarray | None = None) -> Grid:
-    """Grid of points `step` pixels apart inside `roi` = (x0, y0, x1, y1) (inclusive pixel bounds,
-    default the whole image) whose subsets of `subset` pixels lie inside the image; `mask` (height,
-    width) bool keeps the points whose centre pixel is True."""
+    """The points where DIC measures, `step` pixels apart, whose subsets lie inside the image.
+
+    Parameters
+    ----------
+    width, height : int
+        The image size, pixels.
+    subset : int
+        The subset side, pixels: points within subset // 2 of the border are left out.
+    step : int
+        The grid spacing, pixels.
+    roi : (x0, y0, x1, y1) int, optional
+        Inclusive pixel bounds of the region of interest; None: the whole image.
+    mask : (height, width) bool, optional
+        Keep only the points whose centre pixel is True (the others are inactive).
+
+    Returns
+    -------
+    grid : Grid
+        ``xs`` (nx,) and ``ys`` (ny,) float64 integer pixel positions (x = column, y = row) and
+        ``active`` (ny, nx) bool.
+    """
     half = subset // 2
     x0, y0, x1, y1 = roi if roi is not None else (0, 0, width - 1, height - 1)
     x0, y0 = max(x0, half), max(y0, half)

@@ -46,14 +46,34 @@ def search_integer(ref: np.ndarray, dfm: np.ndarray, x: int, y: int, half: int, 
     return x0 + c + half - x, y0 + r + half - y, z
 
 
-def row_search(ref: np.ndarray, dfm: np.ndarray, xs: np.ndarray, ys: np.ndarray, half: int,
+def row_search(ref: np.ndarray, dfm: np.ndarray, xs: np.ndarray, ys: np.ndarray, *, half: int,
                dmin: int, dmax: int, rows: int = 0) -> tuple[np.ndarray, np.ndarray] | tuple[np.ndarray, ...]:
-    """For each integer point (xs[k], ys[k]) of `ref`, the integer shift d in [dmin, dmax] along the same
-    row of `dfm` (match at x + d) with the highest ZNCC of the subset of half-width `half`.
+    """Integer disparities along the rows of a rectified pair: for each point of `ref`, the shift d in
+    [dmin, dmax] along the same row of `dfm` (match at x + d) with the highest ZNCC (cv2.matchTemplate).
 
-    Returns (d, zncc) arrays; zncc = -1 where no shift of the range keeps the subset in the image. With
-    `rows` > 0 the search also covers that many rows above and below (a band about the row, for a rig
-    whose rows no longer line up exactly) and returns (d, dv, zncc), dv the row shift."""
+    Parameters
+    ----------
+    ref, dfm : (H, W) array
+        The two images (e.g. left and right rectified).
+    xs, ys : (N,) int
+        The points in `ref`, pixels (x = column, y = row).
+    half : int
+        The subset's half-width, pixels (side 2 half + 1).
+    dmin, dmax : int
+        The range of shifts searched, pixels.
+    rows : int
+        Also search that many rows above and below (a band about the row, for a rig whose rows no longer
+        line up exactly).
+
+    Returns
+    -------
+    d : (N,) int64
+        The best shift along the row, pixels.
+    dv : (N,) int64
+        The best row shift, pixels; returned only with `rows` > 0.
+    zncc : (N,) float64
+        Its ZNCC; -1 where no shift of the range keeps the subset in the image.
+    """
     h, w = ref.shape
     d_out = np.zeros(len(xs), np.int64)
     dv_out = np.zeros(len(xs), np.int64)
@@ -83,8 +103,8 @@ def row_seed_search(dmin: int, dmax: int, rows: int = 0):
     rectified stereo pair."""
     def search(ref, dfm, x, y, half, radius, centre):
         if rows == 0:
-            d, z = row_search(ref, dfm, [x], [y], half, dmin, dmax)
+            d, z = row_search(ref, dfm, [x], [y], half=half, dmin=dmin, dmax=dmax)
             return int(d[0]), 0, float(z[0])
-        d, dv, z = row_search(ref, dfm, [x], [y], half, dmin, dmax, rows)
+        d, dv, z = row_search(ref, dfm, [x], [y], half=half, dmin=dmin, dmax=dmax, rows=rows)
         return int(d[0]), int(dv[0]), float(z[0])
     return search

@@ -33,9 +33,23 @@ class BSplineImage:
     _pixels: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @classmethod
-    def from_image(cls, image: np.ndarray, order: int = 3, prefilter_sigma: float = 0.0) -> "BSplineImage":
-        """Coefficients of `image` (2-D, any real dtype); `prefilter_sigma` (pixels) > 0 first applies a
-        Gaussian low-pass of that standard deviation."""
+    def from_image(cls, image: np.ndarray, *, order: int = 3, prefilter_sigma: float = 0.0) -> "BSplineImage":
+        """The B-spline interpolant of an image.
+
+        Parameters
+        ----------
+        image : (H, W) array
+            Any real dtype.
+        order : {3, 5}
+            Bicubic or biquintic.
+        prefilter_sigma : float
+            > 0: first a Gaussian low-pass of that standard deviation, pixels.
+
+        Returns
+        -------
+        bspline : BSplineImage
+            ``coef`` (H + 2 PAD, W + 2 PAD) float32 coefficients, the order and the image size.
+        """
         if order not in (3, 5):
             raise ValueError(f"B-spline order must be 3 or 5, got {order}")
         img = np.ascontiguousarray(image, dtype=np.float64)

@@ -263,23 +263,49 @@ def prefetch(items: Iterable, prepare: Callable) -> Iterator:
             yield item, done
 
 
-def correlate_sequence(ref_img: np.ndarray, def_imgs: Iterable[np.ndarray], grid: Grid,
+def correlate_sequence(ref_img: np.ndarray, def_imgs: Iterable[np.ndarray], grid: Grid, *,
                        settings: DicSettings = DicSettings(), seeds: Iterable[tuple[float, float]] = (),
                        incremental: bool = False, search: Callable | None = None,
                        start: PointResult | None = None, switch_zncc: float = SWITCH_ZNCC) -> Iterable[DicField]:
-    """Yield one DicField per deformed image (a generator: images are read one at a time).
+    """2D DIC of a series of deformed images against one reference, tracked from image to image.
 
     Each image starts from the previous image's warps where those were good (points that fail from
     there, or reach less than the seed ZNCC, start again from their neighbours), then propagates into the
     rest. Points switch to incremental DIC when their ZNCC against the reference falls below
-    `switch_zncc` (0 = never); with `incremental`, every point is registered image to image (module
-    docstring). seeds: (x, y) start points of the propagation (reference pixels); search: the seeds'
-    integer search, `search_integer`'s signature (default: that 2-D search; a rectified stereo pair uses
-    `row_seed_search`); start: warps (grid order) for the first image to start from, as if they were a
-    previous image's result (its points with status OK)."""
+    `switch_zncc` (module docstring).
+
+    Parameters
+    ----------
+    ref_img : (H, W) array
+        The reference image, any real dtype.
+    def_imgs : iterable of (H, W) arrays
+        The deformed images, in order; read one at a time.
+    grid : Grid
+        The points to measure, reference pixels (`make_grid`).
+    settings : DicSettings
+        Subset, shape function, interpolation, thresholds.
+    seeds : iterable of (x, y)
+        Start points of the propagation, reference pixels.
+    incremental : bool
+        Register every point image to image.
+    search : callable, optional
+        The seeds' integer search, `search_integer`'s signature; None: that 2-D search (a rectified
+        stereo pair uses `row_seed_search`).
+    start : PointResult, optional
+        Warps (grid order) for the first image to start from, as if a previous image's result.
+    switch_zncc : float
+        A point's ZNCC against the reference below which it switches to incremental DIC; 0: never.
+
+    Returns
+    -------
+    fields : iterator of DicField
+        One per deformed image (a generator): ``u``, ``v`` (ny, nx) displacements from the reference
+        position, pixels, summed over the steps for incremental points; ``incremental`` (ny, nx) bool.
+    """
     s = settings
     seed_list = seed_indices(grid, seeds)
-    images = prefetch(def_imgs, lambda img: BSplineImage.from_image(img, s.order, s.prefilter_sigma))
+    images = prefetch(def_imgs, lambda img: BSplineImage.from_image(img, order=s.order,
+                                                                    prefilter_sigma=s.prefilter_sigma))
     ref = ImageRef.prepare(ref_img, s, keep_subsets=True)
     previous = ref
     carry = TrackCarry.initial(grid, incremental, start)

@@ -62,7 +62,7 @@ def speckle_quality(image: np.ndarray, *, subset: int = 21, target_px: float = 0
         sigma, source = float(np.std(img - other) / np.sqrt(2.0)), "measured"
     else:
         sigma, source = estimate_noise(image), "estimated"
-    b = BSplineImage.from_image(img, 3, 0.0)
+    b = BSplineImage.from_image(img, order=3, prefilter_sigma=0.0)
     g = b.pixel_gradients()
     x0, y0, x1, y1 = roi if roi is not None else (0, 0, w - 1, h - 1)
     region = np.zeros((h, w), bool)

@@ -38,7 +38,7 @@ image's B-spline, the reference points), `pair` the state's rectified images (`P
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import KW_ONLY, dataclass, field, replace
 from typing import Iterable, Iterator, Sequence
 
 import numpy as np
@@ -133,7 +133,8 @@ class PreparedPair:
 
     @classmethod
     def prepare(cls, left: np.ndarray, right: np.ndarray, settings: DicSettings) -> "PreparedPair":
-        return cls(left, right, *(BSplineImage.from_image(img, settings.order, settings.prefilter_sigma)
+        return cls(left, right, *(BSplineImage.from_image(img, order=settings.order,
+                                                          prefilter_sigma=settings.prefilter_sigma)
                                   for img in (left, right)))
 
     def left_ref(self, *, keep_subsets: bool = False) -> ImageRef:
@@ -165,7 +166,8 @@ class StereoRun:
 
     def with_reference(self, state0: StereoState) -> "StereoRun":
         window = self.settings.strain_window
-        return replace(self, ref_points=state0.points, ref_strain=StrainFit(state0.points, window) if window else None)
+        return replace(self, ref_points=state0.points,
+                       ref_strain=StrainFit(state0.points, window=window) if window else None)
 
     @property
     def disparity(self) -> tuple[int, int]:
@@ -248,7 +250,7 @@ def _composed(cross: PointResult, temporal: PointResult | None, du: np.ndarray, 
     return out
 
 
-def in_view(imm, x: np.ndarray, y: np.ndarray, half: int) -> np.ndarray:
+def in_view(imm, x: np.ndarray, y: np.ndarray, *, half: int) -> np.ndarray:
     """Whether the subsets of half size `half` (pixels) centred at rectified positions (x, y) (any shape;
     NaN: not matched) see only image: every pixel of each, and VIEW_MARGIN_PX beyond (the B-spline's
     reach), samples the camera's real image through the IMM (`imm.real_position` finite at the corners
@@ -395,7 +397,7 @@ def _stereo_at(pair: PreparedPair, s: DicSettings, xs: np.ndarray, ys: np.ndarra
                       np.where(track, UNREACHED, prev.status).astype(np.int8))
     noise = np.full(xs.size, np.nan)
     if track.any():
-        r = correlate_points(pair.left_b, pair.right_b, xs[track], ys[track], res.warp[track], s)
+        r = correlate_points(pair.left_b, pair.right_b, xs[track], ys[track], res.warp[track], settings=s)
         res.warp[track], res.zncc[track], res.iterations[track], res.status[track] = (
             r.warp, r.zncc, r.iterations, r.status)
         noise[track] = pair.left_ref().noise(xs[track], ys[track], s.half)
@@ -412,32 +414,47 @@ def _state(run: StereoRun, k: int, left: CameraMatch, right: CameraMatch, increm
     gap = np.full(X.size, np.nan)
     if both.any():
         t = triangulate(rig, X[both] + left.u.ravel()[both], X[both] + right.u.ravel()[both],
-                        Y[both] + left.v.ravel()[both], Y[both] + right.v.ravel()[both], corrected=True)
+                        Y[both] + left.v.ravel()[both], row_right=Y[both] + right.v.ravel()[both], corrected=True)
         pts[both], gap[both] = rig.to_world(t.points), t.gap_mm
     gap_ok = ~(gap > run.max_gap_mm).reshape(g.shape)
     ref_points = run.ref_points if k > 0 else None
     ref_ok = np.ones(g.shape, bool) if ref_points is None else np.isfinite(ref_points).all(-1)
     half = run.settings.dic.subset // 2
-    view_ok = {side: in_view(rig.camera(side).imm, X.reshape(g.shape) + m.u, Y.reshape(g.shape) + m.v, half)
+    view_ok = {side: in_view(rig.camera(side).imm, X.reshape(g.shape) + m.u, Y.reshape(g.shape) + m.v, half=half)
                | ~m.ok for side, m in (("left", left), ("right", right))}
     converged, status = _combine(left, right, gap_ok, ref_ok, view_ok)
     pts = np.where(converged[..., None], pts.reshape(g.shape + (3,)), np.nan)
     disp = pts - (pts if ref_points is None else ref_points)
     strain = measure = None
     if run.settings.strain_window:
-        strain = strain_3d(pts, disp, run.settings.strain_window) if ref_points is None else run.ref_strain(disp)
-        measure = measure_strain(strain, run.settings.strain_measure)
+        if ref_points is None:
+            strain = strain_3d(pts, disp, window=run.settings.strain_window)
+        else:
+            strain = run.ref_strain(disp)
+        measure = measure_strain(strain, measure=run.settings.strain_measure)
     return StereoState(k, left, right, pts, disp, np.where(converged, gap.reshape(g.shape), np.nan),
                        converged, status, strain, incremental, measure)
 
 
 @dataclass
 class StereoDic:
-    """The pipeline over the states of one experiment in memory (module docstring). `rig` gives the rays;
-    images are the rectified ones (`rectify_pair`), all of the rig's virtual size."""
+    """The stereo 3D-DIC pipeline over the states of one experiment, in memory (module docstring).
+
+    Parameters
+    ----------
+    rig : Rig
+        The rectified pair: its rays triangulate the matches.
+    grid : Grid
+        The points, in the left rectified image of state 0, virtual pixels (`make_grid`).
+    settings : StereoSettings
+        The 2-D engine's settings, disparity range, strain window and measure, ray-gap limit.
+    seeds : sequence of (x, y)
+        Start points of the propagation, left rectified pixels (besides the automatic seeds).
+    """
 
     rig: Rig
     grid: Grid
+    _: KW_ONLY
     settings: StereoSettings = StereoSettings()
     seeds: Sequence[tuple[float, float]] = field(default_factory=tuple)
 
@@ -447,8 +464,21 @@ class StereoDic:
         return stereo_match(StereoRun.prepare(self.rig, self.grid, self.settings, self.seeds, pair), pair)[0]
 
     def run(self, pairs: Iterable[tuple[np.ndarray, np.ndarray]]) -> Iterator[StereoState]:
-        """Yield one StereoState per rectified (left, right) pair, state 0 (the reference) first; pairs are
-        read one at a time (the next one is prepared while the current one is solved)."""
+        """Solve the states one after the other.
+
+        Parameters
+        ----------
+        pairs : iterable of ((Hv, Wv) array, (Hv, Wv) array)
+            The rectified (left, right) images of each state (`rectify_pair`, of the rig's virtual size),
+            state 0 (the reference) first; read one at a time (the next one is prepared while the current
+            one is solved).
+
+        Returns
+        -------
+        states : iterator of StereoState
+            One per pair: ``points`` and ``displacement`` (ny, nx, 3) in the rig's reporting frame, mm
+            (`Rig.to_world`), ``gap_mm``, ``converged``, ``status``, the strain and its measure.
+        """
         s = self.settings.dic
         run = carry = previous = None
         for k, (_, pair) in enumerate(prefetch(pairs, lambda p: PreparedPair.prepare(p[0], p[1], s))):

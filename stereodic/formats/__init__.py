@@ -88,16 +88,38 @@ class Imported:
     result: object
 
 
-def import_calibration(paths: list[str | os.PathLike], fmt: str = "auto", *, size=None, units=None,
+def import_calibration(paths: list[str | os.PathLike], *, fmt: str = "auto", size=None, units=None,
                        cameras: list[str] | None = None, model: str = "pinhole", virtual_size=None,
-                       pitch_mm=None, plane_z_mm: float | None = None):
-    """The stereodic file of another program's calibration: a `calib.prvm_file.PRVM` for one camera, or
-    a `stereodic.rig.Rig` built by `stereodic.rig.build_rig` from two cameras' PRVMs exactly as
-    `stereodic rig` builds one (model, virtual_size (w, h), pitch_mm, plane_z_mm as there; plane_z_mm
-    defaults to the cameras' working point). The rays are in the internal frame of
-    `calib.camera_models.prvms_of`; the rig's (or the PRVM's meta) world_from_rig leads back to the file's
-    world frame. `cameras` picks one or two cameras by name or index (default: all, which must be one or
-    two)."""
+                       pitch_mm=None, plane_z_mm: float | None = None) -> Imported:
+    """The stereodic file of another program's calibration: one camera's PRVM, or two cameras' rig.
+
+    The rays are in the internal frame of `calib.camera_models.prvms_of`; the rig's (or the PRVM's meta)
+    world_from_rig leads back to the file's world frame.
+
+    Parameters
+    ----------
+    paths : list of path
+        One calibration file; or two: a stereo pair of mrcal .cameramodel files, or OpenCV's stereo_calib
+        intrinsics.yml + extrinsics.yml.
+    fmt : str
+        "auto" (`detect.detect_format`) or one of FORMATS.
+    size : (int, int), optional
+        (width, height) pixels, for cameras whose file gives no image size.
+    units : {"mm", "m"}, optional
+        The unit of the file's translations; None: the format's (DEFAULT_UNITS).
+    cameras : list of str, optional
+        One or two cameras by name or index; None: all, which must be one or two.
+    model, virtual_size, pitch_mm, plane_z_mm
+        For two cameras, as `stereodic.rig.build_rig`'s model, (width, height), pitch_mm and plane_z_mm;
+        plane_z_mm None: the cameras' working point.
+
+    Returns
+    -------
+    imported : Imported
+        The format, the cameras used, their PRVMs and ``result``: the one camera's `calib.prvm_file.PRVM`
+        or the `stereodic.rig.Rig` (built exactly as ``stereodic rig`` builds one). InputError naming the
+        file when it is not a calibration of the format, or holds more than two cameras.
+    """
     from calib.camera_models import prvms_of
     from stereodic.rig import build_rig
     fmt, cams = read_calibration(paths, fmt, size=size, units=units)
@@ -111,7 +133,7 @@ def import_calibration(paths: list[str | os.PathLike], fmt: str = "auto", *, siz
     if len(prvms) == 1:
         return Imported(fmt, cams, prvms, prvms[0])
     w, h = virtual_size if virtual_size else (None, None)
-    rig = build_rig(prvms[0], prvms[1], model, w, h, pitch_mm,
-                    prvms[0].reference_z_mm if plane_z_mm is None else plane_z_mm,
-                    (f"{where}#{cams[0].name}", f"{where}#{cams[1].name}"))
+    rig = build_rig(prvms[0], prvms[1], model=model, width=w, height=h, pitch_mm=pitch_mm,
+                    plane_z_mm=prvms[0].reference_z_mm if plane_z_mm is None else plane_z_mm,
+                    where=(f"{where}#{cams[0].name}", f"{where}#{cams[1].name}"))
     return Imported(fmt, cams, prvms, rig)

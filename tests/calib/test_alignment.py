@@ -35,7 +35,7 @@ def tilted(z_mm, tx_deg, ty_deg):
 
 @pytest.mark.parametrize("family", ["brown", "freeform", "noncentral"])
 def test_pose_through_prvm_rays_is_exact(family):
-    lens = make_lens(family, W, H, 2, pixel_mm=PIXEL_MM)
+    lens = make_lens(family, width=W, height=H, seed=2, pixel_mm=PIXEL_MM)
     prvm = lens.true_prvm()
     model = PrvmRays(prvm, fit_optical_centre(prvm)[0])
     pose = tilted(30.0, 1.7, -2.4)
@@ -54,7 +54,7 @@ def test_pose_through_prvm_rays_is_exact(family):
 
 
 def test_pinhole_rays_are_the_brown_lens_rays():
-    lens = make_lens("brown", W, H, 3, pixel_mm=PIXEL_MM)
+    lens = make_lens("brown", width=W, height=H, seed=3, pixel_mm=PIXEL_MM)
     p = lens.params
     K = [[p["fx"], 0, p["cx"]], [0, p["fy"], p["cy"]], [0, 0, 1]]
     k, tan = p["distortion"]["k"], p["distortion"]["p"]
@@ -67,12 +67,14 @@ def test_pinhole_rays_are_the_brown_lens_rays():
 
 @pytest.mark.parametrize("axis_deg", [(0.0, 0.0), (0.6, -0.35), (-2.0, 1.0)])
 def test_stage_axis_from_two_poses(axis_deg):
-    lens = aim(make_lens("freeform", W, H, 1, pixel_mm=PIXEL_MM), 1.2, -0.7, 0.4)
-    prvm = make_lens("freeform", W, H, 1, pixel_mm=PIXEL_MM).true_prvm()   # calibrated in another pose
+    lens = aim(make_lens("freeform", width=W, height=H, seed=1, pixel_mm=PIXEL_MM), 1.2, -0.7, 0.4)
+    prvm = make_lens("freeform", width=W, height=H, seed=1,
+                     pixel_mm=PIXEL_MM).true_prvm()   # calibrated in another pose
     model = PrvmRays(prvm, fit_optical_centre(prvm)[0])
     a = np.array([np.tan(np.radians(axis_deg[0])), np.tan(np.radians(axis_deg[1])), 1.0])
     a /= np.linalg.norm(a)
-    fits = [fit_display_pose(model, seen(lens, DisplayPose.staged(z, a)), np.ones((H, W), bool), DISPLAY.pitch_mm)
+    fits = [fit_display_pose(model, seen(lens, DisplayPose.staged(z, axis=a)), np.ones((H, W), bool),
+                             DISPLAY.pitch_mm)
             for z in (0.0, 40.0)]
     got = stage_axis(fits[0], fits[1], 40.0)
     assert np.allclose(got.axis, a, atol=1e-9)

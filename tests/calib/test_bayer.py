@@ -58,7 +58,7 @@ def test_each_colour_is_decoded_with_its_own_response(bayer_calibration):
     """Every photosite's ray matches the truth as well as with one common response (RMS < 0.03 px,
     each colour); each sub-lattice's measured display response follows its own gamma."""
     cal, truth = bayer_calibration
-    err = ray_error_px(cal.prvm, truth, 0.0)
+    err = ray_error_px(cal.prvm, truth, z_mm=0.0)
     colour = colour_map("RGGB", 72, 96)
     for c in "RGB":
         assert ErrorStats.of(np.where(colour == c, err, np.nan)).rms < 0.03, c

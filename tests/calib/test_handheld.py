@@ -62,7 +62,7 @@ def test_rays_match_the_truth_in_the_display_frame_at_pose_0(synthetic):
     the pose-0 display plane, and on a plane 60 mm beyond it."""
     _, _, truth, cal = synthetic
     for z in (0.0, 60.0):
-        err = ErrorStats.of(ray_error_px(cal.prvm, truth, z))
+        err = ErrorStats.of(ray_error_px(cal.prvm, truth, z_mm=z))
         assert err.valid == 1.0 and err.rms < 0.01, (z, err)
     assert cal.prvm.meta["wcs_definition"].startswith("the display's frame at pose 0")
 
@@ -114,7 +114,7 @@ def test_simulated_noncentral_hand_held(tmp_path):
                          flat_levels=(0, 64, 128, 192, 255), handheld=HandHeld(poses=6))
     cal = calibrate_camera(load_capture(tmp_path))
     truth = load_prvm(tmp_path / "truth.npz")
-    assert ErrorStats.of(ray_error_px(cal.prvm, truth, 0.0)).rms < 0.02
+    assert ErrorStats.of(ray_error_px(cal.prvm, truth, z_mm=0.0)).rms < 0.02
     rep, rt, tt = cal.poses, truth.extra["display_rotation"], truth.extra["display_translation_mm"]
     for k in range(6):
         c = rep.centre_mm[k]
@@ -134,7 +134,7 @@ def test_simulated_display_moved_during_its_fringes_is_left_out(tmp_path):
     assert list(np.flatnonzero(cal.poses.out_of_family)) == [3] and not cal.poses.used[3]
     assert any("pose(s) 3 left out" in n for n in cal.notes)
     truth = load_prvm(tmp_path / "truth.npz")
-    assert ErrorStats.of(ray_error_px(cal.prvm, truth, 0.0)).rms < 0.01
+    assert ErrorStats.of(ray_error_px(cal.prvm, truth, z_mm=0.0)).rms < 0.01
 
 
 def test_reduced_prvm_of_one_pose(synthetic, tmp_path, capsys):

@@ -21,13 +21,15 @@ SHIFTS = step_shifts(3)
 
 @pytest.fixture(scope="module")
 def camera():
-    cam = SimCamera(make_lens("brown", W, H, 0, pixel_mm=0.0212), Sensor(bit_depth=8), 3, seed=1)
+    cam = SimCamera(make_lens("brown", width=W, height=H, seed=0, pixel_mm=0.0212), sensor=Sensor(bit_depth=8),
+                    supersample=3, seed=1)
     cam.set_exposure(DISPLAY, 240, POSE)
     return cam
 
 
 def fringes(cam):
-    return {(axis, p): [cam.render(fringe_image(1920, 1080, axis, p, d), DISPLAY, POSE) for d in SHIFTS]
+    return {(axis, p): [cam.render(fringe_image(1920, 1080, axis=axis, period_px=p, shift_rad=d), DISPLAY, POSE)
+                        for d in SHIFTS]
             for axis in "xy" for p in PERIODS}
 
 

@@ -16,13 +16,13 @@ def test_three_step_shifts_are_the_seeds():
 
 
 def test_fringe_follows_the_design_formula():
-    img = fringe_image(200, 30, "x", 60, 2 * np.pi / 3, 20, 240)
+    img = fringe_image(200, 30, axis="x", period_px=60, shift_rad=2 * np.pi / 3, low=20, high=240)
     c = np.arange(200)
     want = 20 + 220 / 2 * (1 + np.cos(2 * np.pi * c / 60 - 2 * np.pi / 3))
     assert img.shape == (30, 200) and img.dtype == np.uint8
     assert np.abs(img[7].astype(float) - want).max() <= 0.5
     assert (img == img[0]).all()
-    imy = fringe_image(50, 80, "y", 40, 0, 20, 240)
+    imy = fringe_image(50, 80, axis="y", period_px=40, shift_rad=0, low=20, high=240)
     assert (imy[:, 3] == imy[:, 0]).all() and imy.min() >= 20 and imy.max() <= 240
 
 
@@ -37,7 +37,7 @@ def test_precompensated_fringe_emits_a_cosine():
 
 
 def test_sequence_and_cli_write_exact_resolution(tmp_path):
-    seq = calibration_sequence(64, 48, [64, 16], steps=4, flat_levels=[0, 128])
+    seq = calibration_sequence(64, 48, periods=[64, 16], steps=4, flat_levels=[0, 128])
     assert len(seq) == 2 + 2 * 2 * 4
     assert main(["patterns", "--display", "64x48", "--periods", "64,16", "--steps", "4",
                  "--flat-levels", "0,128,255", "-o", str(tmp_path)]) == 0
@@ -48,8 +48,8 @@ def test_sequence_and_cli_write_exact_resolution(tmp_path):
     fr = [e for e in manifest["patterns"] if e["pattern"]["type"] == "fringe"][0]
     img = read_gray(tmp_path / fr["file"])
     p = fr["pattern"]
-    np.testing.assert_array_equal(img, fringe_image(64, 48, p["axis"], p["period_px"], p["shift_rad"],
-                                                    p["low"], p["high"]))
+    np.testing.assert_array_equal(img, fringe_image(64, 48, axis=p["axis"], period_px=p["period_px"],
+                                                    shift_rad=p["shift_rad"], low=p["low"], high=p["high"]))
 
 
 def test_cli_rejects_periods_that_do_not_cover_the_display(tmp_path, capsys):

@@ -26,7 +26,8 @@ def test_a_converging_pair_whose_display_misses_part_of_the_view_calibrates_both
     2-3 % of each camera's pixels at stage position 0, 5-6 % at 25 mm and 9-10 % at 50 mm. Pixels that
     saw it at 2 positions are calibrated from those two; none that saw it at fewer has a valid ray."""
     from scanners.sim.stereo import simulate_stereo
-    out = simulate_stereo(tmp_path / "st", "brown", "freeform", 320, 256, lens_options={"pixel_mm": 0.0053 * 4 * 1.6},
+    out = simulate_stereo(tmp_path / "st", left="brown", right="freeform", width=320, height=256,
+                          lens_options={"pixel_mm": 0.0053 * 4 * 1.6},
                           supersample=5, flat_levels=(0, 128, 255), z_positions=(0.0, 25.0, 50.0))
     cap = load_capture(out)
     for cam in ("cam0", "cam1"):
@@ -36,7 +37,7 @@ def test_a_converging_pair_whose_display_misses_part_of_the_view_calibrates_both
         unseen = 1 - np.mean((last[..., 0] >= -0.5) & (last[..., 0] <= 1919.5) & (last[..., 1] >= -0.5)
                              & (last[..., 1] <= 1079.5))
         assert 0.05 <= unseen <= 0.2
-        cal = calibrate_camera(cap, cam)
+        cal = calibrate_camera(cap, camera=cam)
         valid, used = cal.prvm.valid, cal.prvm.extra["used_positions"]
         assert not (valid & (n == 0)).any()
         assert (valid & (n == 1)).sum() <= 1e-3 * n.size          # pixels straddling the edge by a hair

@@ -49,8 +49,8 @@ def test_refined_poses_lower_the_ray_error_below_the_nominal_floor(tilted_stage)
     cap = load_capture(root)
     refined, nominal = calibrate_camera(cap), calibrate_camera(cap, refine=False)
     assert refined.poses.used and nominal.poses is None
-    err_r = ErrorStats.of(ray_error_px(refined.prvm, truth, 0.0)).rms
-    err_n = ErrorStats.of(ray_error_px(nominal.prvm, truth, 0.0)).rms
+    err_r = ErrorStats.of(ray_error_px(refined.prvm, truth, z_mm=0.0)).rms
+    err_n = ErrorStats.of(ray_error_px(nominal.prvm, truth, z_mm=0.0)).rms
     assert err_r < err_n / 3, (err_r, err_n)
     meta = refined.prvm.meta["stage_poses"]
     assert meta["used"] and len(meta["positions"]) == 4 and meta["cost_refined"] < meta["cost_nominal"]
@@ -92,7 +92,8 @@ def test_simulated_stage_with_realistic_errors(tmp_path):
 
     def floor(rotation, translation):
         lines = fit_posed_lines(cr, ones, rotation, translation, cap.display.pitch_mm).lines
-        return ErrorStats.of(ray_error_px(PRVM(lines.origin(), lines.direction(), lines.valid), moved, 0.0)).rms
+        return ErrorStats.of(ray_error_px(PRVM(lines.origin(), lines.direction(), lines.valid), moved,
+                                          z_mm=0.0)).rms
 
     nominal = floor(np.broadcast_to(np.eye(3), (3, 3, 3)), np.array([[0, 0, 0], [0, 0, 25.0], [0, 0, 50.0]]))
     assert cal.poses.used and floor(*cal.poses.poses) < nominal / 10

@@ -35,7 +35,8 @@ def test_calibration_plan_order():
     assert {s.z_mm for s in first} == {0.0} and {s.z_mm for s in shots[PER_POSITION:]} == {50.0}
     assert {s.folder for s in shots[PER_POSITION:]} == {"z001"}
     # the images are calib.patterns' own
-    seq = calibration_sequence(64, 48, PERIODS, 3, ("x", "y"), 20, 240, FLATS)
+    seq = calibration_sequence(64, 48, periods=PERIODS, steps=3, axes=("x", "y"), low=20, high=240,
+                               flat_levels=FLATS)
     assert all(np.array_equal(s.image, img) and s.pattern == p for s, (p, img) in zip(first, seq))
 
 
@@ -225,7 +226,7 @@ def test_scan_plan_and_file_display(tmp_path):
     assert [f.file for f in cap.frames][:3] == ["s000/cam0_x_P64_s0.png", "s000/cam0_x_P64_s1.png",
                                                 "s000/cam0_x_P64_s2.png"]
     assert cap.states("cam0") == [0, 1]
-    seq = calibration_sequence(64, 48, [64], 3, ("x",), 20, 240)
+    seq = calibration_sequence(64, 48, periods=[64], steps=3, axes=("x",), low=20, high=240)
     files = sorted(shown.glob("*.png"))
     assert len(files) == 6
     for f, (_, img) in zip(files, seq + seq):

@@ -43,7 +43,7 @@ TILTS = [(0.1, -0.15, 0.1), (-5.0, 3.5, -2.0), (4.5, 5.0, 1.5)]
 
 
 def lens_of(family):
-    return make_lens(family, *SIZE, 0, pixel_mm=PIXEL_UM / 1000)
+    return make_lens(family, width=SIZE[0], height=SIZE[1], seed=0, pixel_mm=PIXEL_UM / 1000)
 
 
 @functools.lru_cache
@@ -143,7 +143,7 @@ def test_tracked_updates_follow_a_turning_camera():
     lens = cam.sim.lens
     for about, angle, frames in (("x", 0.15, 6), ("y", -0.1, 6), ("y", 3.0, 12), ("x", -0.2, 6)):
         lens = _turned(lens, about, angle)              # the person turns the camera about its centre
-        cam.sim = SimCamera(lens, Sensor(bit_depth=8), 3, seed=0)
+        cam.sim = SimCamera(lens, sensor=Sensor(bit_depth=8), supersample=3, seed=0)
         cam.set_exposure(240, 0.0)
         m = s.measure()
         err, _ = errors(m, cam)
@@ -309,7 +309,7 @@ def test_a_stage_that_does_not_move(tmp_path, capsys, fault, says):
 def test_bad_usage_is_one_line(tmp_path, capsys, args, says):
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "keep.txt").write_text("mine")
-    make_lens("brown", 64, 48).true_prvm().save(tmp_path / "small.npz")
+    make_lens("brown", width=64, height=48).true_prvm().save(tmp_path / "small.npz")
     names = {"OUT": str(tmp_path / "out"), "FULL": str(tmp_path / "full"), "SMALL": str(tmp_path / "small.npz")}
     assert main(["align"] + [names.get(a, a) for a in args]) == 2
     assert says in one_line(capsys)

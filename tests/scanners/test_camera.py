@@ -87,7 +87,7 @@ def test_simulated_camera_noise_depends_only_on_what_it_sees():
     cams = [SimulatedCamera("cam0", screen, lambda: z[0], size=(48, 40), seed=5) for _ in range(2)]
     for c in cams:
         c.set_exposure(240, 0.0)
-    a = fringe_image(1920, 1080, "x", 60, 0.0)
+    a = fringe_image(1920, 1080, axis="x", period_px=60, shift_rad=0.0)
     screen.show(a)
     first = cams[0].grab()
     again = cams[0].grab()                     # a second grab of the same image: new noise
@@ -109,14 +109,15 @@ def test_simulated_camera_aimed_at_known_tilts_on_a_tilted_stage():
     assert (truth["tilt_x_deg"], truth["tilt_y_deg"], truth["roll_deg"]) == pytest.approx((1.5, -2.5, 0.7))
     assert np.allclose(cam.true_pose().t, [0.2, -0.4, 20.0]) and cam.true_pose().is_staged()
     plain = open_camera("sim:freeform?size=64x48&pixel_um=106", "cam0", screen, lambda: 20.0)
-    assert np.allclose(plain.sim.lens.rotation, make_lens("freeform", 64, 48, 0, pixel_mm=0.106).rotation)  # seeded
+    assert np.allclose(plain.sim.lens.rotation,
+                       make_lens("freeform", width=64, height=48, seed=0, pixel_mm=0.106).rotation)  # seeded
 
 
 def test_simulated_camera_sees_a_colour_picture_as_its_grey():
     screen = SimScreen()
     cam = SimulatedCamera("cam0", screen, lambda: 0.0, size=(48, 40), noise=False)
     cam.set_exposure(240, 0.0)
-    grey = fringe_image(1920, 1080, "x", 60, 0.0)
+    grey = fringe_image(1920, 1080, axis="x", period_px=60, shift_rad=0.0)
     screen.show(grey)
     want = cam.grab()
     screen.show(np.repeat(grey[:, :, None], 3, axis=2))        # the same grey as an RGB picture

@@ -18,7 +18,8 @@ W, H = 320, 200
 def test_file_screen_writes_what_it_shows(tmp_path):
     screen = open_screen(f"file:{tmp_path}/shown?size=64x48")
     assert isinstance(screen, FileScreen) and screen.size == (64, 48)
-    a, b = fringe_image(64, 48, "x", 16, 0.0), fringe_image(64, 48, "y", 12, 2.0)
+    a = fringe_image(64, 48, axis="x", period_px=16, shift_rad=0.0)
+    b = fringe_image(64, 48, axis="y", period_px=12, shift_rad=2.0)
     screen.show(a)
     screen.show(b)
     assert sorted(p.name for p in (tmp_path / "shown").iterdir()) == ["00000.png", "00001.png"]
@@ -50,7 +51,7 @@ def test_wrong_pattern_size_is_refused(tmp_path):
 def test_sim_screen_holds_the_image():
     screen = open_screen("sim")
     assert isinstance(screen, SimScreen) and screen.size == (1920, 1080) and screen.pitch_mm == (0.2745, 0.2745)
-    img = fringe_image(1920, 1080, "x", 60, 0.0)
+    img = fringe_image(1920, 1080, axis="x", period_px=60, shift_rad=0.0)
     screen.show(img)
     assert np.array_equal(screen.image, img) and screen.serial == 1
 
@@ -80,7 +81,8 @@ def test_full_screen_pixel_for_pixel(xvfb, vsync):
     try:
         assert screen.size == (W, H)
         rng = np.random.default_rng(1)
-        for image in (fringe_image(W, H, "x", 60, 0.0), fringe_image(W, H, "y", 36, -2.0944),
+        for image in (fringe_image(W, H, axis="x", period_px=60, shift_rad=0.0),
+                      fringe_image(W, H, axis="y", period_px=36, shift_rad=-2.0944),
                       rng.integers(0, 256, (H, W), dtype=np.uint8)):   # noise: any scaling or filter shows
             screen.show(image)
             got = read_back(xvfb)

@@ -23,7 +23,8 @@ def flat(level):
 
 
 def test_flat_frame_shows_the_vignetting_and_gain_that_were_set():
-    cam = SimCamera(make_lens("brown", W, H, vignetting=-0.2), Sensor(bit_depth=16, prnu=0.02), seed=5)
+    cam = SimCamera(make_lens("brown", width=W, height=H, vignetting=-0.2),
+                    sensor=Sensor(bit_depth=16, prnu=0.02), seed=5)
     cam.set_exposure(SMOOTH, 255, staged(0.0), fraction=0.8)
     n = 16
     mean = np.mean([cam.render(flat(255), SMOOTH, staged(0.0)).astype(float) for _ in range(n)], axis=0)
@@ -45,7 +46,7 @@ def test_flat_frame_shows_the_vignetting_and_gain_that_were_set():
 
 
 def test_noise_variance_is_shot_plus_read_noise():
-    cam = SimCamera(make_lens("brown", W, H), Sensor(bit_depth=16, read_noise_e=20.0), seed=1)
+    cam = SimCamera(make_lens("brown", width=W, height=H), sensor=Sensor(bit_depth=16, read_noise_e=20.0), seed=1)
     cam.set_exposure(SMOOTH, 200, staged(0.0), fraction=0.5)
     clean = cam.render(flat(200), SMOOTH, staged(0.0), noise=False).astype(float)
     a, b = (cam.render(flat(200), SMOOTH, staged(0.0)).astype(float) for _ in range(2))
@@ -56,7 +57,7 @@ def test_noise_variance_is_shot_plus_read_noise():
 
 
 def test_mean_of_noisy_renders_converges_to_the_noise_free_render():
-    cam = SimCamera(make_lens("freeform", W, H), Sensor(bit_depth=16), seed=2)
+    cam = SimCamera(make_lens("freeform", width=W, height=H), sensor=Sensor(bit_depth=16), seed=2)
     img = np.tile(np.uint8(20 + 220 * (np.arange(1920) % 37 > 18)), (1080, 1))
     cam.set_exposure(SimDisplay(), 240, staged(20.0))
     clean = cam.render(img, SimDisplay(), staged(20.0), noise=False).astype(float)
@@ -68,7 +69,7 @@ def test_mean_of_noisy_renders_converges_to_the_noise_free_render():
 
 def test_bit_depth_and_saturation():
     for bits, dtype in ((8, np.uint8), (12, np.uint16)):
-        cam = SimCamera(make_lens("brown", W, H), Sensor(bit_depth=bits), seed=0)
+        cam = SimCamera(make_lens("brown", width=W, height=H), sensor=Sensor(bit_depth=bits), seed=0)
         cam.set_exposure(SMOOTH, 128, staged(0.0), fraction=0.9)
         img = cam.render(flat(255), SMOOTH, staged(0.0))
         assert img.dtype == dtype
@@ -82,7 +83,7 @@ def test_bit_depth_and_saturation():
 
 
 def test_default_exposure_puts_the_brightest_fringe_near_full_scale():
-    cam = SimCamera(make_lens("brown", W, H))
+    cam = SimCamera(make_lens("brown", width=W, height=H))
     cam.set_exposure(SimDisplay(), 240, staged(0.0))
     img = cam.render(flat(240), SimDisplay(), staged(0.0), noise=False)
     assert 0.85 * 255 <= img.max() <= 0.9 * 255
@@ -101,8 +102,8 @@ def column_hit(lens, display, z, c0, rows):
 
 @pytest.mark.parametrize("glass", [None, CoverGlass(4.0, 1.5)])
 def test_a_bright_display_column_appears_where_the_true_rays_meet_it(glass):
-    lens = make_lens("brown", W, H, seed=4, offset_mm=(40.0, 0.0))   # oblique view: the glass matters
-    cam = SimCamera(lens, Sensor(bit_depth=16), seed=0)
+    lens = make_lens("brown", width=W, height=H, seed=4, offset_mm=(40.0, 0.0))   # oblique view: the glass matters
+    cam = SimCamera(lens, sensor=Sensor(bit_depth=16), seed=0)
     display = SimDisplay(fill_factor=(1.0, 1.0), stripes=1, cover_glass=glass)
     z = 25.0
     o, d = lens.rays(np.array([W / 2]), np.array([H / 2]))
@@ -132,8 +133,8 @@ def test_a_bright_display_column_appears_where_the_true_rays_meet_it(glass):
 
 
 def test_defocus_lowers_fringe_contrast_as_the_thin_lens_blur_circle_says():
-    lens = make_lens("brown", W, H, f_number=2.0, focus_mm=400.0, offset_mm=(0, 0), roll_deg=0.0)
-    cam = SimCamera(lens, Sensor(bit_depth=16), diffraction=False)
+    lens = make_lens("brown", width=W, height=H, f_number=2.0, focus_mm=400.0, offset_mm=(0, 0), roll_deg=0.0)
+    cam = SimCamera(lens, sensor=Sensor(bit_depth=16), diffraction=False)
     period = 12                                                  # display pixels, ~18 camera pixels
     img = np.tile(np.uint8(np.rint(127.5 + 127.5 * np.cos(2 * np.pi * np.arange(1920) / period))), (1080, 1))
     linear = SimDisplay(gamma=1.0, black_level=0.0, fill_factor=(1.0, 1.0), stripes=1)
@@ -167,7 +168,7 @@ def test_a_display_that_does_not_fill_the_field_shows_its_bezel_beyond_it():
     """Aimed at the display's corner, the camera sees the display in one quadrant, the bezel elsewhere,
     and a blend of the two within the blur of the edge."""
     display = SimDisplay(fill_factor=(1.0, 1.0), stripes=1, bezel=0.02)     # no pixel gaps: uniform
-    cam = SimCamera(make_lens("brown", W, H, target_mm=(0.0, 0.0, 0.0)))
+    cam = SimCamera(make_lens("brown", width=W, height=H, target_mm=(0.0, 0.0, 0.0)))
     view = cam.view(display, staged(0.0))
     irr = cam.irradiance(flat(255), display, staged(0.0))
     c, r = view.display_cr[..., 0], view.display_cr[..., 1]
@@ -184,15 +185,16 @@ def test_a_display_that_does_not_fill_the_field_shows_its_bezel_beyond_it():
 
 
 def test_a_camera_that_does_not_see_the_display_is_an_input_error():
-    cam = SimCamera(make_lens("brown", W, H, target_mm=(-300.0, -300.0, 0.0)))
+    cam = SimCamera(make_lens("brown", width=W, height=H, target_mm=(-300.0, -300.0, 0.0)))
     with pytest.raises(InputError, match="does not see the display"):
         cam.view(SimDisplay(), staged(0.0))
 
 
 def test_ambient_light_and_hot_pixels_add_their_recorded_signal():
-    lens = make_lens("brown", W, H)
-    plain = SimCamera(lens, Sensor(bit_depth=16), seed=2)
-    flawed = SimCamera(lens, Sensor(bit_depth=16, hot_pixels=0.01), seed=2, ambient=0.05, ambient_variation=0.3)
+    lens = make_lens("brown", width=W, height=H)
+    plain = SimCamera(lens, sensor=Sensor(bit_depth=16), seed=2)
+    flawed = SimCamera(lens, sensor=Sensor(bit_depth=16, hot_pixels=0.01), seed=2, ambient=0.05,
+                       ambient_variation=0.3)
     for cam in (plain, flawed):
         cam.exposure_e = 5000.0
     hot = flawed.hot_e > 0
@@ -210,7 +212,8 @@ def test_ambient_light_and_hot_pixels_add_their_recorded_signal():
 
 def test_overexposure_clips_the_stated_share_of_the_pixels_that_see_the_display():
     display = SimDisplay()
-    cam = SimCamera(make_lens("brown", W, H, target_mm=(0.0, 0.0, 0.0)), Sensor(bit_depth=12), seed=1)
+    cam = SimCamera(make_lens("brown", width=W, height=H, target_mm=(0.0, 0.0, 0.0)),
+                    sensor=Sensor(bit_depth=12), seed=1)
     cam.set_exposure(display, 240, staged(0.0), clipped=0.05)
     img = cam.render(flat(240), display, staged(0.0), noise=False)
     seen = cam.view(display, staged(0.0)).seen

@@ -129,7 +129,7 @@ def test_stage_axis_moves_the_display_sideways():
     d = SimDisplay()
     o, dirn = np.array([[50.0, 40.0, 0.0]]), np.array([[0.0, 0.0, 1.0]])
     c0, r0 = d.hit(o, dirn, DisplayPose.staged(100.0))
-    c1, r1 = d.hit(o, dirn, DisplayPose.staged(100.0, (0.01, -0.02, 1.0)))
+    c1, r1 = d.hit(o, dirn, DisplayPose.staged(100.0, axis=(0.01, -0.02, 1.0)))
     assert (c1 - c0)[0] * d.pitch_mm[0] == pytest.approx(-1.0)
     assert (r1 - r0)[0] * d.pitch_mm[1] == pytest.approx(2.0)
 

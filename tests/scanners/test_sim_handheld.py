@@ -112,7 +112,7 @@ def test_bayer_colours_have_their_own_rays_and_sensitivity():
     """A red photosite's true ray is the lens's ray at its point scaled about the centre by the red
     magnification; a flat at full white lights the colours in the ratio of their gains."""
     bayer = BayerSensor("RGGB", gain=(0.5, 1.0, 0.8), lateral_colour=(1e-3, 0.0, -1e-3))
-    base = make_lens("brown", 160, 128, pixel_mm=0.0424)
+    base = make_lens("brown", width=160, height=128, pixel_mm=0.0424)
     lens = base.__class__(**{**base.__dict__, "colour": bayer.colour(160, 128)})
     u, v = np.array([0.0, 1.0, 1.0]), np.array([0.0, 0.0, 1.0])             # R, G, B photosites
     cu, cv = 79.5, 63.5
@@ -120,7 +120,7 @@ def test_bayer_colours_have_their_own_rays_and_sensitivity():
     for i, m in enumerate((1e-3, 0.0, -1e-3)):
         eo, ed = base.rays(cu + (u[i] - cu) * (1 + m), cv + (v[i] - cv) * (1 + m))
         assert np.allclose(o[i], eo) and np.allclose(d[i], ed)
-    cam = BayerCamera(lens, Sensor(), 8, bayer=bayer, seed=0)
+    cam = BayerCamera(lens, sensor=Sensor(), supersample=8, bayer=bayer, seed=0)
     pose = DisplayPose.staged(0.0)
     e = cam.irradiance(np.full((1080, 1920), 255, np.uint8), SimDisplay(), pose) / cam.vignetting
     colour = colour_index("RGGB", *np.mgrid[0:128, 0:160])

@@ -25,7 +25,7 @@ def closest_point(origin, direction):
 
 @pytest.mark.parametrize("family", LENS_FAMILIES)
 def test_rays_are_unit_towards_display_with_origin_on_reference_plane(family):
-    o, d = make_lens(family, W, H, seed=3).rays(*grid())
+    o, d = make_lens(family, width=W, height=H, seed=3).rays(*grid())
     assert np.allclose(np.linalg.norm(d, axis=-1), 1, atol=1e-14)
     assert (d[..., 2] > 0).all()
     assert np.abs(o[..., 2]).max() < 1e-9
@@ -33,7 +33,7 @@ def test_rays_are_unit_towards_display_with_origin_on_reference_plane(family):
 
 @pytest.mark.parametrize("family", ["brown", "freeform", "scheimpflug"])
 def test_central_lens_rays_meet_at_the_projection_centre(family):
-    lens = make_lens(family, W, H, seed=1)
+    lens = make_lens(family, width=W, height=H, seed=1)
     p, rms = closest_point(*lens.rays(*grid()))
     assert rms < 1e-9
     assert np.allclose(p, lens.centre_mm, atol=1e-8)
@@ -41,7 +41,7 @@ def test_central_lens_rays_meet_at_the_projection_centre(family):
 
 
 def test_telecentric_rays_are_parallel_and_spread_over_the_field():
-    lens = make_lens("telecentric", W, H)
+    lens = make_lens("telecentric", width=W, height=H)
     o, d = lens.rays(*grid())
     d = d.reshape(-1, 3)
     assert np.abs(d - d[0]).max() < 1e-14
@@ -58,7 +58,7 @@ def test_a_pixel_sees_less_than_a_display_pixel_but_does_not_resolve_it(family):
     pixel (0.2745 mm), so the display's reference points are about as dense as the camera's pixels
     (a much smaller footprint resolves the display's pixel grid and the decoded phase becomes a
     staircase); and the display (527 x 296 mm) covers the field at both default stage positions."""
-    lens = make_lens(family, 1280, 1024)
+    lens = make_lens(family, width=1280, height=1024)
     u, v = np.meshgrid(np.arange(0, 1280, 8.0), np.arange(0, 1024, 8.0))
     o, d = lens.rays(u, v)
     for z in (0.0, 50.0):
@@ -128,13 +128,13 @@ def fit_polynomial_model(lens):
 
 
 def test_freeform_lens_defeats_the_polynomial_model_that_fits_brown_exactly():
-    assert fit_polynomial_model(make_lens("brown", 320, 256))[1] < 1e-6
-    rms, worst = fit_polynomial_model(make_lens("freeform", 320, 256))
+    assert fit_polynomial_model(make_lens("brown", width=320, height=256))[1] < 1e-6
+    rms, worst = fit_polynomial_model(make_lens("freeform", width=320, height=256))
     assert rms > 0.2 and worst > 1.0
 
 
 def test_freeform_distortion_is_smooth_at_ten_pixels():
-    du, dv = pixel_displacement(make_lens("freeform", 320, 256))
+    du, dv = pixel_displacement(make_lens("freeform", width=320, height=256))
     for f in (du, dv):
         second = f[:, 20:] - 2 * f[:, 10:-10] + f[:, :-20]
         assert np.abs(second).max() < 0.2          # px over a 10 px step: bumps are >= 20 px wide
@@ -149,7 +149,7 @@ def scheimpflug_blur(lens, z_mm=25.0):
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_scheimpflug_views_the_display_obliquely_with_its_plane_in_focus(seed):
-    lens = make_lens("scheimpflug", 1280, 1024, seed=seed)
+    lens = make_lens("scheimpflug", width=1280, height=1024, seed=seed)
     view = np.degrees(np.arccos(lens.rotation[2, 2]))            # axis vs display normal
     assert 25 <= view <= 35
     # the sensor is tilted (about the axis perpendicular to the viewing plane) by the Scheimpflug rule
@@ -163,7 +163,7 @@ def test_scheimpflug_views_the_display_obliquely_with_its_plane_in_focus(seed):
     # the plane of sharp focus is the display plane at the middle of the stage travel: the blur circle
     # is far below a pixel over the whole field; without the tilt its edges would be blurred
     assert scheimpflug_blur(lens).max() < 0.1
-    untilted = make_lens("scheimpflug", 1280, 1024, seed=seed, sensor_tilt_deg=0.0)
+    untilted = make_lens("scheimpflug", width=1280, height=1024, seed=seed, sensor_tilt_deg=0.0)
     assert scheimpflug_blur(untilted).max() > 2.0
     # at the default stage positions (+-25 mm) the blur is even across the field (a ~2 px disk, the
     # optics' interpolation of the display's pixels)
@@ -182,7 +182,7 @@ def test_distortion_inverse_round_trips():
 
 
 def test_true_prvm_is_the_ray_of_each_pixel_centre():
-    lens = make_lens("noncentral", 40, 30)
+    lens = make_lens("noncentral", width=40, height=30)
     prvm = lens.true_prvm(camera="cam0")
     o, d = lens.rays(np.array([17.0]), np.array([11.0]))
     assert np.allclose(prvm.origin[11, 17], o[0]) and np.allclose(prvm.direction[11, 17], d[0])

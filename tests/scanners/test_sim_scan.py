@@ -56,9 +56,9 @@ def test_projector_projects_its_axis_to_the_panel_centre_and_emits_the_8bit_frin
 
 
 def test_sphere_shadows_the_plate_behind_it():
-    rig = default_scan_rig(96, 80, supersample=1)
+    rig = default_scan_rig(width=96, height=80, supersample=1)
     cam = rig.cameras(0)[0]
-    scene = standard_scenes(("sphere",))[0]
+    scene = standard_scenes(objects=("sphere",))[0]
     view = lit_view(cam, scene, rig.projector)
     sphere, plate = scene.surfaces
     plate_pts = np.isclose(view.points[..., 2], plate.centre[2])
@@ -71,8 +71,9 @@ def test_sphere_shadows_the_plate_behind_it():
 
 
 def test_simulated_scan_dataset_is_complete(tmp_path):
-    rig = default_scan_rig(64, 48, supersample=1)
-    cap = simulate_scan(tmp_path, standard_scenes(("plane",))[:2], rig, periods=(1280, 160, 32), steps=4)
+    rig = default_scan_rig(width=64, height=48, supersample=1)
+    cap = simulate_scan(tmp_path, scenes=standard_scenes(objects=("plane",))[:2], rig=rig,
+                        periods=(1280, 160, 32), steps=4)
     cap = load_capture(tmp_path)
     assert cap.kind == "scan" and cap.states("cam0") == [0, 1]
     assert len(cap.frames) == 2 * 2 * 3 * 4
@@ -85,8 +86,9 @@ def test_simulated_scan_dataset_is_complete(tmp_path):
 def test_steps_may_differ_per_period(tmp_path):
     from calib.errors import InputError
     from scanners.sim.scan import steps_per_period
-    rig = default_scan_rig(48, 32, supersample=1)
-    cap = simulate_scan(tmp_path, standard_scenes(("plane",))[:1], rig, periods=(1280, 160, 32), steps=[3, 4, 6])
+    rig = default_scan_rig(width=48, height=32, supersample=1)
+    cap = simulate_scan(tmp_path, scenes=standard_scenes(objects=("plane",))[:1], rig=rig,
+                        periods=(1280, 160, 32), steps=[3, 4, 6])
     per = {p: sum(1 for f in cap.frames if f.camera == "cam0" and f.pattern.period_px == p) for p in (1280, 160, 32)}
     assert per == {1280: 3, 160: 4, 32: 6} and cap.extra["projector"]["steps"] == [3, 4, 6]
     assert steps_per_period((1280, 120, 8), None) == [3, 3, 16]

@@ -51,7 +51,8 @@ def test_registration_recovers_the_true_transform():
 def test_joint_dataset_calibrates_into_one_rig(tmp_path):
     from stereodic.cli import main
     from stereodic.rig import load_rig
-    out = simulate_stereo(tmp_path / "st", "brown", "freeform", 160, 128, lens_options={"pixel_mm": SMALL["pixel_mm"]},
+    out = simulate_stereo(tmp_path / "st", left="brown", right="freeform", width=160, height=128,
+                          lens_options={"pixel_mm": SMALL["pixel_mm"]},
                           supersample=8)
     for cam in ("cam0", "cam1"):
         assert main(["calibrate", str(out), "--camera", cam, "-o", str(tmp_path / f"{cam}.npz")]) == 0
@@ -67,7 +68,7 @@ def test_joint_dataset_calibrates_into_one_rig(tmp_path):
 @pytest.mark.slow
 def test_separately_calibrated_cameras_are_registered(tmp_path):
     from stereodic.cli import main
-    out = simulate_stereo(tmp_path / "st", "noncentral", "brown", 160, 128, separate=True,
+    out = simulate_stereo(tmp_path / "st", left="noncentral", right="brown", width=160, height=128, separate=True,
                           lens_options={"pixel_mm": SMALL["pixel_mm"]}, supersample=8)
     files = {}
     for name, dataset, cam in (("L", "left", None), ("R", "right", None), ("LR", "register", "cam0"),

@@ -21,8 +21,9 @@ def _files(folder):
 def scans(tmp_path_factory):
     """Two scan datasets of two states each (a sphere before its plate, a plate), 320 x 256, one rig."""
     root = tmp_path_factory.mktemp("scans")
-    simulate_scan(root / "line_a", standard_scenes(("sphere",))[:1] + standard_scenes(("plane",))[:1],
-                  default_scan_rig(320, 256), PERIODS)
+    simulate_scan(root / "line_a",
+                  scenes=standard_scenes(objects=("sphere",))[:1] + standard_scenes(objects=("plane",))[:1],
+                  rig=default_scan_rig(width=320, height=256), periods=PERIODS)
     save_rig(root / "rig.npz", rig_from_files(root / "line_a" / "truth_cam0.npz", root / "line_a" / "truth_cam1.npz"))
     shutil.copytree(root / "line_a", root / "line_b")
     return root
@@ -65,7 +66,8 @@ def test_a_scan_batch_run_again_does_only_what_is_not_done(scans, scanned_in_pro
 def stereo_capture(tmp_path_factory):
     """A two-camera calibration dataset, 160 x 128, 2 stage positions."""
     from scanners.sim.stereo import simulate_stereo
-    return simulate_stereo(tmp_path_factory.mktemp("stereo_cal") / "cal", "brown", "freeform", 160, 128,
+    return simulate_stereo(tmp_path_factory.mktemp("stereo_cal") / "cal", left="brown", right="freeform",
+                           width=160, height=128,
                            lens_options={"pixel_mm": 0.0053 * 1280 / 160}, supersample=8)
 
 

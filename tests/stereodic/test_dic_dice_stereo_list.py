@@ -51,12 +51,12 @@ def run_case():
     x0, y0, x1, y1 = ROI
     pad = STEP   # DICe's subsets reach beyond its ROI: keep a grid step around it
     roi = (imm.map_x >= x0 - pad) & (imm.map_x <= x1 + pad) & (imm.map_y >= y0 - pad) & (imm.map_y <= y1 + pad)
-    grid = make_grid(rig.sensor.width, rig.sensor.height, SUBSET, STEP, mask=roi)
+    grid = make_grid(rig.sensor.width, rig.sensor.height, subset=SUBSET, step=STEP, mask=roi)
     # the calibration does not fit these images (their rows are 10-35 px apart): seeds searched in a band
     # of rows, and no ray-gap rejection (the rays of every match miss each other by ~3.9 mm)
     settings = StereoSettings(DicSettings(subset=SUBSET, prefilter_sigma=0.0), strain_window=None, max_gap_px=1e6,
                               vertical_search=50)
-    states = list(StereoDic(rig, grid, settings).run(pairs))
+    states = list(StereoDic(rig, grid, settings=settings).run(pairs))
 
     f = dice_fields()
     ok = f["SIGMA"][0] >= 0

@@ -36,11 +36,11 @@ def twist2d():
 
 def _run2d(twist2d, **kw):
     ref, images, angles = twist2d
-    grid = make_grid(N, N, 21, 8, roi=(40, 40, N - 41, N - 41))
+    grid = make_grid(N, N, subset=21, step=8, roi=(40, 40, N - 41, N - 41))
     X, Y = grid.points()
     act = grid.active.ravel()
     out = []
-    for f, a in zip(correlate_sequence(ref, images, grid, DicSettings(subset=21), **kw), angles):
+    for f, a in zip(correlate_sequence(ref, images, grid, settings=DicSettings(subset=21), **kw), angles):
         tu, tv = _twist(a)(X, Y)
         ok = f.ok.ravel() & act
         err = np.hypot(f.u.ravel() - tu, f.v.ravel() - tv)[ok]
@@ -75,14 +75,14 @@ def test_stereo_points_switch_on_a_growing_twist(tmp_path):
     rig = load_rig(tmp_path / "rig.npz")
     data = load_states(tmp_path, rig)
     W, H = rig.sensor.width, rig.sensor.height
-    grid = make_grid(W, H, 21, 6, roi=(30, 30, W - 31, H - 31))
+    grid = make_grid(W, H, subset=21, step=6, roi=(30, 30, W - 31, H - 31))
     X, Y = grid.points()
     truth = truth_at_pixels(load_dic_truth(tmp_path), rig.left.imm.real_position(X, Y))
     act = grid.active.ravel()
 
     def run(**kw):
         out = []
-        for st in StereoDic(rig, grid, StereoSettings(DicSettings(subset=21), strain_window=5, **kw)).run(
+        for st in StereoDic(rig, grid, settings=StereoSettings(DicSettings(subset=21), strain_window=5, **kw)).run(
                 data.rectified(rig)):
             c = st.converged.ravel() & act
             err = np.linalg.norm(st.displacement.reshape(-1, 3)[c] - truth["displacement"][st.state][c], axis=1)

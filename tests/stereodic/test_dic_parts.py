@@ -14,7 +14,7 @@ from stereodic.dic.interpolation import gaussian_lowpass
 def test_bspline_matches_scipy_and_its_own_derivative(order):
     rng = np.random.default_rng(1)
     img = ndimage.gaussian_filter(rng.random((40, 50)) * 255, 1.2)
-    b = BSplineImage.from_image(img, order)
+    b = BSplineImage.from_image(img, order=order)
     x, y = rng.uniform(0, 49, 500), rng.uniform(0, 39, 500)
     expected = ndimage.map_coordinates(img, [y, x], order=order, mode="mirror")
     assert np.abs(b.sample(x, y) - expected).max() < 1e-3  # float32 coefficients
@@ -32,7 +32,7 @@ def test_prefilter_is_scipys_gaussian():
     for sigma in (0.5, 0.7, 1.3):
         expected = ndimage.gaussian_filter(img, sigma, mode="mirror", truncate=3.0)
         assert np.abs(gaussian_lowpass(img, sigma) - expected).max() < 1e-9
-    b = BSplineImage.from_image(img, 3, 0.7)
+    b = BSplineImage.from_image(img, order=3, prefilter_sigma=0.7)
     assert np.abs(b.pixel_gradients()[0] - ndimage.gaussian_filter(img, 0.7, mode="mirror", truncate=3.0)).max() < 1e-3
 
 
@@ -54,8 +54,8 @@ def test_search_integer_and_row_search():
     dfm = render(sp, (7.0, -4.0))
     assert search_integer(ref, dfm, 60, 50, 10, 12)[:2] == (7, -4)
     assert search_integer(ref, dfm, 60, 50, 10, 5, centre=(5, -5))[:2] == (7, -4)
-    d, z = row_search(ref, render(sp, (-9.0, 0.0)), np.array([40, 70, 100]), np.array([30, 50, 60]), 10,
-                      -20, 0)
+    d, z = row_search(ref, render(sp, (-9.0, 0.0)), np.array([40, 70, 100]), np.array([30, 50, 60]), half=10,
+                      dmin=-20, dmax=0)
     assert d.tolist() == [-9, -9, -9] and (z > 0.95).all()
     flat = np.full_like(ref, 100)
     assert search_integer(flat, dfm, 60, 50, 10, 12)[2] == -1.0
@@ -66,6 +66,6 @@ def test_search_integer_and_row_search():
 def test_bspline_coefficients_are_scipys(order, shape):
     # the compiled prefilter (stereodic/dic/src/bspline.c) against scipy's, mirrored borders, float32 out
     img = np.random.default_rng(3).random(shape) * 255
-    coef = BSplineImage.from_image(img, order).coef
+    coef = BSplineImage.from_image(img, order=order).coef
     expected = np.pad(ndimage.spline_filter(img, order=order, mode="mirror", output=np.float32), 4, mode="reflect")
     assert np.abs(coef - expected).max() <= 1e-6 * np.abs(expected).max()  # equal but for a few float32 ulps

@@ -20,8 +20,8 @@ CASES = [("shift_x0.10_y0.10.tif", 0.10, 0.10), ("shift_x0.00_y0.00.tif", 0.0, 0
 def test_mean_displacement_within_0_0015_px(name, true_u, true_v, subset):
     ref = read_gray(DATA / "reference.tif")
     dfm = read_gray(DATA / name)
-    grid = make_grid(ref.shape[1], ref.shape[0], subset, 6, roi=(40, 40, 471, 471))
-    field = correlate_pair(ref, dfm, grid, DicSettings(subset=subset))
+    grid = make_grid(ref.shape[1], ref.shape[0], subset=subset, step=6, roi=(40, 40, 471, 471))
+    field = correlate_pair(ref, dfm, grid, settings=DicSettings(subset=subset))
     assert field.ok.all()
     assert abs(np.mean(field.u) - true_u) < 0.0015
     assert abs(np.mean(field.v) - true_v) < 0.0015

@@ -21,9 +21,9 @@ def _run(root, subset=21, step=5, window=9, incremental=False):
     rig = load_rig(root / "rig.npz")
     data = load_states(root, rig)
     W, H = rig.sensor.width, rig.sensor.height
-    grid = make_grid(W, H, subset, step, roi=(15, 15, W - 16, H - 16))
+    grid = make_grid(W, H, subset=subset, step=step, roi=(15, 15, W - 16, H - 16))
     settings = StereoSettings(DicSettings(subset=subset), strain_window=window, incremental=incremental)
-    states = list(StereoDic(rig, grid, settings).run(list(data.rectified(rig))))
+    states = list(StereoDic(rig, grid, settings=settings).run(list(data.rectified(rig))))
     X, Y = grid.points()
     return rig, grid, states, truth_at_pixels(load_dic_truth(root), rig.left.imm.real_position(X, Y))
 

@@ -23,7 +23,7 @@ def speckle():
 
 def _noise_bound(clean: np.ndarray, grid, subset: int, sigma_noise: float):
     """Per point (ny, nx) theoretical standard deviation of u and of v."""
-    g = BSplineImage.from_image(clean, 3, 0.0).pixel_gradients().astype(np.float64)
+    g = BSplineImage.from_image(clean, order=3, prefilter_sigma=0.0).pixel_gradients().astype(np.float64)
     h = subset // 2
     X, Y = grid.points()
     sx, sy = [], []
@@ -37,14 +37,14 @@ def _noise_bound(clean: np.ndarray, grid, subset: int, sigma_noise: float):
 def _random_error_ratio(speckle, subset, shifts, repeats):
     sigma_noise = 2.0
     m = subset // 2 + 2  # deformed subsets stay inside the image
-    grid = make_grid(N, N, subset, subset, roi=(m, m, N - 1 - m, N - 1 - m))  # independent subsets
+    grid = make_grid(N, N, subset=subset, step=subset, roi=(m, m, N - 1 - m, N - 1 - m))  # independent subsets
     bound_u, bound_v = _noise_bound(render(speckle, bits=None), grid, subset, sigma_noise)
     ru, rv = [], []
     for t in shifts:
         for rep in range(repeats):
             ref = render(speckle, noise_sigma=sigma_noise, bits=None, seed=2 * rep + 1)
             dfm = render(speckle, (t, -t), noise_sigma=sigma_noise, bits=None, seed=2 * rep + 2)
-            f = correlate_pair(ref, dfm, grid, DicSettings(subset=subset))
+            f = correlate_pair(ref, dfm, grid, settings=DicSettings(subset=subset))
             # small subsets may hold a nearly blank one, which does not converge and is flagged
             assert f.ok.mean() >= 0.99
             ru.append(((f.u - t) / bound_u)[f.ok])
@@ -68,11 +68,11 @@ def test_random_error_within_1_3_noise_bound_full(speckle, subset):
 
 def _systematic_errors(speckle, shifts, subset=21, **settings):
     ref = render(speckle, bits=None)
-    grid = make_grid(N, N, subset, 7, roi=(16, 16, N - 17, N - 17))
+    grid = make_grid(N, N, subset=subset, step=7, roi=(16, 16, N - 17, N - 17))
     errors = []
     for t in shifts:
         f = correlate_pair(ref, render(speckle, (t, 0.5 * t), bits=None), grid,
-                           DicSettings(subset=subset, **settings))
+                           settings=DicSettings(subset=subset, **settings))
         assert f.ok.all()
         errors.append((np.mean(f.u) - t, np.mean(f.v) - 0.5 * t))
     return np.array(errors)
@@ -99,12 +99,12 @@ def _quadratic_field(x, y):
 def test_quadratic_shape_follows_curved_field(speckle):
     ref = render(speckle, bits=None)
     dfm = render(speckle, _quadratic_field, bits=None, supersample=6)
-    grid = make_grid(N, N, 31, 10, roi=(30, 30, N - 31, N - 31))
+    grid = make_grid(N, N, subset=31, step=10, roi=(30, 30, N - 31, N - 31))
     X, Y = grid.points()
     tu, tv = (a.reshape(grid.shape) for a in _quadratic_field(X, Y))
     err = {}
     for shape in ("affine", "quadratic"):
-        f = correlate_pair(ref, dfm, grid, DicSettings(subset=31, shape=shape))
+        f = correlate_pair(ref, dfm, grid, settings=DicSettings(subset=31, shape=shape))
         assert f.ok.all()
         err[shape] = np.sqrt(np.mean((f.u - tu) ** 2 + (f.v - tv) ** 2))
     # an affine subset averages the curvature; the quadratic one models it
@@ -123,9 +123,9 @@ def test_sequence_follows_large_rotation(speckle, incremental):
     angles = np.deg2rad([8, 16, 24])
     ref = render(speckle, bits=None)
     images = [render(speckle, _rotation(a), bits=None, supersample=4) for a in angles]
-    grid = make_grid(N, N, 31, 12, roi=(60, 60, N - 61, N - 61))  # stays inside the image
+    grid = make_grid(N, N, subset=31, step=12, roi=(60, 60, N - 61, N - 61))  # stays inside the image
     X, Y = grid.points()
-    fields = list(correlate_sequence(ref, images, grid, DicSettings(subset=31), incremental=incremental))
+    fields = list(correlate_sequence(ref, images, grid, settings=DicSettings(subset=31), incremental=incremental))
     for a, f in zip(angles, fields):
         tu, tv = (t.reshape(grid.shape) for t in _rotation(a)(X, Y))
         assert f.ok.all()
@@ -136,7 +136,7 @@ def test_direct_registration_of_24_degrees_fails_without_sequence(speckle):
     """The flagging works: a rotation too large for a 0-rotation start is reported, not kept."""
     ref = render(speckle, bits=None)
     dfm = render(speckle, _rotation(np.deg2rad(24)), bits=None, supersample=4)
-    grid = make_grid(N, N, 31, 12, roi=(60, 60, N - 61, N - 61))
+    grid = make_grid(N, N, subset=31, step=12, roi=(60, 60, N - 61, N - 61))
     X, Y = grid.points()
     res = correlate_points(BSplineImage.from_image(ref), BSplineImage.from_image(dfm), X, Y,
                            np.zeros((X.size, 2)))
@@ -153,8 +153,9 @@ def test_correlate_points_from_guesses_at_subpixel_positions(speckle):
     rng = np.random.default_rng(0)
     xs, ys = rng.uniform(40, N - 40, 50), rng.uniform(40, N - 40, 50)
     guess = np.column_stack([np.full(50, 3.0), np.full(50, -1.0)])  # integer-pixel guesses
-    res = correlate_points(BSplineImage.from_image(ref, 3, 0.7), BSplineImage.from_image(dfm, 3, 0.7), xs, ys,
-                           guess, DicSettings(subset=25))
+    res = correlate_points(BSplineImage.from_image(ref, order=3, prefilter_sigma=0.7),
+                           BSplineImage.from_image(dfm, order=3, prefilter_sigma=0.7), xs, ys,
+                           guess, settings=DicSettings(subset=25))
     assert (res.status == OK).all()
     assert np.abs(res.u - 3.37).max() < 0.01 and np.abs(res.v + 1.21).max() < 0.01
 
@@ -164,8 +165,8 @@ def test_textureless_region_and_border_are_flagged(speckle):
     dfm = render(speckle, (2.4, 0.0), bits=None)
     ref[:, :100] = 120.0  # a blank left part in both images
     dfm[:, :100] = 120.0
-    grid = make_grid(N, N, 21, 8)
-    f = correlate_pair(ref, dfm, grid, DicSettings(subset=21))
+    grid = make_grid(N, N, subset=21, step=8)
+    f = correlate_pair(ref, dfm, grid, settings=DicSettings(subset=21))
     X, _ = grid.points()
     blank = (X + 10 < 100).reshape(grid.shape)  # whole subset inside the blank part
     assert (f.status[blank] == NO_TEXTURE).all()
@@ -180,8 +181,8 @@ def test_textureless_region_and_border_are_flagged(speckle):
 def test_decorrelated_image_is_flagged_everywhere(speckle):
     ref = render(speckle, noise_sigma=1.0, bits=None, seed=1)
     other = render(make_speckle(N, N, seed=99), noise_sigma=1.0, bits=None, seed=2)
-    grid = make_grid(N, N, 21, 10)
-    f = correlate_pair(ref, other, grid, DicSettings(subset=21))
+    grid = make_grid(N, N, subset=21, step=10)
+    f = correlate_pair(ref, other, grid, settings=DicSettings(subset=21))
     assert not f.ok.any()
     assert np.isnan(f.u).all() and np.isnan(f.v).all()
     assert set(np.unique(f.status)) <= {LOW_ZNCC, UNREACHED, DIVERGED, OUTSIDE}

@@ -38,7 +38,7 @@ def test_evm_is_zero_for_a_central_lens_and_restores_true_rays_otherwise():
 
 def test_virtual_file_round_trip(tmp_path):
     prvm = opencv_camera()[-1]
-    setup = make_virtual(prvm, default_camera(prvm, "modelless"))
+    setup = make_virtual(prvm, default_camera(prvm, model="modelless"))
     save_virtual(tmp_path / "v.npz", setup)
     back = load_virtual(tmp_path / "v.npz")
     assert back.camera.to_dict() == setup.camera.to_dict()
@@ -81,4 +81,4 @@ def test_telecentric_camera_exports_json_only(tmp_path, capsys):
     assert main(["export", str(tmp_path / "t.npz"), "--model", "telecentric", "--format", "opencv",
                  "-o", str(tmp_path / "t.yaml")]) == 2
     assert "no pinhole model" in capsys.readouterr().err
-    assert export_text({"c": VirtualCamera(default_camera(lens.true_prvm()).sensor, "modelless")}, "json")
+    assert export_text({"c": VirtualCamera(default_camera(lens.true_prvm()).sensor, "modelless")}, fmt="json")

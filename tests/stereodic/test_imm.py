@@ -19,7 +19,7 @@ LENS = dict(width=W, height=H, pixel_mm=0.0053 * 1280 / W)  # the full lens fiel
 def _setup(family, seed=1):
     lens = make_lens(family, seed=seed, **LENS)
     prvm = lens.true_prvm()
-    cam = default_camera(prvm, "telecentric" if family == "telecentric" else "pinhole")
+    cam = default_camera(prvm, model="telecentric" if family == "telecentric" else "pinhole")
     return lens, prvm, cam, build_imm(prvm, cam.sensor)
 
 

@@ -194,7 +194,7 @@ def test_export_then_import_gives_back_the_rays(vic_rig, tmp_path, fmt):
     out = tmp_path / ("out" if fmt == "mrcal" else "out.xml" if fmt in ("dice", "vic3d") else "out.yml")
     assert main(["export", str(rig_file), "--format", fmt, "-o", str(out)]) == 0
     files = [out / "left.cameramodel", out / "right.cameramodel"] if fmt == "mrcal" else [out]
-    back = import_calibration(files, fmt)
+    back = import_calibration(files, fmt=fmt)
     assert back.format == fmt
     for side, prvm in zip(("left", "right"), back.prvms):
         assert prvm.valid.all() and (prvm.width, prvm.height) == (rig.sensor.width, rig.sensor.height)

@@ -44,7 +44,8 @@ def _corners(capture):
 
 def test_tension_with_an_imported_opencv_calibration(tmp_path):
     # the chessboards on the same two cameras as the DIC experiment (scanners.sim.dic.dic_lenses)
-    cal = simulate_stereo(tmp_path / "cal", "brown", "brown", W, H, seed=SEED, periods=(1920,), steps=3,
+    cal = simulate_stereo(tmp_path / "cal", left="brown", right="brown", width=W, height=H, seed=SEED,
+                          periods=(1920,), steps=3,
                           z_positions=(0.0, 40.0, 80.0), supersample=2, chessboard=True,
                           lens_options={"pixel_mm": 0.0053 * 1280 / W, "focus_mm": 410.0})
     obj, img, views = _corners(load_capture(cal))
@@ -73,9 +74,9 @@ def test_tension_with_an_imported_opencv_calibration(tmp_path):
     simulate_dic(tmp_path / "dic", states, width=W, height=H, seed=SEED, supersample=2)
     rig = load_rig(tmp_path / "rig.npz")
     data = load_states(tmp_path / "dic", rig)
-    grid = make_grid(rig.sensor.width, rig.sensor.height, 21, 5, roi=(15, 15, rig.sensor.width - 16,
-                                                                     rig.sensor.height - 16))
-    result = list(StereoDic(rig, grid, StereoSettings(DicSettings(subset=21), strain_window=9)).run(
+    grid = make_grid(rig.sensor.width, rig.sensor.height, subset=21, step=5,
+                     roi=(15, 15, rig.sensor.width - 16, rig.sensor.height - 16))
+    result = list(StereoDic(rig, grid, settings=StereoSettings(DicSettings(subset=21), strain_window=9)).run(
         list(data.rectified(rig))))
     # uniform tension: the same Green-Lagrange strain everywhere, in the plate's frame (e1 in the WCS x-z
     # plane, which is the x axis our strain uses, the rig being in the WCS)

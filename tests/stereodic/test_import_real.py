@@ -85,7 +85,7 @@ def test_triangulation_of_dice_matches_equals_an_independent_one(imported):
 
     def ours(a, b):
         ql, qr = _rectified(left, rig, a), _rectified(right, rig, b)
-        t = triangulate(rig, ql[:, 0], qr[:, 0], ql[:, 1], qr[:, 1])
+        t = triangulate(rig, ql[:, 0], qr[:, 0], ql[:, 1], row_right=qr[:, 1])
         return rig.to_world(t.points), t.gap_mm
 
     pts, gap = ours(uv0, uv1)

@@ -26,14 +26,14 @@ def test_kernel_sums_to_one_and_reproduces_quadratics():
 
 def test_quadratic_phase_is_unchanged_and_noise_drops_by_the_predicted_factor():
     truth = _smooth_truth()
-    clean = smooth_phase(truth.astype(np.float32), 2.5)
+    clean = smooth_phase(truth.astype(np.float32), sigma_px=2.5)
     inner = np.isfinite(clean)
     r = radius(2.5)
     assert inner[r:-r, r:-r].all() and not inner[:r].any() and not inner[:, -r:].any()
     assert np.abs(clean[inner] - truth[inner]).max() < 2e-4             # float32 rounding only
     rng = np.random.default_rng(1)
     sigma = 0.02
-    noisy = smooth_phase((truth + sigma * rng.standard_normal(truth.shape)).astype(np.float32), 2.5)
+    noisy = smooth_phase((truth + sigma * rng.standard_normal(truth.shape)).astype(np.float32), sigma_px=2.5)
     err = noisy[inner] - truth[inner]
     assert abs(err.mean()) < 0.1 * sigma * noise_gain(2.5)
     assert err.std() == pytest.approx(sigma * noise_gain(2.5), rel=0.05)
@@ -47,7 +47,7 @@ def test_step_edge_is_kept_within_the_window_radius_and_never_smeared():
     truth[:, 150] -= 20.0                                      # a mixed pixel, half way
     rng = np.random.default_rng(2)
     sigma = 0.02
-    out = smooth_phase((truth + sigma * rng.standard_normal(truth.shape)).astype(np.float32), 3.0)
+    out = smooth_phase((truth + sigma * rng.standard_normal(truth.shape)).astype(np.float32), sigma_px=3.0)
     r = radius(3.0)
     ok = np.isfinite(out)
     cols = np.flatnonzero(ok[H // 2])
@@ -61,12 +61,12 @@ def test_holes_grow_by_the_window_radius_and_decreasing_phase_works():
     truth = _smooth_truth()
     ph = truth.astype(np.float32)
     ph[100, 200] = np.nan
-    out = smooth_phase(ph, 2.0)
+    out = smooth_phase(ph, sigma_px=2.0)
     r = radius(2.0)
     bad = ~np.isfinite(out)
     assert bad[100 - r:100 + r + 1, 200 - r:200 + r + 1].all()
     assert not bad[100 - r - 1, 200] and not bad[100, 200 + r + 1]
-    flipped = smooth_phase(-ph, 2.0)
+    flipped = smooth_phase(-ph, sigma_px=2.0)
     assert np.allclose(flipped[~bad], -out[~bad], atol=2e-4)
     assert continuous(ph).sum() == ph.size - 1                 # the hole only: a NaN is no edge
-    assert np.array_equal(smooth_phase(ph, 0.0), ph, equal_nan=True)
+    assert np.array_equal(smooth_phase(ph, sigma_px=0.0), ph, equal_nan=True)

@@ -82,7 +82,7 @@ def test_save_and_load(tmp_path):
 def test_modelless_rig_has_the_same_images_and_no_evm():
     from stereodic.rig import build_rig
     ll, lr, pl, pr, rig = pair("noncentral", "brown")
-    ml = build_rig(pl, pr, "modelless")
+    ml = build_rig(pl, pr, model="modelless")
     assert np.array_equal(ml.left.imm.map_x, rig.left.imm.map_x)
     assert np.nanmax(np.abs(ml.evm("left"))) == 0
     assert np.allclose(ml.virtual_prvm("left").direction, rig.left.direction, equal_nan=True)

@@ -39,7 +39,7 @@ def test_registered_and_unregistered_do_not_mix(tmp_path, capsys):
 
 def test_fields_that_do_not_overlap(tmp_path, capsys):
     _, _, pl, _, _ = pair()
-    away = make_lens("brown", W, H, 5, pixel_mm=PIXEL_MM, offset_mm=(100.0, 0.0),
+    away = make_lens("brown", width=W, height=H, seed=5, pixel_mm=PIXEL_MM, offset_mm=(100.0, 0.0),
                      target_mm=(DEFAULT_TARGET_MM[0] + 400, DEFAULT_TARGET_MM[1], 0.0))
     left = _save(tmp_path / "L.npz", pl)
     right = _save(tmp_path / "R.npz", away.true_prvm(dataset=pl.meta["dataset"]))

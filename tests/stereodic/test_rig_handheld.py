@@ -16,16 +16,17 @@ from stereodic.rig import build_rig
 
 @pytest.mark.slow
 def test_two_cameras_of_one_hand_held_capture_share_the_wcs(tmp_path):
-    out = simulate_stereo(tmp_path / "stereo", "brown", "noncentral", 320, 256, lens_options={"pixel_mm": 0.0212},
+    out = simulate_stereo(tmp_path / "stereo", left="brown", right="noncentral", width=320, height=256,
+                          lens_options={"pixel_mm": 0.0212},
                           handheld=HandHeld(poses=6), supersample=6, flat_levels=(0, 64, 128, 192, 255))
     capture = load_capture(out)
     assert capture.posed and set(capture.cameras) == {"cam0", "cam1"}
     prvms = []
     for name in ("cam0", "cam1"):
-        cal = calibrate_camera(capture, name)
+        cal = calibrate_camera(capture, camera=name)
         truth = load_prvm(out / f"truth_{name}.npz")          # in the display's frame at pose 0
         for z in (0.0, 80.0):
-            assert ErrorStats.of(ray_error_px(cal.prvm, truth, z)).rms < 0.02
+            assert ErrorStats.of(ray_error_px(cal.prvm, truth, z_mm=z)).rms < 0.02
         prvms.append(cal.prvm)
         cal.prvm.save(tmp_path / f"{name}.npz")
     # both truths are one frame: the same display point lies on both cameras' true rays

@@ -18,8 +18,8 @@ N = 320
 
 
 def _measured_std(ref, dfm, shift, subset, roi):
-    grid = make_grid(ref.shape[1], ref.shape[0], subset, subset, roi=roi)
-    f = correlate_pair(ref, dfm, grid, DicSettings(subset=subset))
+    grid = make_grid(ref.shape[1], ref.shape[0], subset=subset, step=subset, roi=roi)
+    f = correlate_pair(ref, dfm, grid, settings=DicSettings(subset=subset))
     return float(np.std(f.u[f.ok] - shift)), grid
 
 
@@ -48,8 +48,8 @@ def test_prediction_matches_dic2d_on_sample5(tmp_path, capsys):
     ref = read_gray(SAMPLE5 / "reference.tif")
     dfm = read_gray(SAMPLE5 / "shift_x0.10_y0.10.tif")
     roi = (40, 40, 471, 471)
-    grid = make_grid(512, 512, 21, 10, roi=roi)
-    f = correlate_pair(ref, dfm, grid, DicSettings(subset=21))
+    grid = make_grid(512, 512, subset=21, step=10, roi=roi)
+    f = correlate_pair(ref, dfm, grid, settings=DicSettings(subset=21))
     std = float(np.std(f.u[f.ok]))
     assert main(["speckle", str(SAMPLE5 / "reference.tif"), "--static", str(SAMPLE5 / "shift_x0.00_y0.00.tif"),
                  "--subset", "21", "--roi", "40,40,471,471", "-o", str(tmp_path)]) == 0

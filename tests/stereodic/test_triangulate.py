@@ -14,7 +14,7 @@ def _errors(families, depth_mm, corrected):
     x += (rng.choice([-1.0, 1.0], len(x)) * depth_mm)[:, None] * rig.sensor.normal   # +-depth from the plane
     left, right = seen_at(rig, ll, pl, x), seen_at(rig, lr, pr, x)
     ok = inside(rig, left, right)
-    t = triangulate(rig, left[ok, 0], right[ok, 0], left[ok, 1], right[ok, 1], corrected=corrected)
+    t = triangulate(rig, left[ok, 0], right[ok, 0], left[ok, 1], row_right=right[ok, 1], corrected=corrected)
     return np.linalg.norm(t.points - x[ok], axis=1), t.gap_mm
 
 
@@ -73,8 +73,9 @@ def test_numba_kernel_equals_the_numpy_statement(corrected):
     xl, rl = rng.uniform(-2, rig.sensor.width + 1, n), rng.uniform(-2, rig.sensor.height + 1, n)
     xr, rr = xl - rng.uniform(-20, 20, n), rl + rng.normal(0, 0.5, n)
     xl[:10] = np.nan
-    got = triangulate(rig, xl, xr, rl, rr, corrected=corrected)
-    ref = closest_points(*rays_at(rig, "left", xl, rl, corrected), *rays_at(rig, "right", xr, rr, corrected))
+    got = triangulate(rig, xl, xr, rl, row_right=rr, corrected=corrected)
+    ref = closest_points(*rays_at(rig, "left", xl, rl, corrected=corrected),
+                         *rays_at(rig, "right", xr, rr, corrected=corrected))
     assert np.array_equal(np.isnan(got.points), np.isnan(ref.points)) and np.isnan(got.points[:10]).all()
     ok = np.isfinite(ref.points).all(axis=1)
     assert ok.sum() > n // 2

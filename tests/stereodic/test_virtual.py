@@ -62,7 +62,7 @@ def test_sensor_points_and_intersections_agree():
 def test_default_camera_is_the_largest_without_blank_pixels(model):
     lens = make_lens("brown" if model == "pinhole" else "telecentric", seed=4, **SMALL)
     prvm = lens.true_prvm()
-    cam = default_camera(prvm, model)
+    cam = default_camera(prvm, model=model)
     s = cam.sensor
     assert (s.width, s.height) == (prvm.width, prvm.height)
     assert build_imm(prvm, s).valid.all()
