@@ -15,6 +15,8 @@ ROOT = Path(__file__).resolve().parents[1]
 OURS = ("calib", "scanners", "stereodic")
 
 PUBLIC = [
+    # the command line, from Python (the notebooks)
+    "stereodic.cli.main",
     # calibration
     "calib.calibration.calibrate_camera",
     "calib.capture.load_capture",

@@ -40,6 +40,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one `stereodic` command, as the shell does (`stereodic COMMAND ARGS...`).
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The command and its arguments, e.g. ``["dic", "rig.npz", "data", "-o", "out"]``; None: the
+        process's own (``sys.argv[1:]``).
+
+    Returns
+    -------
+    status : int
+        The exit status: 0 done, 2 bad input (one line on stderr naming the file or option; nothing
+        written), 1 a hardware or cluster fault or an internal error, 130 interrupted.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
     from stereodic.cli.common import check_paths, new_folders, remove_empty
