@@ -15,8 +15,6 @@ ROOT = Path(__file__).resolve().parents[1]
 OURS = ("calib", "scanners", "stereodic")
 
 PUBLIC = [
-    # the command line, from Python (the notebooks)
-    "stereodic.cli.main",
     # calibration
     "calib.calibration.calibrate_camera",
     "calib.capture.load_capture",
@@ -205,6 +203,11 @@ def test_checker_catches_a_positional_option_and_a_missing_docstring_block():
                                           "parameter 'sigma' is not in the Parameters section"]
 
 
+# the command line run from Python (the notebooks do): its one argument is the command's words, which
+# the console script leaves out (sys.argv); documented, but not a function of data and options
+COMMAND_LINE = {"stereodic.cli.main"}
+
+
 def _user_code() -> dict[str, str]:
     """Python the user is shown: the notebooks' code cells and the docs' python blocks, by place."""
     out = {}
@@ -221,7 +224,7 @@ def _user_code() -> dict[str, str]:
 def test_every_function_the_docs_and_notebooks_import_is_checked():
     """A function of ours imported in a notebook or a docs example is in PUBLIC (classes are option or
     result records, checked only where listed)."""
-    public = set(PUBLIC)
+    public = set(PUBLIC) | COMMAND_LINE
     missing = []
     for where, code in _user_code().items():
         for node in ast.walk(ast.parse(code)):
