@@ -66,8 +66,8 @@ def test_2d_points_switch_when_the_reference_decorrelates(twist2d):
 
 @pytest.mark.slow
 def test_stereo_points_switch_on_a_growing_twist(tmp_path):
-    """Stereo, 9 states of a twist growing by 10 degrees: direct matching loses the points where the
-    twist is strong; with switching (default) every point is measured, with errors against the truth no
+    """Stereo, 9 states of a twist growing by 10 degrees: direct matching loses some of the points where
+    the twist is strong; with switching (default) every point is measured, with errors against the truth no
     larger than incremental DIC's, and relative to the reference."""
     states = [DicState("reference")] + [DicState(f"twist {10 * k}", twist_deg=10.0 * k, twist_radius_mm=40.0)
                                         for k in range(1, 10)]
@@ -91,7 +91,9 @@ def test_stereo_points_switch_on_a_growing_twist(tmp_path):
         return out
 
     direct, auto, forced = run(switch_zncc=0.0), run(), run(incremental=True)
-    assert direct[-1][0] < 0.9 and min(c for c, *_ in auto) > 0.995
+    # direct matching (warps carried from state to state, started from the last change) keeps most
+    # points to the end, but not all: 94 % at 90 degrees since the velocity-based starts
+    assert direct[-1][0] < 0.97 and min(c for c, *_ in auto) > 0.995
     assert auto[1][2] == 0 and auto[-1][2] > 100                 # points switch late, not early
     assert np.array_equal(auto[1][3].displacement, direct[1][3].displacement, equal_nan=True)
     for (_, ea, _, _), (_, ei, _, _) in zip(auto[1:], forced[1:]):
