@@ -41,6 +41,7 @@ from __future__ import annotations
 from dataclasses import KW_ONLY, dataclass, field, replace
 from typing import Iterable, Iterator, Sequence
 
+import cv2
 import numpy as np
 
 from stereodic.dic import BSplineImage, DicSettings, ImageRef, PointResult, correlate_points, row_seed_search
@@ -147,8 +148,8 @@ class StereoRun:
     """Per-run data: the rig, the grid, the settings, seed positions (left rectified reference pixels)
     and their grid indices, the left reference image prepared (`ImageRef`, which keeps the reference
     side of the grid's subsets once computed: every state's temporal and cross matches register the
-    same reference subsets), and once state 0 is solved its points (ny, nx, 3) reporting frame mm and
-    the strain fit on them (`with_reference`)."""
+    same reference subsets), per camera where a subset sees only image (`view_map`), and once state 0 is
+    solved its points (ny, nx, 3) reporting frame mm and the strain fit on them (`with_reference`)."""
 
     rig: Rig
     grid: Grid
@@ -156,13 +157,17 @@ class StereoRun:
     seeds: list
     seed_idx: list
     ref: ImageRef
+    views: dict
     ref_points: np.ndarray | None = None
     ref_strain: StrainFit | None = None
 
     @classmethod
     def prepare(cls, rig: Rig, grid: Grid, settings: StereoSettings, seeds: Sequence[tuple[float, float]],
                 reference: PreparedPair) -> "StereoRun":
-        return cls(rig, grid, settings, list(seeds), seed_indices(grid, seeds), reference.left_ref(keep_subsets=True))
+        half = settings.dic.subset // 2
+        views = {side: view_map(rig.camera(side).imm.valid, half=half) for side in ("left", "right")}
+        return cls(rig, grid, settings, list(seeds), seed_indices(grid, seeds), reference.left_ref(keep_subsets=True),
+                   views)
 
     def with_reference(self, state0: StereoState) -> "StereoRun":
         window = self.settings.strain_window
@@ -250,17 +255,25 @@ def _composed(cross: PointResult, temporal: PointResult | None, du: np.ndarray, 
     return out
 
 
-def in_view(imm, x: np.ndarray, y: np.ndarray, *, half: int) -> np.ndarray:
-    """Whether the subsets of half size `half` (pixels) centred at rectified positions (x, y) (any shape;
-    NaN: not matched) see only image: every pixel of each, and VIEW_MARGIN_PX beyond (the B-spline's
-    reach), samples the camera's real image through the IMM (`imm.real_position` finite at the corners
-    and the edges' midpoints). A subset that takes in the blank band where the virtual image lies
-    beyond the real one registers that band's edge, not the specimen."""
-    r = half + VIEW_MARGIN_PX
+def view_map(valid: np.ndarray, *, half: int) -> np.ndarray:
+    """(H, W) bool over a rectified image whose pixels are `valid` (the IMM's: they sample the real
+    image): True where a subset of half size `half` centred within half a pixel of that pixel, and
+    VIEW_MARGIN_PX beyond it (the B-spline's reach), sees only valid pixels, their bilinear neighbours
+    included. A subset that takes in the blank band where the virtual image lies beyond the real one
+    registers that band's edge, not the specimen."""
+    r = half + VIEW_MARGIN_PX + 1
+    return cv2.erode(valid.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8),
+                     borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+
+
+def in_view(view: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Whether subsets centred at rectified positions (x, y) (any shape; NaN: not matched) see only
+    image, by `view_map`'s `view`."""
+    h, w = view.shape
     ok = np.isfinite(x) & np.isfinite(y)
-    for dx, dy in ((-r, -r), (0, -r), (r, -r), (-r, 0), (r, 0), (-r, r), (0, r), (r, r)):
-        ok &= np.isfinite(imm.real_position(x + dx, y + dy)).all(-1)
-    return ok
+    i = np.clip(np.rint(np.where(ok, x, 0)), 0, w - 1).astype(np.intp)
+    j = np.clip(np.rint(np.where(ok, y, 0)), 0, h - 1).astype(np.intp)
+    return ok & view[j, i]
 
 
 def _combine(left: CameraMatch, right: CameraMatch, gap_ok: np.ndarray, ref_ok: np.ndarray,
@@ -419,9 +432,8 @@ def _state(run: StereoRun, k: int, left: CameraMatch, right: CameraMatch, increm
     gap_ok = ~(gap > run.max_gap_mm).reshape(g.shape)
     ref_points = run.ref_points if k > 0 else None
     ref_ok = np.ones(g.shape, bool) if ref_points is None else np.isfinite(ref_points).all(-1)
-    half = run.settings.dic.subset // 2
-    view_ok = {side: in_view(rig.camera(side).imm, X.reshape(g.shape) + m.u, Y.reshape(g.shape) + m.v, half=half)
-               | ~m.ok for side, m in (("left", left), ("right", right))}
+    view_ok = {side: in_view(run.views[side], X.reshape(g.shape) + m.u, Y.reshape(g.shape) + m.v) | ~m.ok
+               for side, m in (("left", left), ("right", right))}
     converged, status = _combine(left, right, gap_ok, ref_ok, view_ok)
     pts = np.where(converged[..., None], pts.reshape(g.shape + (3,)), np.nan)
     disp = pts - (pts if ref_points is None else ref_points)

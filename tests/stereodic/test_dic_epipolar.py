@@ -84,6 +84,6 @@ def test_a_rig_far_off_its_images_needs_the_wider_search(dic_sim, tmp_path, caps
     gap_px = np.nanmedian(found["band_gap"]["gap_mm"][0]) / rig.sensor.pitch_mm[0]
     assert 1 < gap_px < 100
     c = found["band_gap"]["converged"]
-    assert (c.sum(axis=(1, 2)) > 0.7 * n).all()
+    assert (c.sum(axis=(1, 2)) > 0.6 * n).all()     # less the subsets reaching the rows it no longer sees
     mean = found["band_gap"]["displacement"][1][c[1]].mean(axis=0)
     assert np.abs(mean - (0.6, -0.4, 1.2)).max() < 0.05            # mm, of a 1.4 mm translation
