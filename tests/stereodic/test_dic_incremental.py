@@ -67,7 +67,7 @@ def test_2d_points_switch_when_the_reference_decorrelates(twist2d):
 @pytest.mark.slow
 def test_stereo_points_switch_on_a_growing_twist(tmp_path):
     """Stereo, 9 states of a twist growing by 10 degrees: direct matching loses some of the points where
-    the twist is strong; with switching (default) every point is measured, with errors against the truth no
+    the twist is strong; with switching (default) every point in view is measured, with errors against the truth no
     larger than incremental DIC's, and relative to the reference."""
     states = [DicState("reference")] + [DicState(f"twist {10 * k}", twist_deg=10.0 * k, twist_radius_mm=40.0)
                                         for k in range(1, 10)]
@@ -86,7 +86,10 @@ def test_stereo_points_switch_on_a_growing_twist(tmp_path):
                 data.rectified(rig)):
             c = st.converged.ravel() & act
             err = np.linalg.norm(st.displacement.reshape(-1, 3)[c] - truth["displacement"][st.state][c], axis=1)
-            out.append((c.sum() / act.sum(), np.sqrt(np.mean(err ** 2)) if c.any() else np.inf,
+            # of the points in view: a subset the twist carries into a rectified image's blank band is
+            # 'outside', which no reference updating cures
+            seen = act & ~np.char.endswith(st.status.ravel().astype(str), ":outside")
+            out.append((c.sum() / seen.sum(), np.sqrt(np.mean(err ** 2)) if c.any() else np.inf,
                         int(st.incremental.sum()), st))
         return out
 
@@ -94,7 +97,8 @@ def test_stereo_points_switch_on_a_growing_twist(tmp_path):
     # direct matching (warps carried from state to state, started from the last change) keeps most
     # points to the end, but not all: 94 % at 90 degrees since the velocity-based starts
     assert direct[-1][0] < 0.97 and min(c for c, *_ in auto) > 0.995
-    assert auto[1][2] == 0 and auto[-1][2] > 100                 # points switch late, not early
+    # points switch late, not early, and at least as many as direct matching loses
+    assert auto[1][2] == 0 and auto[-1][2] >= (1 - direct[-1][0]) * act.sum()
     assert np.array_equal(auto[1][3].displacement, direct[1][3].displacement, equal_nan=True)
     for (_, ea, _, _), (_, ei, _, _) in zip(auto[1:], forced[1:]):
         assert ea <= 1.15 * ei
