@@ -637,7 +637,9 @@ def _smooth_index(index: np.ndarray, levels: int, size: int, inside: np.ndarray 
     med = _box_median(index, levels, size, inside)
     if inside is not None:
         med[~inside] = levels - 1                       # no pull on the erosion
-    ero = cv2.erode(med, np.ones((size, size), np.uint8), borderType=cv2.BORDER_REPLICATE)
+    # the index's values are whole numbers below 256: eroded as bytes (exact, and 3-4x faster than floats)
+    ero = cv2.erode(med.astype(np.uint8), np.ones((size, size), np.uint8),
+                    borderType=cv2.BORDER_REPLICATE).astype(np.float32)
     if inside is None:
         return _box(ero, size)
     f = inside.astype(np.float32)
