@@ -188,7 +188,7 @@ def decode_position(capture: Capture, camera: str, z_mm: float, im: IntensityMat
                 correct_phase(res, _waveform_correction(capture, frames, im))
             res.quality[~(res.modulation >= _modulation_floor(res.modulation, lit))] |= LOW_MODULATION
             if res.clipped is not None:
-                clip_any |= np.bitwise_or.reduce(res.clipped, axis=0) != 0
+                clip_any |= (res.clipped != 0).any(axis=0)
             quality |= res.quality
             phases.append(res.phase)
             last = res                    # periods run longest first: the last is the shortest

@@ -399,7 +399,7 @@ def correct_phase(wrapped: WrappedPhase, correction: WaveformCorrection, unclipp
     raw = wrapped.phase
     out = raw.copy() if unclipped_done else correction(raw)
     if wrapped.clipped is not None:
-        solved = (np.bitwise_or.reduce(wrapped.clipped, axis=0) != 0) & ((wrapped.quality & SATURATED) == 0)
+        solved = (wrapped.clipped != 0).any(axis=0) & ((wrapped.quality & SATURATED) == 0)
         idx = np.flatnonzero(solved)
         if idx.size:
             masks = wrapped.clipped.reshape(len(wrapped.clipped), -1)[:, idx].T      # (pixels, words)
