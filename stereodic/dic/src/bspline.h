@@ -34,6 +34,30 @@ static inline v4d load4d(const double *p)   /* 4 doubles from p (any alignment) 
     return v;
 }
 
+/* Vectors of 8 lanes, the same way. */
+typedef double v8d __attribute__((vector_size(64)));
+typedef float v8f __attribute__((vector_size(32)));
+typedef long v8l __attribute__((vector_size(64)));
+
+static inline v8d load8f(const float *p)   /* 8 float32 from p (any alignment) as doubles */
+{
+    v8f f;
+    memcpy(&f, p, sizeof f);
+    return __builtin_convertvector(f, v8d);
+}
+
+static inline v8d load8d(const double *p)   /* 8 doubles from p (any alignment) */
+{
+    v8d v;
+    memcpy(&v, p, sizeof v);
+    return v;
+}
+
+static inline double sum8(v8d v)   /* the sum of the 8 lanes */
+{
+    return ((v[0] + v[1]) + (v[2] + v[3])) + ((v[4] + v[5]) + (v[6] + v[7]));
+}
+
 /* 36 times the bicubic value at (x, y) (the weights' common factor 1/36 left to the caller): the 4 x 4
  * taps as four rows of 4 lanes. The weights (times 6) of the taps at floor - 1 .. floor + 2 for the
  * fraction t: (1 - t)^3, 3t^3 - 6t^2 + 4, -3t^3 + 3t^2 + 3t + 1, t^3. */
@@ -52,30 +76,35 @@ static inline double sample_cubic36(const float *c, long stride, double x, doubl
     return (acc[0] + acc[1]) + (acc[2] + acc[3]);
 }
 
-/* sample_cubic36 of four samples at once, lanes = samples: (x0 + a * (d + q), y0 + b * (d + q)) for
- * q = 0..3 (the positions along a row of an affine subset), if their taps share the same 4 rows and
- * start on 4 consecutive columns (true of nearly every group when the subset is not stretched or
- * rotated much); returns 0 otherwise, without writing out. */
-static inline int sample_cubic36_row4(const float *c, long stride, double x0, double y0, double a, double b, double d,
-                                      v4d *out)
+/* sample_cubic36 of eight samples at once, lanes = samples: (x0 + a * (d + q), y0 + b * (d + q)) for
+ * q = 0..7 (the positions along a row of an affine subset), if their taps share the same 4 rows and
+ * start on 8 consecutive columns (true of nearly every group when the subset is not stretched or
+ * rotated much); returns 0 otherwise, without writing out. With AVX-512 a lane per sample; on narrower
+ * SIMD the compiler splits the vectors. */
+static inline int sample_cubic36_row8(const float *c, long stride, double x0, double y0, double a, double b, double d,
+                                      v8d *out)
 {
-    const v4d q = {0.0, 1.0, 2.0, 3.0};
-    const v4d xp = x0 + a * (d + q) + PAD, yp = y0 + b * (d + q) + PAD;
+    const v8d q = {0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0};
+    const v8l ql = {0, 1, 2, 3, 4, 5, 6, 7};
+    const v8d xp = x0 + a * (d + q) + PAD, yp = y0 + b * (d + q) + PAD;
     const long ix = (long)xp[0], iy = (long)yp[0];
-    if ((long)xp[1] != ix + 1 || (long)xp[2] != ix + 2 || (long)xp[3] != ix + 3 || (long)yp[1] != iy ||
-        (long)yp[2] != iy || (long)yp[3] != iy)
+    const v8l off = (__builtin_convertvector(xp, v8l) - ql - ix) | (__builtin_convertvector(yp, v8l) - iy);
+    long any = 0;
+    for (int k = 0; k < 8; ++k)
+        any |= off[k];
+    if (any)
         return 0;
-    const v4d tx = xp - (double)ix - q, ty = yp - (double)iy;
+    const v8d tx = xp - (double)ix - q, ty = yp - (double)iy;
     /* the weight of each tap, per lane (the rows of sample_cubic36's b0..b3) */
-    const v4d wx0 = ((-tx + 3.0) * tx - 3.0) * tx + 1.0, wx1 = ((3.0 * tx - 6.0) * tx) * tx + 4.0;
-    const v4d wx2 = ((-3.0 * tx + 3.0) * tx + 3.0) * tx + 1.0, wx3 = tx * tx * tx;
-    const v4d wy0 = ((-ty + 3.0) * ty - 3.0) * ty + 1.0, wy1 = ((3.0 * ty - 6.0) * ty) * ty + 4.0;
-    const v4d wy2 = ((-3.0 * ty + 3.0) * ty + 3.0) * ty + 1.0, wy3 = ty * ty * ty;
+    const v8d wx0 = ((-tx + 3.0) * tx - 3.0) * tx + 1.0, wx1 = ((3.0 * tx - 6.0) * tx) * tx + 4.0;
+    const v8d wx2 = ((-3.0 * tx + 3.0) * tx + 3.0) * tx + 1.0, wx3 = tx * tx * tx;
+    const v8d wy0 = ((-ty + 3.0) * ty - 3.0) * ty + 1.0, wy1 = ((3.0 * ty - 6.0) * ty) * ty + 4.0;
+    const v8d wy2 = ((-3.0 * ty + 3.0) * ty + 3.0) * ty + 1.0, wy3 = ty * ty * ty;
     const float *r = c + (iy - 1) * stride + (ix - 1);
-    v4d col[4];
+    v8d col[4];
     for (int k = 0; k < 4; ++k)
-        col[k] = wy0 * load4f(r + k) + wy1 * load4f(r + stride + k) + wy2 * load4f(r + 2 * stride + k)
-                 + wy3 * load4f(r + 3 * stride + k);
+        col[k] = wy0 * load8f(r + k) + wy1 * load8f(r + stride + k) + wy2 * load8f(r + 2 * stride + k)
+                 + wy3 * load8f(r + 3 * stride + k);
     *out = (wx0 * col[0] + wx1 * col[1]) + (wx2 * col[2] + wx3 * col[3]);
     return 1;
 }

@@ -26,13 +26,16 @@ static inline int fast_path(const Problem *pb)
 int work_alloc(Work *w, const Problem *pb)
 {
     const size_t side = 2 * (size_t)pb->half + 1, m = side * side, n = (size_t)pb->nparams;
-    const size_t sums = (n + 2 + 3) / 4 * 4, lanes = fast_path(pb) ? 4 : sums;
-    w->J = malloc(sizeof(double) * (m * lanes + n * n + 4 * n + sums));
+    const size_t sums = (n + 2 + 3) / 4 * 4, plane = m + 8;
+    const int fast = fast_path(pb);
+    const size_t rows = fast ? 3 * plane : m * sums;
+    w->J = calloc(rows + n * n + 4 * n + sums, sizeof(double));   /* zeros: the planes' padding */
     if (!w->J)
         return -1;
-    w->lanes = (int)lanes;
-    w->value = fast_path(pb) ? 2 : (int)n;
-    w->H = w->J + m * lanes;
+    w->lanes = fast ? 1 : (int)sums;
+    w->plane = fast ? (long)plane : 0;
+    w->value = fast ? 2 * (long)plane : (long)n;
+    w->H = w->J + rows;
     w->JS = w->H + n * n;
     w->JF = w->JS + n;
     w->SJg = w->JF + n;
@@ -198,17 +201,20 @@ static void sums_generic(const double *J, int lanes, int m, int n, double *H, do
     }
 }
 
-/* sums_generic for the fast path's rows (gx, gy, fc, 1) of a subset of half-width `half`, the 6
- * steepest-descent values (gx, gx dx, gx dy, gy, gy dx, gy dy) formed on the way, in scalars. */
-static void sums_affine(const double *Q, int half, double *H, double *JS, double *JF)
+/* sums_generic for the fast path's planes gx, gy, fc (`plane` values apart) of a subset of half-width
+ * `half`, the 6 steepest-descent values (gx, gx dx, gx dy, gy, gy dx, gy dy) formed on the way, in
+ * scalars. */
+static void sums_affine(const double *J, long plane, int half, double *H, double *JS, double *JF)
 {
     double h00 = 0, h10 = 0, h11 = 0, h20 = 0, h21 = 0, h22 = 0, h30 = 0, h31 = 0, h32 = 0, h33 = 0, h40 = 0;
     double h41 = 0, h42 = 0, h43 = 0, h44 = 0, h50 = 0, h51 = 0, h52 = 0, h53 = 0, h54 = 0, h55 = 0;
     double s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0, s5 = 0, f0 = 0, f1 = 0, f2 = 0, f3 = 0, f4 = 0, f5 = 0;
+    const double *GX = J, *GY = J + plane, *F = J + 2 * plane;
+    long k = 0;
     for (int dy = -half; dy <= half; ++dy) {
-        for (int dx = -half; dx <= half; ++dx, Q += 4) {
-            const double c = Q[2], j0 = Q[0], j1 = Q[0] * dx, j2 = Q[0] * dy, j3 = Q[1], j4 = Q[1] * dx,
-                         j5 = Q[1] * dy;
+        for (int dx = -half; dx <= half; ++dx, ++k) {
+            const double c = F[k], j0 = GX[k], j1 = GX[k] * dx, j2 = GX[k] * dy, j3 = GY[k], j4 = GY[k] * dx,
+                         j5 = GY[k] * dy;
             s0 += j0; s1 += j1; s2 += j2; s3 += j3; s4 += j4; s5 += j5;
             f0 += j0 * c; f1 += j1 * c; f2 += j2 * c; f3 += j3 * c; f4 += j4 * c; f5 += j5 * c;
             h00 += j0 * j0;
@@ -253,10 +259,10 @@ static int subset_rows(const Problem *pb, Work *w, double x0, double y0)
                 sample_with_gradient(&pb->ref, x0 + dx, y0 + dy, &f, &gx, &gy);
             }
             if (fast) {
-                Jk[0] = gx;
-                Jk[1] = gy;
-                Jk[2] = f;
-                Jk[3] = 1.0;
+                const long k = (long)j * side + i;
+                w->J[k] = gx;
+                w->J[w->plane + k] = gy;
+                w->J[2 * w->plane + k] = f;
                 continue;
             }
             Jk[0] = gx;
@@ -305,7 +311,7 @@ static int reference_side(const Problem *pb, Work *w, double x0, double y0, doub
         return NO_TEXTURE;
     double *H = w->H, *JS = w->JS, *JF = w->JF;
     if (fast_path(pb))
-        sums_affine(J, pb->half, H, JS, JF);
+        sums_affine(J, w->plane, pb->half, H, JS, JF);
     else
         sums_generic(J, lanes, m, n, H, JS, JF);
     if (!cholesky(H, n))
@@ -387,9 +393,10 @@ static int pass_generic(const Problem *pb, Work *w, const double *p, double x0, 
     return 1;
 }
 
-/* pass_generic for affine warps and bicubic interpolation (the common, fast case), from the rows (gx,
- * gy, fc, 1): per pixel q g and q g dx summed in two vectors, per row of the subset their sum and its
- * dy-weighted sum; the interpolation's factor 1/36 applied to the sums at the end. */
+/* pass_generic for affine warps and bicubic interpolation (the common, fast case), from the planes gx,
+ * gy, fc: eight pixels of a subset row at a time (`sample_cubic36_row8`), their products with g summed
+ * per lane, per row of the subset the gradients' sums and their dy-weighted sums; the interpolation's
+ * factor 1/36 applied to the sums at the end. */
 static int pass_affine_cubic(const Problem *pb, Work *w, const double *p, double x0, double y0, double *sgg_)
 {
     const int half = pb->half, side = 2 * half + 1;
@@ -405,42 +412,49 @@ static int pass_affine_cubic(const Problem *pb, Work *w, const double *p, double
     }
     const float *c = pb->dfm.c;
     const long stride = pb->dfm.stride;
-    const double *Q = w->J;
-    v4d all = {0.0}, by_dx = {0.0}, by_dy = {0.0};
-    double sgg = 0.0;
+    const double *GX = w->J, *GY = w->J + w->plane, *F = w->J + 2 * w->plane;
+    const v8d lane = {0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0};
+    v8d sx = {0.0}, sx_dx = {0.0}, sx_dy = {0.0}, sy = {0.0}, sy_dx = {0.0}, sy_dy = {0.0};
+    v8d sf = {0.0}, sg = {0.0}, sgg = {0.0};
     for (int j = 0; j < side; ++j) {
         const double dy = j - half;
+        const double *gx = GX + (long)j * side, *gy = GY + (long)j * side, *f = F + (long)j * side;
         const double xr = x0 + p[0] + a12 * dy - a11 * half, yr = y0 + p[3] + a22 * dy - a21 * half;
-        v4d row = {0.0};
-        double dx = -half;
-        for (int i = 0; i < side; i += 4) {   /* four samples at a time, then one by one */
-            v4d g4 = {0.0};
-            const int count = side - i < 4 ? side - i : 4;
-            if (count < 4 || !sample_cubic36_row4(c, stride, xr, yr, a11, a21, i, &g4))
+        v8d rx = {0.0}, ry = {0.0};
+        for (int i = 0; i < side; i += 8) {
+            /* a row's last group of fewer than 8: its other lanes' g are 0, and they read the next row's
+             * (or the planes' zero padding) */
+            const int count = side - i < 8 ? side - i : 8;
+            v8d g = {0.0};
+            if (count < 8 || !sample_cubic36_row8(c, stride, xr, yr, a11, a21, i, &g))
                 for (int q = 0; q < count; ++q)
-                    g4[q] = sample_cubic36(c, stride, xr + a11 * (i + q), yr + a21 * (i + q));
-            for (int q = 0; q < count; ++q, Q += 4, dx += 1.0) {
-                const double g = g4[q];
-                const v4d qg = load4d(Q) * g;
-                sgg += g * g;
-                row += qg;
-                by_dx += qg * dx;
-            }
+                    g[q] = sample_cubic36(c, stride, xr + a11 * (i + q), yr + a21 * (i + q));
+            const v8d dx = lane + (double)(i - half);
+            const v8d qx = load8d(gx + i) * g, qy = load8d(gy + i) * g;
+            rx += qx;
+            ry += qy;
+            sx_dx += qx * dx;
+            sy_dx += qy * dx;
+            sf += load8d(f + i) * g;
+            sg += g;
+            sgg += g * g;
         }
-        all += row;
-        by_dy += row * dy;
+        sx += rx;
+        sy += ry;
+        sx_dy += rx * dy;
+        sy_dy += ry * dy;
     }
     const double s = 1.0 / 36.0;
     double *SJg = w->SJg;   /* J = (gx, gx dx, gx dy, gy, gy dx, gy dy), then fc, 1 */
-    SJg[0] = all[0] * s;
-    SJg[1] = by_dx[0] * s;
-    SJg[2] = by_dy[0] * s;
-    SJg[3] = all[1] * s;
-    SJg[4] = by_dx[1] * s;
-    SJg[5] = by_dy[1] * s;
-    SJg[6] = all[2] * s;
-    SJg[7] = all[3] * s;
-    *sgg_ = sgg * (s * s);
+    SJg[0] = sum8(sx) * s;
+    SJg[1] = sum8(sx_dx) * s;
+    SJg[2] = sum8(sx_dy) * s;
+    SJg[3] = sum8(sy) * s;
+    SJg[4] = sum8(sy_dx) * s;
+    SJg[5] = sum8(sy_dy) * s;
+    SJg[6] = sum8(sf) * s;
+    SJg[7] = sum8(sg) * s;
+    *sgg_ = sum8(sgg) * (s * s);
     return 1;
 }
 

@@ -22,13 +22,15 @@ typedef struct {
     const int64_t *rows;
 } Problem;
 
-/* Per-thread scratch space of one registration. J: one row of `lanes` values per subset pixel: for
- * affine warps and bicubic interpolation (gx, gy, f, 1), else the n steepest-descent values, f, 1,
- * zeros; f, in lane `value`, is the reference value (zero-mean once prepared). SJg: sum J g (n), sum
+/* Per-thread scratch space of one registration. J: for affine warps and bicubic interpolation, three
+ * planes gx, gy, f of the subset's pixels (row-major, `plane` values apart, each followed by zeros);
+ * else one row of `lanes` values per subset pixel: the n steepest-descent values, f, 1, zeros. f, from
+ * J + value, `lanes` apart, is the reference value (zero-mean once prepared). SJg: sum J g (n), sum
  * fc g, sum g. */
 typedef struct {
     double *J, *H, *JS, *JF, *SJg, *rhs, *dp;
-    int lanes, value;
+    int lanes;
+    long plane, value;
 } Work;
 
 int work_alloc(Work *w, const Problem *pb);
