@@ -12,7 +12,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from PIL import Image
 
 from calib.atomic import atomic_output
 from calib.errors import InputError
@@ -36,6 +35,7 @@ def image_size(path: str | os.PathLike) -> tuple[int, int]:
     readable image, of an unsupported pixel type, or shorter than its header says (a PNG's chunk
     checksums are verified, a TIFF's strips or tiles must lie inside the file), so that thousands of
     images are checked in seconds before any work."""
+    from PIL import Image  # here: a command that reads its few images whole never needs it
     path = Path(path)
     _check_file(path)
     if path.stat().st_size == 0:

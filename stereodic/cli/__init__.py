@@ -17,7 +17,6 @@ import argparse
 import importlib
 import keyword
 import sys
-import traceback
 
 from calib import __version__
 from calib.errors import InputError
@@ -27,13 +26,15 @@ COMMANDS = ["demo", "simulate", "patterns", "calibrate", "undistort", "rig", "re
             "dic", "strain", "speckle", "import", "export", "bench", "acquire", "align", "show"]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser of every command, or of `command` alone (what `main` builds for `stereodic COMMAND
+    ...`: registering the other commands' parsers would cost start-up time and import their modules)."""
     parser = argparse.ArgumentParser(
         prog="stereodic",
         description="Per-pixel ray camera calibration, rectified virtual stereo, 3D scanning and DIC.")
     parser.add_argument("--version", action="version", version=f"stereodic {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in COMMANDS:
+    for name in COMMANDS if command is None else [command]:
         module = f"{name}_" if keyword.iskeyword(name) else name   # `import` lives in import_.py
         importlib.import_module(f"stereodic.cli.{module}").register(sub)
     return parser
@@ -54,7 +55,8 @@ def main(argv: list[str] | None = None) -> int:
         The exit status: 0 done, 2 bad input (one line on stderr naming the file or option; nothing
         written), 1 a hardware or cluster fault or an internal error, 130 interrupted.
     """
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv[0] if argv and argv[0] in COMMANDS else None)
     args = parser.parse_args(argv)
     from stereodic.cli.common import check_paths, new_folders, remove_empty
     created = new_folders(args)
@@ -77,6 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(exc, ClusterFault):
             print(f"stereodic: cluster fault: {exc}", file=sys.stderr)
             return 1
+        import traceback
         traceback.print_exc()
         print(f"stereodic: internal error: {exc}", file=sys.stderr)
         return 1

@@ -64,6 +64,9 @@ def _check_args(args) -> None:
     check_prefilter(args)
 
 
+PRELOAD_BYTES = 64 * 2 ** 20  # deformed images read before the work, at most this much memory
+
+
 def read_checked(path, shape: tuple[int, int], reference: str):
     """A deformed image; InputError naming it unless it has the reference's `shape` (rows, columns)."""
     from calib.errors import InputError
@@ -78,6 +81,7 @@ def read_checked(path, shape: tuple[int, int], reference: str):
 def run(args) -> int:
     import contextlib
     import functools
+    import itertools
     import tempfile
     from pathlib import Path
 
@@ -97,18 +101,22 @@ def run(args) -> int:
     if args.columns == "dice":
         from stereodic.dice_columns import gauge_px, header, numbered, sigma_gamma, strain_columns, write_solution
 
+    _check_args(args)
     ref = read_gray(args.ref)
     height, width = ref.shape
     defs = [p for pattern in args.defs for p in expand(pattern)]
-    for path in defs:  # every file checked before the (long) work starts
+    read = functools.partial(read_checked, shape=ref.shape, reference=str(args.ref))
+    # every file checked before the (long) work starts: in-process, the first images are read whole
+    # while they fit in PRELOAD_BYTES (reading is their check: a single pair needs no header reader),
+    # the others by their headers
+    preloaded = [] if args.scheduler else [read(p) for p in defs[:PRELOAD_BYTES // ref.nbytes]]
+    for path in defs[len(preloaded):]:
         check_size(path, (width, height), f"the reference {args.ref}")
-    _check_args(args)
     grid, seeds = dic_grid(args, width, height, "reference", args.ref)
     settings = DicSettings(subset=args.subset, shape=args.shape, order=3 if args.interp == "cubic" else 5,
                            prefilter_sigma=args.prefilter, min_zncc=args.min_zncc, search_radius=args.search)
     out = Path(args.output)
 
-    read = functools.partial(read_checked, shape=ref.shape, reference=str(args.ref))
     has_strain = bool(args.strain_window)
     act = grid.active.ravel()
     cluster = contextlib.nullcontext()
@@ -119,7 +127,8 @@ def run(args) -> int:
     writer = CsvWriter(out, has_strain) if args.columns == "stereodic" else contextlib.nullcontext()
     with cluster as client, tempfile.TemporaryDirectory(prefix=".dic2d-", dir=out.parent) as tmp, writer as csv:
         if client is None:
-            fields = correlate_sequence(ref, (read(p) for p in defs), grid, settings=settings, seeds=seeds,
+            images = itertools.chain(preloaded, (read(p) for p in defs[len(preloaded):]))
+            fields = correlate_sequence(ref, images, grid, settings=settings, seeds=seeds,
                                         incremental=args.incremental,
                                         switch_zncc=args.switch_zncc)
         else:
