@@ -135,14 +135,15 @@ def call(fn: Callable, *args):
     try:
         return fn(*args)
     except InputError as exc:
-        raise InputError(exc.where, f"{exc.problem} (on Dask worker {_worker_address()})") from None
+        raise InputError(exc.where, f"{exc.problem} (on Dask worker {worker_address()})") from None
     except OSError as exc:
         where = exc.filename if exc.filename is not None else None
-        raise InputError(where, f"{exc.strerror or exc} (on Dask worker {_worker_address()}: is it on storage "
+        raise InputError(where, f"{exc.strerror or exc} (on Dask worker {worker_address()}: is it on storage "
                                 f"that every worker sees?)") from None
 
 
-def _worker_address() -> str:
+def worker_address() -> str:
+    """The address of the Dask worker this task runs on."""
     from distributed import get_worker
     try:
         return get_worker().address
@@ -182,16 +183,18 @@ def run_id() -> str:
     return uuid.uuid4().hex[:8]
 
 
-def submit(client, name: str, fn: Callable, *args, priority: int = 0):
+def submit(client, name: str, fn: Callable, *args, priority: int = 0, workers: list[str] | None = None):
     """The task fn(*args) on the cluster (through `call`), keyed `name` (unique: ending in a `run_id`);
-    futures among `args` are its dependencies."""
+    futures among `args` are its dependencies. `workers`: the addresses it should run on (another
+    worker takes it if none of them can)."""
     for t in _traffic:
         import cloudpickle
         from distributed import Future
         t.tasks += 1
         t.bytes += len(cloudpickle.dumps((fn, [a for a in args if not isinstance(a, Future)]),
                                          protocol=pickle.HIGHEST_PROTOCOL))
-    return client.submit(call, fn, *args, key=name, pure=False, priority=priority)
+    return client.submit(call, fn, *args, key=name, pure=False, priority=priority, workers=workers or None,
+                         allow_other_workers=bool(workers))
 
 
 def result(future):

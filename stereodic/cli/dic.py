@@ -192,8 +192,8 @@ def run(args) -> int:
         spec = RunSpec.make(args.rig, inputs["rig"], out, data, grid, seeds, settings,
                             functools.partial(_summary, n=active))
         with connect(args.scheduler) as client:
-            state0 = run_states_on(client, store, data, spec, vtk=not args.no_vtk, plot_every=plot_every,
-                                   labels=labels)
+            state0 = run_states_on(client, store, data, spec, csv=args.columns != "dice", vtk=not args.no_vtk,
+                                   plot_every=plot_every, labels=labels)
     else:
         state0 = run_states(store, data, rig, grid, seeds, settings, report=lambda st: note(_summary(st, active)))
     c0 = state0.left.ok & state0.right.ok         # matched, whether or not the rays meet

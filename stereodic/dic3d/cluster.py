@@ -2,22 +2,24 @@
 the same files, byte for byte.
 
 The states form a chain: state k starts from the warps state k - 1 leaves (`StereoCarry`) and tracks its
-incremental points from state k - 1's left image, so no two states can be solved at once. What can run
-beside the chain is run beside it, as separate tasks:
-- dic-prepare k: state k's pair read, rectified and prepared (`run.prepare_pair`), up to `window`
-  states ahead of the chain, held in the memory of the worker that made it (Dask moves it to the worker
-  that solves state k or k + 1 if that is another one);
+incremental points from state k - 1's left image, so no two states can be solved at once. The chain
+lives on one worker, its home (the one that solved the last state), which works as the in-process run
+does: it keeps the carry and the pair of the state it solved, and prepares the next state's pair in a
+thread while it solves a state, so that a link costs one round trip to the client and nothing else.
+What can run beside the chain runs on the other workers:
 - dic-solve k: `solve_state(run, k, pair k, carry, pair k - 1)` where the worker writes its state file
   and the carry after it into the run folder (`RunStore.write_result`), and returns the state's
-  summary line; its carry is the one dic-solve k - 1 left in the run folder, exactly what a resumed
-  in-process run reads (a state that a task of an earlier, stopped client went on to solve is taken as
-  it is: it is what this task would write). The client submits dic-solve k when dic-solve k - 1 has finished and records
-  it done in the manifest: a Dask dependency between the solves instead would keep the chain's
-  lineage, and a worker lost late in a long run would make Dask solve the whole chain again;
-- dic-files k: state k's VTK file and PNG maps from its state file (`run.write_state_files`), queued
-  after dic-solve k and run on the threads the chain leaves free (all but one while it runs).
-The combined files (dic.csv, dic.npz, DICe's files, the VTK collection) are written by the client from
-the state files afterwards, as in-process.
+  summary line and its own address. A solve that lands on another worker (its home died) reads the
+  carry from the run folder, exactly as a resumed in-process run does, and prepares its pairs itself
+  (a state that a task of an earlier, stopped client went on to solve is taken as it is: it is what
+  this task would write). The client submits dic-solve k + 1 as soon as dic-solve k has finished and
+  records it done in the manifest: a Dask dependency between the solves instead would keep the
+  chain's lineage, and a worker lost late in a long run would make Dask solve the whole chain again;
+- dic-files k: state k's rows of dic.csv (kept in the run folder: `RunStore.write_rows`), VTK file and
+  PNG maps from its state file (`run.write_state_files`), queued after dic-solve k and run on the other
+  workers' threads (all but the chain's one while it runs).
+The combined files (dic.csv from the kept rows, dic.npz, DICe's files, the VTK collection) are written
+by the client from the run folder afterwards, as in-process.
 
 What a task carries is a `RunSpec` (file names, the grid, the settings: a few kB) and a state number;
 each worker builds the rig, the reference pair prepared and the reference points (read from state 0's
@@ -33,21 +35,23 @@ import collections
 import hashlib
 import os
 import pickle
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterator
 
 from calib.batch import fingerprint
 from calib.progress import note, progress
-from stereodic.cluster import ClusterFault, per_worker, result, run_id, submit, threads
+from stereodic.cluster import ClusterFault, per_worker, result, run_id, submit, threads, worker_address
 from stereodic.dic.grid import Grid
 from stereodic.dic.maps import surface_axes
 from stereodic.dic3d.dataset import DicStates
+from stereodic.dic3d.output import csv_rows
 from stereodic.dic3d.run import prepare_pair, write_state_files
-from stereodic.dic3d.stereo import PreparedPair, StereoRun, StereoSettings, StereoState, solve_state
+from stereodic.dic3d.stereo import PreparedPair, StereoCarry, StereoRun, StereoSettings, StereoState, solve_state
 from stereodic.dic3d.store import RunStore
 
-SOLVE, PREPARE, FILES = 2, 1, 0   # task priorities: the chain first, then what feeds it, then the maps
+SOLVE, FILES = 1, 0   # task priorities: the chain first
 
 
 @dataclass(frozen=True)
@@ -105,37 +109,79 @@ def _prepare(spec: RunSpec, left: str, right: str) -> PreparedPair:
     return prepare_pair(DicStates([Path(left)], [Path(right)], ""), _rig(spec), spec.settings, 0)
 
 
-def prepare_task(spec: RunSpec, left: str, right: str) -> PreparedPair:
-    """dic-prepare: one state's pair (module docstring)."""
-    return _prepare(spec, left, right)
+class _Home:
+    """What a worker keeps between the solves of a chain that lives on it (module docstring): the last
+    state it solved, the carry after it and its pair, and the next state's pair being prepared in a
+    thread while the state is solved."""
+
+    def __init__(self):
+        self.state = -1
+        self.carry: StereoCarry | None = None
+        self.pair: PreparedPair | None = None
+        self.coming: tuple[int, object] | None = None   # (state, the concurrent.futures.Future of its pair)
+        self.pool = ThreadPoolExecutor(1)
+
+    def take(self, k: int) -> tuple[StereoCarry | None, PreparedPair | None, object]:
+        """The carry and pair of state k - 1 and the future of state k's pair, where this worker holds them
+        (else None); forgotten here, so that a solve that fails does not leave them for its next try."""
+        held = (self.carry, self.pair) if self.state == k - 1 else (None, None)
+        coming = self.coming[1] if self.coming is not None and self.coming[0] == k else None
+        self.state, self.carry, self.pair, self.coming = -1, None, None, None
+        return (*held, coming)
+
+    def prefetch(self, k: int, prepare: Callable[[], PreparedPair]) -> None:
+        """Start preparing state k's pair."""
+        self.coming = (k, self.pool.submit(prepare))
+
+    def keep(self, k: int, carry: StereoCarry, pair: PreparedPair) -> None:
+        self.state, self.carry, self.pair = k, carry, pair
 
 
-def solve_task(spec: RunSpec, k: int, pair: PreparedPair | None, previous: PreparedPair | None) -> str:
-    """dic-solve: state k from the carry in the run folder (module docstring); `pair` None for state 0
-    and `previous` None for state 1 (the reference pair, this worker's own copy). Returns its summary."""
+_homes: dict[str, _Home] = {}   # run token -> the chain of that run on this worker (one run at a time)
+
+
+def _home(spec: RunSpec) -> _Home:
+    if spec.token not in _homes:
+        _homes.clear()
+        _homes[spec.token] = _Home()
+    return _homes[spec.token]
+
+
+def solve_task(spec: RunSpec, k: int, files: list[tuple[str, str] | None]) -> tuple[str, str]:
+    """dic-solve: state k from the carry state k - 1 left (module docstring); `files`: the image files
+    of states k - 1, k and k + 1 (None past the last). Returns its summary and this worker's address."""
     store = RunStore(spec.folder).attach()
+    home = _home(spec)
+    carry, previous, coming = home.take(k)
+    if files[2] is not None:   # the next state's pair, prepared while this one is solved
+        home.prefetch(k + 1, lambda: _prepare(spec, *files[2]))
     if k == 0:
-        run, pair0 = _reference(spec)
-        state, carry = solve_state(run, 0, pair0)
+        run, pair = _reference(spec)
+        state, carry = solve_state(run, 0, pair)
     else:
-        carry = store.read_carry()
+        carry = carry or store.read_carry()
         if carry.state >= k and store.state_path(k).is_file():   # solved already, by a task of an earlier client
-            return spec.describe(store.read_state(k))
+            return spec.describe(store.read_state(k)), worker_address()
         if carry.state != k - 1:
             raise ClusterFault(f"{store.states_dir / 'carry.npz'} holds the carry of state {carry.state}, state "
                                f"{k} needs that of state {k - 1} (a task of an earlier run of this folder finished "
                                f"late?); the states done are kept, the same command resumes")
-        state, carry = solve_state(_referenced(spec), k, pair, carry,
-                                   _reference(spec)[1] if previous is None else previous)
+        pair = coming.result() if coming is not None else _prepare(spec, *files[1])
+        if previous is None:
+            previous = _reference(spec)[1] if k == 1 else _prepare(spec, *files[0])
+        state, carry = solve_state(_referenced(spec), k, pair, carry, previous)
     store.write_result(state, carry)
-    return spec.describe(state)
+    home.keep(k, carry, pair)
+    return spec.describe(state), worker_address()
 
 
-def files_task(spec: RunSpec, k: int, vtk: bool, plot_every: int, label: str) -> None:
-    """dic-files: state k's VTK file and maps (titled `label`) from its state file; the maps' axes from
-    state 0's, once per worker."""
+def files_task(spec: RunSpec, k: int, csv: bool, vtk: bool, plot_every: int, label: str) -> None:
+    """dic-files: state k's rows of dic.csv (with `csv`), VTK file and maps (titled `label`) from its
+    state file; the maps' axes from state 0's, once per worker."""
     store = RunStore(spec.folder).attach()
     st = store.read_state(k)
+    if csv:
+        store.write_rows(k, csv_rows(spec.grid, st))
     axes = None
     if plot_every and k % plot_every == 0:
         axes = per_worker(f"{spec.token}-axes",
@@ -146,61 +192,62 @@ def files_task(spec: RunSpec, k: int, vtk: bool, plot_every: int, label: str) ->
 
 # ------------------------------------------------------------------------------------- the client
 
-def run_states_on(client, store: RunStore, data: DicStates, spec: RunSpec, *, vtk: bool, plot_every: int,
-                  labels: list[str]) -> StereoState:
+def run_states_on(client, store: RunStore, data: DicStates, spec: RunSpec, *, csv: bool, vtk: bool,
+                  plot_every: int, labels: list[str]) -> StereoState:
     """`run.run_states` on the cluster of `client` (module docstring), and each state's own output files
-    (`run.write_state_files`, for every state, those done before a resume too): solves the states the
-    store (opened by the client) has not finished, records each done as it finishes and prints its
-    summary line (`calib.progress.note`) under the same progress bar; `labels`: the states' map titles.
-    Returns state 0."""
+    (its rows of dic.csv with `csv`, `run.write_state_files`; for every state, those done before a
+    resume too): solves the states the store (opened by the client) has not finished, records each done
+    as it finishes and prints its summary line (`calib.progress.note`) under the same progress bar;
+    `labels`: the states' map titles. Returns state 0."""
     n = len(data)
-    chain = _Chain(client, store, data, spec)
+    chain = _Chain(client, store, data)
     if store.done == 0:
-        for _ in chain.states(0, 1):
+        for _ in chain.states(spec, 0, 1):
             pass
     state0 = store.read_state(0)
     note(spec.describe(state0))
-    files = _Files(client, spec, vtk, plot_every, labels, range(n) if vtk or plot_every else ())
-    for line in progress(chain.states(store.done, n), "dic", total=n, initial=store.done, unit="state"):
-        files.feed(threads(client) - 1)              # one thread kept for the chain
+    files = _Files(client, spec, csv, vtk, plot_every, labels, range(n) if csv or vtk or plot_every else ())
+    for line in progress(chain.states(spec, store.done, n), "dic", total=n, initial=store.done, unit="state"):
+        files.feed(threads(client) - 1, chain.others)   # one thread kept for the chain
         note(line)
     files.finish()
     return state0
 
 
 class _Chain:
-    """The solves in order, each fed by pairs prepared up to `window` states ahead."""
+    """The solves in order, on the chain's home worker once it has one."""
 
-    def __init__(self, client, store: RunStore, data: DicStates, spec: RunSpec):
-        self.client, self.store, self.data, self.spec = client, store, data, spec
+    def __init__(self, client, store: RunStore, data: DicStates):
+        self.client, self.store, self.data = client, store, data
         self.run = run_id()
-        self.window = max(2, threads(client))
-        self.pairs: dict[int, object] = {}
+        self.home: str | None = None      # the worker that solved the last state
+        self.others: list[str] = []       # the workers beside it
 
-    def _pair(self, j: int):
-        if j not in self.pairs:
-            self.pairs[j] = submit(self.client, f"dic-prepare-{j}-{self.run}", prepare_task, self.spec,
-                                   os.path.abspath(self.data.left[j]), os.path.abspath(self.data.right[j]),
-                                   priority=PREPARE)
-        return self.pairs[j]
+    def _files(self, j: int) -> tuple[str, str] | None:
+        if not 0 <= j < len(self.data):
+            return None
+        return os.path.abspath(self.data.left[j]), os.path.abspath(self.data.right[j])
 
-    def _solve(self, k: int):
-        """Submit state k's solve (the states before it done), and the pairs to come."""
-        pair, previous = (None, None) if k == 0 else (self._pair(k), self._pair(k - 1) if k > 1 else None)
-        job = submit(self.client, f"dic-solve-{k}-{self.run}", solve_task, self.spec, k, pair, previous,
-                     priority=SOLVE)
-        for j in range(max(1, k + 1), min(len(self.data), k + 1 + self.window)):
-            self._pair(j)
-        return job
+    def _solve(self, spec: RunSpec, k: int):
+        """Submit state k's solve (the states before it done) to the home."""
+        return submit(self.client, f"dic-solve-{k}-{self.run}", solve_task, spec, k,
+                      [self._files(k - 1), self._files(k), self._files(k + 1)], priority=SOLVE,
+                      workers=[self.home] if self.home else None)
 
-    def states(self, start: int, stop: int) -> Iterator[str]:
+    def states(self, spec: RunSpec, start: int, stop: int) -> Iterator[str]:
         """Solve states start to stop - 1 (those before done), recording each done; their summary lines.
-        The next solve is submitted as soon as one finishes, before anything else is done."""
-        job = self._solve(start) if start < stop else None
+        The next solve is submitted as soon as one has finished, before anything else is done, even
+        before its result is fetched from its worker."""
+        from distributed import wait
+        job = self._solve(spec, start) if start < stop else None
         for k in range(start, stop):
-            line = result(job)
-            job = self._solve(k + 1) if k + 1 < stop else None
-            self.pairs.pop(k - 1, None)
+            wait(job)
+            following = (self._solve(spec, k + 1) if k + 1 < stop and job.status == "finished" and self.home
+                         else None)
+            line, home = result(job)
+            if home != self.home:
+                self.home, self.others = home, [w for w in self.client.nthreads() if w != home]
+            job = following or (self._solve(spec, k + 1) if k + 1 < stop else None)
             self.store.record_done(k)
             yield line
 
@@ -208,21 +255,23 @@ class _Chain:
 class _Files:
     """The dic-files tasks of `states`, run a few at a time while the chain runs (`feed`), then all."""
 
-    def __init__(self, client, spec: RunSpec, vtk: bool, plot_every: int, labels: list[str], states):
-        self.client, self.spec, self.vtk, self.plot_every, self.labels = client, spec, vtk, plot_every, labels
+    def __init__(self, client, spec: RunSpec, csv: bool, vtk: bool, plot_every: int, labels: list[str], states):
+        self.client, self.spec, self.labels = client, spec, labels
+        self.what = (csv, vtk, plot_every)
         self.queue = collections.deque(states)
         self.run = run_id()
         self.running: list = []
 
-    def feed(self, slots: int) -> None:
-        """Submit queued tasks while fewer than `slots` run (the finished ones checked for errors)."""
+    def feed(self, slots: int, workers: list[str] | None = None) -> None:
+        """Submit queued tasks (to `workers`, if given) while fewer than `slots` run (the finished ones
+        checked for errors)."""
         for f in [f for f in self.running if f.done()]:
             result(f)
             self.running.remove(f)
         while self.queue and len(self.running) < slots:
             k = self.queue.popleft()
             self.running.append(submit(self.client, f"dic-files-{k}-{self.run}", files_task, self.spec, k,
-                                       self.vtk, self.plot_every, self.labels[k], priority=FILES))
+                                       *self.what, self.labels[k], priority=FILES, workers=workers))
 
     def finish(self) -> None:
         """Run the rest, all at once, under a "writing" progress bar."""

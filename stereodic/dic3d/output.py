@@ -70,15 +70,12 @@ def csv_rows(grid: Grid, st: StereoState) -> str:
     return "".join(",".join(row) + "\n" for row in zip(*cols))
 
 
-def write_csv(path: str | os.PathLike, grid: Grid, states: Iterable[StereoState]) -> None:
-    """The CSV of the module docstring, written state by state."""
+def write_csv(path: str | os.PathLike, rows: Iterable[str], *, has_strain: bool) -> None:
+    """The CSV of the module docstring from its rows, state by state (`csv_rows` of each state)."""
     with atomic_output(path) as tmp, open(tmp, "w") as out:
-        header = False
-        for st in states:
-            if not header:
-                out.write(",".join(csv_columns(st.measure is not None)) + "\n")
-                header = True
-            out.write(csv_rows(grid, st))
+        out.write(",".join(csv_columns(has_strain)) + "\n")
+        for text in rows:
+            out.write(text)
 
 
 def npz_keys(has_strain: bool) -> list[str]:

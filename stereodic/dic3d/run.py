@@ -19,7 +19,7 @@ from stereodic.dic.grid import Grid
 from stereodic.dic.maps import MapAxes, surface_axes
 from stereodic.dic.sequence import prefetch
 from stereodic.dic3d.dataset import DicStates
-from stereodic.dic3d.output import plot_state, write_csv, write_npz
+from stereodic.dic3d.output import csv_rows, plot_state, write_csv, write_npz
 from stereodic.dic3d.stereo import PreparedPair, StereoRun, StereoSettings, StereoState, solve_state
 from stereodic.dic3d.store import RunStore
 from stereodic.dic3d.vtk import write_collection, write_state
@@ -83,8 +83,10 @@ def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: Ste
     n = store.manifest["states"]
     has_strain = bool(settings.strain_window)
     write_npz(folder / "dic.npz", grid, store.values, n, has_strain, settings, info)
-    if csv:
-        write_csv(folder / "dic.csv", grid, store.states())
+    if csv:  # each state's rows as a cluster's task kept them, or formatted here
+        write_csv(folder / "dic.csv", (store.read_rows(k) or csv_rows(grid, store.read_state(k)) for k in range(n)),
+                  has_strain=has_strain)
+        store.remove_rows()
     if (state_files and (vtk or plot_every)) or dice is not None:
         axes = None
         for st in progress(store.states(), "writing", total=n, unit="state"):

@@ -8,7 +8,9 @@ so that results stream to disk state by state and an interrupted run resumes whe
   with, once they were).
 - `DIR/states/state{k:06d}.npz`: the result of state k (`output.state_arrays`: dic.npz's arrays of that
   state, and the combined status);
-  `DIR/states/carry.npz`: what the state after the last finished one needs (`StereoCarry`).
+  `DIR/states/carry.npz`: what the state after the last finished one needs (`StereoCarry`);
+  `DIR/states/state{k:06d}.csv`: state k's rows of dic.csv, where a cluster's task formatted them beside
+  the chain (`output.csv_rows`); taken into dic.csv when it is written, then removed.
 Every file is written atomically, in the order state file, carry, manifest: wherever a run stops, the
 folder is consistent and the run resumes after the carry's state (a state file beyond it is computed
 again, to the same bytes). A run whose settings or inputs differ from the folder's is refused.
@@ -23,7 +25,7 @@ from typing import Iterator
 
 import numpy as np
 
-from calib.atomic import write_json, write_npz
+from calib.atomic import write_json, write_npz, write_text
 from calib.errors import InputError
 from stereodic.dic3d.output import state_arrays, state_from_arrays
 from stereodic.dic3d.stereo import StereoCarry, StereoState
@@ -71,7 +73,7 @@ class RunStore:
         new = {"format": FORMAT, "settings": settings, "inputs": inputs, "states": states}
         old = self._read_manifest()
         if old is not None and restart:
-            for p in self.states_dir.glob("*.npz"):
+            for p in [*self.states_dir.glob("*.npz"), *self.states_dir.glob("*.csv")]:
                 p.unlink()
             old = None
         if old is not None:
@@ -111,6 +113,23 @@ class RunStore:
 
     def state_path(self, k: int) -> Path:
         return self.states_dir / f"state{k:06d}.npz"
+
+    def rows_path(self, k: int) -> Path:
+        return self.states_dir / f"state{k:06d}.csv"
+
+    def write_rows(self, k: int, text: str) -> None:
+        """Keep state k's rows of dic.csv (formatted where the state's other files are written)."""
+        write_text(self.rows_path(k), text)
+
+    def read_rows(self, k: int) -> str | None:
+        """State k's rows of dic.csv if they were kept (`write_rows`), else None."""
+        path = self.rows_path(k)
+        return path.read_text() if path.is_file() else None
+
+    def remove_rows(self) -> None:
+        """Remove the kept rows (once dic.csv holds them)."""
+        for p in self.states_dir.glob("state*.csv"):
+            p.unlink()
 
     def write_state(self, state: StereoState, carry: StereoCarry) -> None:
         """Save a finished state and the carry after it, then record it done."""
