@@ -53,21 +53,29 @@ def best_time(fn: Callable[[], object], repeat: int = 3, warmup: int = 1) -> flo
     return best
 
 
+def time_process(cmd: list[str], *, cwd: str | None = None) -> tuple[float, float]:
+    """(wall seconds, user + system CPU seconds) of one run of the program `cmd` (its input empty);
+    RuntimeError if it fails."""
+    before = os.times()
+    t0 = time.perf_counter()
+    done = subprocess.run(cmd, capture_output=True, text=True, stdin=subprocess.DEVNULL, cwd=cwd)
+    dt = time.perf_counter() - t0
+    after = os.times()
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed: {done.stderr.strip()}")
+    return dt, (after.children_user - before.children_user) + (after.children_system - before.children_system)
+
+
+def stereodic_command(argv: list[str]) -> list[str]:
+    """The program `stereodic ARGV` as this interpreter runs it."""
+    return [sys.executable, "-m", "stereodic", *argv]
+
+
 def time_command(argv: list[str], repeat: int) -> tuple[float, float]:
-    """(best wall seconds, best user + system CPU seconds) of `python -m stereodic ARGV` in fresh
-    processes, over `repeat` runs; RuntimeError if it fails."""
-    wall = cpu = float("inf")
-    for _ in range(repeat):
-        before = os.times()
-        t0 = time.perf_counter()
-        done = subprocess.run([sys.executable, "-m", "stereodic", *argv], capture_output=True, text=True)
-        dt = time.perf_counter() - t0
-        after = os.times()
-        if done.returncode != 0:
-            raise RuntimeError(f"stereodic {' '.join(argv)} failed: {done.stderr.strip()}")
-        wall = min(wall, dt)
-        cpu = min(cpu, (after.children_user - before.children_user) + (after.children_system - before.children_system))
-    return wall, cpu
+    """(best wall seconds, best user + system CPU seconds) of `stereodic ARGV` in fresh processes, over
+    `repeat` runs; RuntimeError if it fails."""
+    runs = [time_process(stereodic_command(argv)) for _ in range(repeat)]
+    return min(w for w, _ in runs), min(c for _, c in runs)
 
 
 def peak_rss_bytes() -> int:
