@@ -8,12 +8,14 @@ does: it keeps the carry and the pair of the state it solved, and prepares the n
 thread while it solves a state, so that a link costs one round trip to the client and nothing else.
 What can run beside the chain runs on the other workers:
 - dic-solve k: `solve_state(run, k, pair k, carry, pair k - 1)` where the worker writes its state file
-  and the carry after it into the run folder (`RunStore.write_result`), and returns the state's
-  summary line and its own address. A solve that lands on another worker (its home died) reads the
-  carry from the run folder, exactly as a resumed in-process run does, and prepares its pairs itself
-  (a state that a task of an earlier, stopped client went on to solve is taken as it is: it is what
-  this task would write). The client submits dic-solve k + 1 as soon as dic-solve k has finished and
-  records it done in the manifest: a Dask dependency between the solves instead would keep the
+  and the carry after it into the run folder (`RunStore.write_result`), then the same for the states
+  after k that the task was given: short states go several to a task, as many as take about `TASK_S`,
+  so that the link's round trip is a small share of the work (a long state is a task of its own). It
+  returns the states' summary lines and its own address. A solve that lands on another worker (its home
+  died) reads the carry from the run folder, exactly as a resumed in-process run does, and prepares its
+  pairs itself (a state that a task of an earlier, stopped client went on to solve is taken as it is: it
+  is what this task would write). The client submits the next dic-solve as soon as one has finished and
+  records its states done in the manifest: a Dask dependency between the solves instead would keep the
   chain's lineage, and a worker lost late in a long run would make Dask solve the whole chain again;
 - dic-files k: state k's rows of dic.csv (kept in the run folder: `RunStore.write_rows`), VTK file and
   PNG maps from its state file (`run.write_state_files`), queued after dic-solve k and run on the other
@@ -35,6 +37,7 @@ import collections
 import hashlib
 import os
 import pickle
+import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,6 +55,8 @@ from stereodic.dic3d.stereo import PreparedPair, StereoCarry, StereoRun, StereoS
 from stereodic.dic3d.store import RunStore
 
 SOLVE, FILES = 1, 0   # task priorities: the chain first
+TASK_S = 1.0          # a solve task takes this many states where they are short (its overhead: one round trip)
+MOST_STATES = 32      # ... at most this many
 
 
 @dataclass(frozen=True)
@@ -147,11 +152,21 @@ def _home(spec: RunSpec) -> _Home:
     return _homes[spec.token]
 
 
-def solve_task(spec: RunSpec, k: int, files: list[tuple[str, str] | None]) -> tuple[str, str]:
-    """dic-solve: state k from the carry state k - 1 left (module docstring); `files`: the image files
-    of states k - 1, k and k + 1 (None past the last). Returns its summary and this worker's address."""
+def solve_task(spec: RunSpec, first: int, files: list[tuple[str, str] | None]) -> tuple[list[str], str, float]:
+    """dic-solve: states first, first + 1, ... one after the other from the carry state first - 1 left
+    (module docstring), each saved as it is done; `files`: the image files of states first - 1 to the
+    last one + 1 (None outside the sequence). Returns their summary lines, this worker's address and the
+    seconds a state took."""
     store = RunStore(spec.folder).attach()
     home = _home(spec)
+    t0 = time.perf_counter()
+    lines = [_solve_state(spec, store, home, k, files[i:i + 3]) for i, k in enumerate(range(first, first + len(files) - 2))]
+    return lines, worker_address(), (time.perf_counter() - t0) / len(lines)
+
+
+def _solve_state(spec: RunSpec, store: RunStore, home: _Home, k: int, files: list[tuple[str, str] | None]) -> str:
+    """State k, from the carry state k - 1 left; `files`: the image files of states k - 1, k and k + 1.
+    Returns its summary."""
     carry, previous, coming = home.take(k)
     if files[2] is not None:   # the next state's pair, prepared while this one is solved
         home.prefetch(k + 1, lambda: _prepare(spec, *files[2]))
@@ -161,7 +176,7 @@ def solve_task(spec: RunSpec, k: int, files: list[tuple[str, str] | None]) -> tu
     else:
         carry = carry or store.read_carry()
         if carry.state >= k and store.state_path(k).is_file():   # solved already, by a task of an earlier client
-            return spec.describe(store.read_state(k)), worker_address()
+            return spec.describe(store.read_state(k))
         if carry.state != k - 1:
             raise ClusterFault(f"{store.states_dir / 'carry.npz'} holds the carry of state {carry.state}, state "
                                f"{k} needs that of state {k - 1} (a task of an earlier run of this folder finished "
@@ -172,7 +187,7 @@ def solve_task(spec: RunSpec, k: int, files: list[tuple[str, str] | None]) -> tu
         state, carry = solve_state(_referenced(spec), k, pair, carry, previous)
     store.write_result(state, carry)
     home.keep(k, carry, pair)
-    return spec.describe(state), worker_address()
+    return spec.describe(state)
 
 
 def files_task(spec: RunSpec, k: int, csv: bool, vtk: bool, plot_every: int, label: str) -> None:
@@ -215,41 +230,49 @@ def run_states_on(client, store: RunStore, data: DicStates, spec: RunSpec, *, cs
 
 
 class _Chain:
-    """The solves in order, on the chain's home worker once it has one."""
+    """The solves in order, on the chain's home worker once it has one; short states several to a task."""
 
     def __init__(self, client, store: RunStore, data: DicStates):
         self.client, self.store, self.data = client, store, data
         self.run = run_id()
         self.home: str | None = None      # the worker that solved the last state
         self.others: list[str] = []       # the workers beside it
+        self.per_state = TASK_S           # seconds a state took, on the last task
 
     def _files(self, j: int) -> tuple[str, str] | None:
         if not 0 <= j < len(self.data):
             return None
         return os.path.abspath(self.data.left[j]), os.path.abspath(self.data.right[j])
 
-    def _solve(self, spec: RunSpec, k: int):
-        """Submit state k's solve (the states before it done) to the home."""
-        return submit(self.client, f"dic-solve-{k}-{self.run}", solve_task, spec, k,
-                      [self._files(k - 1), self._files(k), self._files(k + 1)], priority=SOLVE,
-                      workers=[self.home] if self.home else None)
+    def _solve(self, spec: RunSpec, first: int, stop: int):
+        """Submit the solve of state `first` (those before it done) and of the next ones, as many as take
+        `TASK_S` (not beyond `stop`), to the home; (the future, the states it solves)."""
+        count = max(1, min(MOST_STATES, stop - first, round(TASK_S / max(self.per_state, 1e-3))))
+        job = submit(self.client, f"dic-solve-{first}-{self.run}", solve_task, spec, first,
+                     [self._files(j) for j in range(first - 1, first + count + 1)], priority=SOLVE,
+                     workers=[self.home] if self.home else None)
+        return job, range(first, first + count)
 
     def states(self, spec: RunSpec, start: int, stop: int) -> Iterator[str]:
-        """Solve states start to stop - 1 (those before done), recording each done; their summary lines.
-        The next solve is submitted as soon as one has finished, before anything else is done, even
+        """Solve states start to stop - 1 (those before done), recording them done; their summary lines.
+        The next solve task is submitted as soon as one has finished, before anything else is done, even
         before its result is fetched from its worker."""
         from distributed import wait
-        job = self._solve(spec, start) if start < stop else None
-        for k in range(start, stop):
+        job, ks = self._solve(spec, start, stop) if start < stop else (None, range(0))
+        while job is not None:
             wait(job)
-            following = (self._solve(spec, k + 1) if k + 1 < stop and job.status == "finished" and self.home
+            following = (self._solve(spec, ks.stop, stop) if ks.stop < stop and job.status == "finished" and self.home
                          else None)
-            line, home = result(job)
+            try:
+                lines, home, self.per_state = result(job)
+            except BaseException:
+                self.store.record_saved()   # the states the task finished before it failed are kept
+                raise
             if home != self.home:
                 self.home, self.others = home, [w for w in self.client.nthreads() if w != home]
-            job = following or (self._solve(spec, k + 1) if k + 1 < stop else None)
-            self.store.record_done(k)
-            yield line
+            self.store.record_done(ks[-1])
+            job, ks = following or (self._solve(spec, ks.stop, stop) if ks.stop < stop else (None, ks))
+            yield from lines
 
 
 class _Files:

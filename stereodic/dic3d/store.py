@@ -147,6 +147,13 @@ class RunStore:
         self.manifest.pop("outputs", None)
         write_json(self.manifest_path, self.manifest)
 
+    def record_saved(self) -> None:
+        """Record done the states saved in the folder beyond those recorded (what a task that stopped
+        half-way through its states had finished)."""
+        saved = self._resume_point(self.manifest["states"])
+        if saved > self.done:
+            self.record_done(saved - 1)
+
     def attach(self) -> "RunStore":
         """The run already in the folder, to read and add states to without opening it again (a Dask
         worker's view of a run that the client opened); InputError naming the manifest if there is

@@ -61,8 +61,8 @@ def test_the_cluster_run_writes_the_same_bytes(dic_sim, dask_cluster, in_process
 
 
 def test_the_chain_stays_on_one_worker_and_the_maps_run_beside_it(dic_sim, dask_cluster, in_process, tmp_path):
-    """Every state's solve on the worker that solved state 0 (its carry and pairs kept there, none moved
-    between workers); the states' files (rows, maps) on the other one while the chain runs."""
+    """Every solve on the worker that solved state 0 (its carry and pairs kept there, none moved between
+    workers); the states' files (rows, maps) on the other one while the chain runs."""
     from distributed import Client, get_task_stream
     with Client(dask_cluster.scheduler_address) as client, get_task_stream(client) as stream:
         assert main(_args(dic_sim, tmp_path / "out", "--scheduler", dask_cluster.scheduler_address)) == 0
@@ -70,7 +70,7 @@ def test_the_chain_stays_on_one_worker_and_the_maps_run_beside_it(dic_sim, dask_
     for task in stream.data:
         name = str(task["key"]).split("-")
         where.setdefault(name[1], {})[int(name[2])] = task["worker"]
-    assert sorted(where["solve"]) == [0, 1, 2] and len(set(where["solve"].values())) == 1
+    assert min(where["solve"]) == 0 and len(where["solve"]) >= 2 and len(set(where["solve"].values())) == 1
     assert sorted(where["files"]) == [0, 1, 2] and where["files"][0] not in set(where["solve"].values())
     assert not any("transfer" in s["action"] for task in stream.data for s in task["startstops"])
     assert _differing(in_process["direct"], tmp_path / "out") == []
@@ -103,15 +103,17 @@ def test_a_worker_killed_during_a_task_loses_nothing(dic_sim, dask_cluster, in_p
 
 
 def _interrupt_after(monkeypatch, k: int):
-    """Stop the client (KeyboardInterrupt) when state k's solve has finished, as it submits the next."""
+    """Stop the client (KeyboardInterrupt) when state k's solve has finished, as it submits the next (one
+    state to a task)."""
     import stereodic.dic3d.cluster as on_cluster
     real = on_cluster._Chain._solve
 
-    def solve(self, spec, j):
-        if j == k + 1:
+    def solve(self, spec, first, stop):
+        if first == k + 1:
             raise KeyboardInterrupt
-        return real(self, spec, j)
+        return real(self, spec, first, stop)
 
+    monkeypatch.setattr(on_cluster, "MOST_STATES", 1)
     monkeypatch.setattr(on_cluster._Chain, "_solve", solve)
 
 
