@@ -15,7 +15,7 @@ DESIGN.md's stage-free captures, frames with `pose`).
    0 (x along its columns, y along its rows, z away from the camera). Planes across the axis, not
    along pose 0's display (tilted by up to tens of degrees): a tilted plane's points are a perspective
    (rational) function of the pixel, which the regularisation's polynomials follow less well (on the
-   bench: the plane error 10-30 % higher). The uncertainty is then given on two planes z = const of
+   bench: the plane error 10-45 % higher). The uncertainty is then given on two planes z = const of
    the WCS (`_wcs_sigma`).
 
 The per-pose report (`PoseReport`, the PRVM's `meta.poses`): each pose in the WCS, its 1-sigma
