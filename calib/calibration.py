@@ -19,6 +19,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from calib.capture import Capture
@@ -36,6 +37,9 @@ MASKED_WARNING = 0.001
 # when the first position's intensity matrix lacks more than this fraction of the pixels, another
 # position's flats fill them in (below it, the few pixels are not worth reading the flats again)
 IM_REFILL = 0.001
+# a point's variance is the mean of the modulation's prediction over this window of decoded pixels
+# (`point_weights`)
+WEIGHT_WINDOW_PX = 31
 
 
 @dataclass
@@ -104,11 +108,24 @@ def decode_all(capture: Capture, camera: str) -> tuple[list[DecodedPosition], In
 
 def point_weights(position: DecodedPosition) -> np.ndarray:
     """(H, W) float32 weight of each pixel's decoded point: its inverse variance in display pixels^2
-    (0 where not decoded). The sigma of a coordinate ~ period / (B sqrt(N)), on the same scale at
-    every position of a pixel."""
+    (0 where not decoded).
+
+    The sigma of a coordinate is ~ period / (B sqrt(N)) (B the fringe modulation, N the steps), on the
+    same scale at every position of a pixel. That prediction is averaged over a `WEIGHT_WINDOW_PX`
+    square of decoded pixels: the noise level varies slowly (defocus, vignetting, distance and viewing
+    angle), while a pixel's own B also follows the display's pixel grid where the camera resolves it (an
+    in-focus display, a telecentric lens), and so does its decoding error: weighting by each pixel's
+    own B makes the weighted mean of the errors nonzero (a telecentric lens's rays then move by 1.6 um
+    as a whole, 0.019 camera pixels on the bench), and B of one pixel is a noisy estimate besides.
+    """
     p = position
     var = sum((per / (np.maximum(m, 1e-6) * np.sqrt(n))) ** 2 for per, m, n in zip(p.period_px, p.modulation, p.steps))
-    return np.where(p.valid, 1.0 / var, 0.0).astype(np.float32)
+    valid = p.valid
+    size = (WEIGHT_WINDOW_PX, WEIGHT_WINDOW_PX)
+    total = cv2.boxFilter(np.where(valid, var, 0.0).astype(np.float64), -1, size, normalize=False,
+                          borderType=cv2.BORDER_CONSTANT)
+    count = cv2.boxFilter(valid.astype(np.float64), -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    return np.where(valid, count / np.maximum(total, 1e-300), 0.0).astype(np.float32)
 
 
 def _points(capture: Capture, positions: list[DecodedPosition]) -> tuple[np.ndarray, np.ndarray]:

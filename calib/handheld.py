@@ -9,10 +9,14 @@ DESIGN.md's stage-free captures, frames with `pose`).
    pose 0 fixed). A pose whose residual is out of family (its display moved while its fringes were
    shown) is reported and left out, and the others refined again, as long as `MIN_POSES` remain.
 4. Every pixel's ray fitted through its points at the refined poses (`calib.prvm.fit_posed_lines`, in
-   the working frame), expressed in the WCS: the display's frame at pose 0 (x along its columns, y along
-   its rows, z away from the camera); then regularised and given its uncertainty as on a stage
-   (`calib.calibration.regularise_lines`), on two planes z = const of the WCS spanning where the
-   displays were.
+   the working frame), then regularised and given its uncertainty as on a stage
+   (`calib.calibration.regularise_lines`) on two planes z = const of the working frame (across the
+   optical axis) spanning where the displays were, and expressed in the WCS: the display's frame at pose
+   0 (x along its columns, y along its rows, z away from the camera). Planes across the axis, not
+   along pose 0's display (tilted by up to tens of degrees): a tilted plane's points are a perspective
+   (rational) function of the pixel, which the regularisation's polynomials follow less well (on the
+   bench: the plane error 10-45 % higher). The uncertainty is then given on two planes z = const of
+   the WCS (`_wcs_sigma`).
 
 The per-pose report (`PoseReport`, the PRVM's `meta.poses`): each pose in the WCS, its 1-sigma
 uncertainty (from the Jacobian and the residual), the RMS distance of its points from the rays, its
@@ -29,9 +33,10 @@ from calib.capture import MIN_POSES, Capture
 from calib.errors import InputError
 from calib.pose_init import central_start
 from calib.poses import OUT_OF_FAMILY, PoseFit, log_so3, pose_sample, refine_poses
+from calib.prvm import Lines
 
-# the planes of the regularisation and the uncertainty: these quantiles of the WCS z of the displays'
-# points
+# the planes of the regularisation (working frame) and of the uncertainty (WCS): these quantiles of the
+# z of the displays' points in that frame
 PLANE_QUANTILES = (0.05, 0.95)
 
 
@@ -99,9 +104,40 @@ def estimate_poses(capture: Capture, camera: str, coords: list[np.ndarray],
         active[max(bad, key=lambda k: chi[k])] = False
 
 
-def _wcs_z(coord: np.ndarray, pitch: np.ndarray, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
-    """WCS z of display coordinates (2, ...) at a pose."""
+def _frame_z(coord: np.ndarray, pitch: np.ndarray, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+    """z, in a frame, of display coordinates (2, ...) of a display whose pose there is (rotation,
+    translation)."""
     return coord[0] * pitch[0] * rotation[2, 0] + coord[1] * pitch[1] * rotation[2, 1] + translation[2]
+
+
+def _planes(coords: list[np.ndarray], weights: list[np.ndarray], pitch: np.ndarray, rotation: np.ndarray,
+            translation: np.ndarray) -> tuple[float, float]:
+    """The planes z = const (`PLANE_QUANTILES` of the displays' points' z, every 16th pixel) of a frame
+    in which the displays' poses are (rotation (M, 3, 3), translation (M, 3))."""
+    z = np.concatenate([_frame_z(c[:, ::16, ::16], pitch, r, t)[w[::16, ::16] > 0]
+                        for c, w, r, t in zip(coords, weights, rotation, translation)])
+    z_a, z_b = np.quantile(z, PLANE_QUANTILES)
+    return float(z_a), float(z_b)
+
+
+def _wcs_sigma(lines: Lines, sigma: np.ndarray, to_wcs: tuple[np.ndarray, np.ndarray], working: tuple[float, float],
+               wcs: tuple[float, float]) -> np.ndarray:
+    """(H, W, 2) float32 1-sigma (mm) on the WCS planes z = wcs[0], wcs[1] of `lines` (in the WCS),
+    whose 1-sigma `sigma` (H, W, 2) was estimated on the working frame's planes z = working[0],
+    working[1] (`to_wcs`: (A, b), X_wcs = A X_working + b): interpolated along each line between its
+    crossings with those planes, the two planes' errors taken as independent."""
+    a, b = to_wcs
+    normal = a[:, 2]                             # the working planes: normal . X_wcs = z_w + normal . b
+    d = np.concatenate([lines.slope, np.ones(lines.slope.shape[:-1] + (1,))], axis=-1)
+    p = lines.origin()
+    along = d @ normal
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z_w = [p[..., 2] + (z + normal @ b - p @ normal) / along for z in working]      # WCS z of the crossings
+        out = []
+        for z in wcs:
+            lam = (z - z_w[0]) / (z_w[1] - z_w[0])
+            out.append(np.sqrt(((1 - lam) * sigma[..., 0]) ** 2 + (lam * sigma[..., 1]) ** 2))
+    return np.stack(out, axis=-1).astype(np.float32)
 
 
 def _report(poses: list[int], fit: PoseFit, active: np.ndarray, chi: np.ndarray, start_rms_px: float,
@@ -150,22 +186,24 @@ def calibrate_handheld(capture: Capture, camera: str, smoother, z_ref: float = 0
                      f"still and capture it again")
     idx = np.flatnonzero(active)
     r0, t0 = fit.rotation[0], fit.translation[0]                 # pose 0 in the working frame
-    posed = fit_posed_lines([coords[k] for k in idx], [weights[k] for k in idx], fit.rotation, fit.translation,
-                            capture.display.pitch_mm, glass=capture.display.cover_glass, to_output=(r0.T, -r0.T @ t0),
-                            z_ref=z_ref)
-    raw = posed.lines
+    to_wcs = (r0.T, -r0.T @ t0)
+    pitch = np.asarray(capture.display.pitch_mm)
+    used_coords, used_weights = [coords[k] for k in idx], [weights[k] for k in idx]
+    posed = fit_posed_lines(used_coords, used_weights, fit.rotation, fit.translation, pitch,
+                            glass=capture.display.cover_glass)
     quality = dropped_quality([positions[k] for k in idx])
-    if not raw.valid.any():
+    if not posed.lines.valid.any():
         raise InputError(capture.manifest_path, f"camera {camera!r}: no pixel was decoded at 2 or more poses")
-    notes += _coverage_notes(camera, quality, raw.valid)
+    notes += _coverage_notes(camera, quality, posed.lines.valid)
 
     report = _report(poses, fit, active, chi, start.rms_px, posed.rms_mm)
-    pitch = np.asarray(capture.display.pitch_mm)
-    z = np.concatenate([_wcs_z(coords[k][:, ::16, ::16], pitch, report.rotation[k], report.translation[k])
-                        [weights[k][::16, ::16] > 0] for k in idx])
-    z_a, z_b = (float(v) for v in np.quantile(z, PLANE_QUANTILES))
     used_positions = [positions[k] for k in idx]
-    lines, sigma, regularisation = regularise_lines(capture, camera, raw, used_positions, smoother, z_a, z_b, z_ref)
+    working = _planes(used_coords, used_weights, pitch, fit.rotation, fit.translation)
+    lines, sigma, regularisation = regularise_lines(capture, camera, posed.lines, used_positions, smoother, *working,
+                                                    working[0])
+    raw, lines = posed.lines.moved(*to_wcs, z_ref), lines.moved(*to_wcs, z_ref)
+    z_a, z_b = _planes(used_coords, used_weights, pitch, report.rotation[idx], report.translation[idx])
+    sigma = _wcs_sigma(lines, sigma, to_wcs, working, (z_a, z_b))
     meta = ray_meta(capture, camera, used_positions, im, regularisation, z_a, z_b, z_ref, notes)
     meta.update({"poses": report.to_json(), "wcs_definition": "the display's frame at pose "
                  f"{poses[0]}: x along its columns, y along its rows, z away from the camera (mm)"})

@@ -50,6 +50,20 @@ class Lines:
         o[..., 2] = self.z_ref
         return o
 
+    def moved(self, rotation: np.ndarray, translation: np.ndarray, z_ref: float = 0.0) -> "Lines":
+        """The same lines in another frame, X_new = rotation @ X + translation (mm), starting on its plane
+        z = z_ref; a line that does not run towards +z there is no longer valid (NaN)."""
+        a, b = np.asarray(rotation, float), np.asarray(translation, float)
+        p = np.concatenate([self.start, np.full(self.start.shape[:-1] + (1,), self.z_ref)], axis=-1) @ a.T + b
+        d = np.concatenate([self.slope, np.ones(self.slope.shape[:-1] + (1,))], axis=-1) @ a.T
+        with np.errstate(invalid="ignore", divide="ignore"):
+            slope = d[..., :2] / d[..., 2:]
+            start = p[..., :2] + (z_ref - p[..., 2:]) * slope
+        valid = self.valid & (d[..., 2] > 0)
+        start[~valid] = np.nan
+        slope[~valid] = np.nan
+        return Lines(start, slope, valid, self.residual_mm, self.used, z_ref)
+
     @classmethod
     def through(cls, z_a: float, xy_a: np.ndarray, z_b: float, xy_b: np.ndarray, valid: np.ndarray,
                 residual_mm: np.ndarray, used: np.ndarray, z_ref: float = 0.0) -> "Lines":
@@ -150,19 +164,10 @@ def fit_posed_lines(coords: list[np.ndarray], weights: list[np.ndarray], rotatio
         ss += np.nansum(sq, axis=0)
         count += (np.isfinite(sq) & (wt.reshape(m, n).T > 0)).sum(axis=0)
         part = Lines(*(a_.reshape(q.shape[1], w, *a_.shape[1:]) for a_ in
-                       (part.start, part.slope, part.valid, part.residual_mm, part.used)))
-        # the lines in the output frame, starting on its plane z = z_ref
-        p = np.concatenate([part.start, np.zeros(part.start.shape[:2] + (1,))], axis=-1) @ a.T + b
-        d = np.concatenate([part.slope, np.ones(part.slope.shape[:2] + (1,))], axis=-1) @ a.T
-        with np.errstate(invalid="ignore", divide="ignore"):
-            slope = d[..., :2] / d[..., 2:]
-            out.start[sl] = p[..., :2] + (z_ref - p[..., 2:]) * slope
-        out.slope[sl] = slope
-        out.valid[sl] = part.valid & (d[..., 2] > 0)
+                       (part.start, part.slope, part.valid, part.residual_mm, part.used))).moved(a, b, z_ref)
+        out.start[sl], out.slope[sl], out.valid[sl] = part.start, part.slope, part.valid
         out.residual_mm[sl] = part.residual_mm
         out.used[sl] = part.used
-    out.start[~out.valid] = np.nan
-    out.slope[~out.valid] = np.nan
     return PosedLines(out, np.sqrt(ss / np.maximum(count, 1)), count)
 
 

@@ -106,7 +106,7 @@ class BayerCamera(SimCamera):
             v = self._colours[i].view(display, pose)
             seen = dataclasses.replace(display, gamma=self.bayer.gamma[i])
             radiance = seen.luminance_at(display_image, v.c, v.r, v.window, v.sin2)
-            full = blur_and_integrate(radiance, self.supersample, v.blur_px, self.sigma_px)
+            full = v.crop(blur_and_integrate(radiance, self.supersample, v.blur_px, self.sigma_px))
             mask = self.colour == i
             out[mask] = full[mask] * np.float32(self.bayer.gain[i])
         return out

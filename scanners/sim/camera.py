@@ -8,7 +8,9 @@ Rendering a frame (`SimCamera.render`):
     -> gamma -> black level -> lit sub-pixel stripes and black gaps; the bezel outside the pixel area;
     an angle-dependent display's falloff and gamma at each sub-sample's viewing angle);
  3. the image-plane radiance is blurred by the thin-lens defocus circle and diffraction, and integrated
-    over each pixel (`defocus`), so the display's edge mixes display and bezel;
+    over each pixel (`defocus`), so the display's edge mixes display and bezel; the radiance is rendered
+    `View.margin` pixels beyond the sensor's edges (as far as the blur reaches), so that a border
+    pixel's blur mixes in what the lens images there, as on a real sensor (not a mirror image);
  4. plus the room light (`ambient`: a veiling offset, constant or slowly varying across the image),
     times relative illumination (vignetting), per-pixel gain (PRNU) and exposure -> electrons, plus the
     hot pixels' dark signal -> shot noise, full well, read noise, dark offset, quantisation,
@@ -35,9 +37,10 @@ ROWS_PER_CHUNK = 64
 class View:
     """Where a camera's sub-samples land on the display's pixel plane at one display pose.
 
-    c, r: (H*S, W*S) float32 display coordinates of the sub-samples (row-major sub-pixel grid);
-    window: (wc, wr) a sub-sample's footprint in display pixels; blur_px: (H, W) defocus blur-circle
-    diameters (pixels); display_cr: (H, W, 2) float64 mean display coordinates (c, r) of each pixel's
+    c, r: ((H+2m)*S, (W+2m)*S) float32 display coordinates of the sub-samples (row-major sub-pixel grid)
+    of the sensor and a margin of m = `margin` pixels around it (the blur's reach); window: (wc, wr) a
+    sub-sample's footprint in display pixels; blur_px: (H+2m, W+2m) defocus blur-circle diameters
+    (pixels); display_cr: (H, W, 2) float64 mean display coordinates (c, r) of each pixel's
     sub-samples; points_mm: (H, W, 3) the WCS points on the pixel surface at those coordinates;
     sin2: (H*S, W*S) float32 sin^2 of each sub-sample's viewing angle (None unless the display is
     angle-dependent); seen: (H, W) bool, the pixels whose sub-samples' mean lies on the pixel area.
@@ -51,6 +54,12 @@ class View:
     points_mm: np.ndarray
     sin2: np.ndarray | None
     seen: np.ndarray
+    margin: int = 0
+
+    def crop(self, image: np.ndarray) -> np.ndarray:
+        """The sensor's part (H, W) of an image (H+2m, W+2m) of the view's grid."""
+        m = self.margin
+        return image[m:image.shape[0] - m, m:image.shape[1] - m] if m else image
 
 
 class SimCamera:
@@ -122,25 +131,42 @@ class SimCamera:
             self._views[key] = self._compute_view(display, pose)
         return self._views[key]
 
+    def _margin(self, display: SimDisplay, pose: DisplayPose) -> int:
+        """Pixels beyond the sensor's edges that the blur reaches at `pose`: the blur circle's radius at
+        the border pixels plus 3 sigma of the diffraction, and one pixel more (the blur varies
+        little over that distance)."""
+        h, w = self.shape
+        u = np.concatenate([np.arange(w), np.arange(w), np.zeros(h), np.full(h, w - 1.0)]).astype(np.float64)
+        v = np.concatenate([np.zeros(w), np.full(w, h - 1.0), np.arange(h), np.arange(h)]).astype(np.float64)
+        o, d = self.lens.rays(u, v)
+        c, r = display.hit(o, d, pose)
+        px, py = display.true_pitch_mm
+        pts = pose.to_wcs(np.stack([c * px, r * py, np.zeros_like(c)], axis=-1))
+        blur = float(np.nanmax(self.lens.blur_diameter_px(u, v, pts), initial=0.0))
+        return int(np.ceil(blur / 2 + 3 * self.sigma_px)) + 1
+
     def _compute_view(self, display: SimDisplay, pose: DisplayPose) -> View:
         s, (h, w) = self.supersample, self.shape
+        m = self._margin(display, pose)
+        hm, wm = h + 2 * m, w + 2 * m
         sub = (np.arange(s) + 0.5) / s - 0.5
-        us = (np.arange(w)[:, None] + sub[None, :]).ravel()
-        c = np.empty((h * s, w * s), np.float32)
-        r = np.empty((h * s, w * s), np.float32)
-        sin2 = np.empty((h * s, w * s), np.float32) if display.angular else None
-        for v0 in range(0, h, ROWS_PER_CHUNK):
-            vs = (np.arange(v0, min(h, v0 + ROWS_PER_CHUNK))[:, None] + sub[None, :]).ravel()
+        us = (np.arange(-m, w + m)[:, None] + sub[None, :]).ravel()
+        c = np.empty((hm * s, wm * s), np.float32)
+        r = np.empty((hm * s, wm * s), np.float32)
+        sin2 = np.empty((hm * s, wm * s), np.float32) if display.angular else None
+        for v0 in range(0, hm, ROWS_PER_CHUNK):
+            vs = (np.arange(v0 - m, min(hm, v0 + ROWS_PER_CHUNK) - m)[:, None] + sub[None, :]).ravel()
             o, d = self.lens.rays(*np.meshgrid(us, vs))
             cc, rr = display.hit(o, d, pose)
             c[v0 * s:v0 * s + len(vs)] = cc
             r[v0 * s:v0 * s + len(vs)] = rr
             if sin2 is not None:
                 sin2[v0 * s:v0 * s + len(vs)] = display.sin2_view(d, pose)
-        cm = c.reshape(h, s, w, s).mean(axis=(1, 3), dtype=np.float64)
-        rm = r.reshape(h, s, w, s).mean(axis=(1, 3), dtype=np.float64)
+        cm = c.reshape(hm, s, wm, s).mean(axis=(1, 3), dtype=np.float64)
+        rm = r.reshape(hm, s, wm, s).mean(axis=(1, 3), dtype=np.float64)
         seen = (cm >= -0.5) & (cm <= display.width_px - 0.5) & (rm >= -0.5) & (rm <= display.height_px - 0.5)
-        if not seen.any():
+        sensor = (slice(m, m + h), slice(m, m + w))
+        if not seen[sensor].any():
             raise InputError("simulated rig", f"the camera does not see the display "
                              f"({display.width_px}x{display.height_px} px) at {_where(pose)}: its field spans "
                              f"columns {c.min():.0f}..{c.max():.0f} and rows {r.min():.0f}..{r.max():.0f}; "
@@ -154,15 +180,16 @@ class SimCamera:
         x, y = cm * px, rm * py
         z = display.bow(x, y)[0] if display.bow_mm else np.zeros_like(cm)
         pts = pose.to_wcs(np.stack([x, y, z], axis=-1))
-        blur = self.lens.blur_diameter_px(*self.lens.pixel_grid(), pts).astype(np.float32)
-        return View(c, r, window, blur, np.stack([cm, rm], axis=-1), pts, sin2, seen)
+        u, v = np.meshgrid(np.arange(-m, w + m, dtype=np.float64), np.arange(-m, h + m, dtype=np.float64))
+        blur = self.lens.blur_diameter_px(u, v, pts).astype(np.float32)
+        return View(c, r, window, blur, np.stack([cm, rm], axis=-1)[sensor], pts[sensor], sin2, seen[sensor], m)
 
     def irradiance(self, display_image: np.ndarray, display: SimDisplay, pose: DisplayPose) -> np.ndarray:
         """(H, W) float32 blurred, pixel-integrated display luminance seen by each pixel (relative
         units: 1 = a fully lit display area at value 255), before vignetting and gain."""
         v = self.view(display, pose)
         radiance = display.luminance_at(display_image, v.c, v.r, v.window, v.sin2)
-        return blur_and_integrate(radiance, self.supersample, v.blur_px, self.sigma_px)
+        return v.crop(blur_and_integrate(radiance, self.supersample, v.blur_px, self.sigma_px))
 
     def electrons(self, display_image: np.ndarray, display: SimDisplay, pose: DisplayPose) -> np.ndarray:
         """(H, W) expected photo-electrons (and hot pixels' dark electrons) of each pixel: the display's

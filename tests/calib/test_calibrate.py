@@ -95,3 +95,20 @@ def test_simulated_brown_lens_against_truth(sim_brown, tmp_path):
                  "-o", str(tmp_path / "show")]) == 0
     assert (tmp_path / "show" / "error.png").is_file()
     assert json.loads((tmp_path / "rep" / "display_response.json").read_text())["levels"]
+
+
+def test_an_in_focus_display_grid_does_not_move_the_rays_through_the_weights(tmp_path):
+    # a telecentric lens with the bench's pixel footprint (3 camera pixels per display pixel) resolves the
+    # display's pixel grid at its in-focus middle position: a pixel's fringe modulation and its decoding
+    # error both follow the grid (the rows are 85 % lit: the y fringes), so weighting each point by its
+    # own modulation moved the rays by 1.75 um along y as a whole; the weights from the modulation
+    # averaged over a window do not
+    sim = pytest.importorskip("scanners.sim.calibration")
+    out = tmp_path / "tele"
+    capture = sim.simulate_calibration(out, lens="telecentric", width=160, height=128, z_positions=(0.0, 25.0, 50.0),
+                                       periods=(30, 240, 1920), stage_error_um=0.0, lens_options={"pixel_mm": 0.0053})
+    truth = load_prvm(out / "truth.npz")
+    cal = calibrate_camera(capture, refine=False)
+    err_um = 1000 * (cal.prvm.at_z(0.0) - truth.at_z(0.0))[cal.prvm.valid][:, :2]
+    assert abs(err_um[:, 1].mean()) < 0.2
+    assert np.sqrt(np.mean(err_um ** 2)) < 1.0

@@ -104,6 +104,27 @@ def test_no_refine_poses_is_refused_for_a_hand_held_capture(synthetic, tmp_path,
     assert "--no-refine-poses" in err and len(err.strip().splitlines()) == 1
 
 
+def test_uncertainty_moves_from_the_working_planes_to_the_wcs_planes_along_each_ray():
+    # rays along the working frame's z, which is the WCS turned by 20 degrees about x: a ray crosses the
+    # working planes z_w = 100, 200 (1-sigma 1 and 2 um) and the WCS plane z = c at distances along it
+    # that a hand computation gives; between them the 1-sigma is interpolated (independent errors)
+    from calib.handheld import _wcs_sigma
+    from calib.prvm import Lines
+    t = np.radians(20.0)
+    a = np.array([[1.0, 0, 0], [0, np.cos(t), -np.sin(t)], [0, np.sin(t), np.cos(t)]])       # X_wcs = A X_w
+    xy = np.array([[[0.0, 0.0], [10.0, -30.0]]])                                            # two rays
+    lines = Lines(xy, np.zeros_like(xy), np.ones((1, 2), bool), np.zeros((1, 2), np.float32),
+                  np.ones((1, 2), np.int16), 0.0).moved(a, np.zeros(3))
+    sigma = np.tile(np.array([1e-3, 2e-3], np.float32), (1, 2, 1))
+    out = _wcs_sigma(lines, sigma, (a, np.zeros(3)), (100.0, 200.0), (120.0, 250.0))
+    for i, (x, y) in enumerate(xy[0]):
+        # the ray is (x, y, s) in the working frame; its WCS z is sin(t) y + cos(t) s
+        for j, z in enumerate((120.0, 250.0)):
+            s = (z - np.sin(t) * y) / np.cos(t)
+            lam = (s - 100.0) / 100.0
+            assert out[0, i, j] == pytest.approx(np.hypot((1 - lam) * 1e-3, lam * 2e-3), rel=1e-5)
+
+
 @pytest.mark.slow
 def test_simulated_noncentral_hand_held(tmp_path):
     """The simulated rig (a non-central lens, 6 poses at 300-600 mm tilted up to 35 degrees, 320 x 256):

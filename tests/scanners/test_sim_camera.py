@@ -1,5 +1,7 @@
 """The simulated camera: what it renders is what the true rays, display and sensor physics say."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.special import j1
@@ -152,6 +154,28 @@ def test_defocus_lowers_fringe_contrast_as_the_thin_lens_blur_circle_says():
     pixel_mtf = lambda f: np.sinc(f)                                 # noqa: E731 - pixel area integration
     predicted = abs(2 * j1(x) / x) * pixel_mtf(contrast[40.0, "f"]) / pixel_mtf(contrast[0.0, "f"])
     assert contrast[40.0] / contrast[0.0] == pytest.approx(predicted, abs=0.05)
+
+
+def test_a_border_pixel_of_a_defocused_view_sees_what_a_larger_sensor_sees_there():
+    # the blur mixes into a border pixel the light the lens images beyond the sensor's edge (not a mirror
+    # image of the sensor's own): the same lens on a sensor 10 pixels larger all round (the same rays,
+    # shifted principal point) records the same irradiance at the shared pixels, border rows included
+    lens = make_lens("brown", width=W, height=H, f_number=2.0, focus_mm=400.0, offset_mm=(0, 0), roll_deg=0.0)
+    k = 10
+    larger = dataclasses.replace(lens, width=W + 2 * k, height=H + 2 * k, cx=lens.cx + k, cy=lens.cy + k)
+    period = 12
+    wave = lambda n: np.cos(2 * np.pi * np.arange(n) / period)      # noqa: E731 - fringes along both axes
+    img = np.uint8(np.rint(127.5 + 63.75 * (wave(1920)[None, :] + wave(1080)[:, None])))
+    display = SimDisplay(gamma=1.0, black_level=0.0, fill_factor=(1.0, 1.0), stripes=1)
+    small_cam, large_cam = SimCamera(lens), SimCamera(larger)
+    small = small_cam.irradiance(img, display, staged(40.0))
+    large = large_cam.irradiance(img, display, staged(40.0))[k:-k, k:-k]
+    assert float(np.median(small_cam.view(display, staged(40.0)).blur_px)) > 3.0        # a wide blur
+    assert small_cam.view(display, staged(40.0)).margin >= 3
+    swing = float(small.max() - small.min())
+    assert np.abs(small - large).max() < 1e-4 * swing
+    # the pattern changes within the blur's reach of the border (a mirror image there would differ)
+    assert np.abs(small[:, 0] - small[:, 4]).max() > 0.05 * swing and np.abs(small[0] - small[4]).max() > 0.05 * swing
 
 
 def test_the_default_bench_display_covers_the_camera_field():
