@@ -88,25 +88,27 @@ def _opencv_chessboard(capture, camera, width, height):
         return None
 
 
-def repeat_noise_px(capture, raw, truth, sensor_seed: int = 1, **simulate) -> float:
-    """RMS (camera px, working plane) of the unregularised rays' random error: the RMS difference, over
-    sqrt 2, between `raw` and the lines from a second simulation of the same bench (`simulate`:
-    simulate_calibration's arguments) whose camera has other noise (`sensor_seed`). What is left of the
-    unregularised error beyond this is systematic (the display's pixel grid, seen through the decoding),
-    and is for the regularisation to remove."""
-    from calib.calibration import decode_all, fit_rays
+def repeat_noise_px(capture, cal, truth, sensor_seed: int = 1, **simulate) -> tuple[float, float]:
+    """RMS (camera px, working plane) of the random error of the calibration `cal` of `capture`, from its
+    unregularised and from its regularised rays: the RMS difference, over sqrt 2, between `cal`'s rays and
+    those of a second simulation of the same bench (`simulate`: simulate_calibration's arguments) whose
+    camera has other noise (`sensor_seed`). What is left of an error beyond this is systematic (the stage
+    floor, the display's pixel grid seen through the decoding, the regularisation's bias)."""
+    from calib.calibration import calibrate_camera
     from calib.capture import load_capture
     from calib.evaluate import footprint_mm, working_plane
     from scanners.sim.calibration import simulate_calibration
     path = Path(capture.root).with_name(Path(capture.root).name + f"_sensor{sensor_seed}")
     simulate_calibration(path, sensor_seed=sensor_seed, **simulate)
-    again = load_capture(path)
-    positions, _, _ = decode_all(again, "cam0")
-    other = fit_rays(again, positions)
+    again = calibrate_camera(load_capture(path))
     z = working_plane(truth)
-    ok = raw.valid & other.valid
-    diff = np.linalg.norm(raw.at(z) - other.at(z), axis=-1)[ok] / footprint_mm(truth, z)
-    return float(np.sqrt(np.mean(diff ** 2) / 2))
+    footprint = footprint_mm(truth, z)
+
+    def noise(a, b, valid) -> float:
+        diff = np.linalg.norm(a - b, axis=-1)[valid] / footprint
+        return float(np.sqrt(np.mean(diff ** 2) / 2))
+    return (noise(cal.raw.at(z), again.raw.at(z), cal.raw.valid & again.raw.valid),
+            noise(cal.prvm.at_z(z)[..., :2], again.prvm.at_z(z)[..., :2], cal.prvm.valid & again.prvm.valid))
 
 
 def _stats(prvm, truth) -> dict:
@@ -129,7 +131,7 @@ def accuracy(lens: str, width: int, height: int, root: str, chessboard: bool = T
     cal = calibrate_camera(capture)
     raw = PRVM(cal.raw.origin(), cal.raw.direction(), cal.raw.valid)
     res = {"raw": _stats(raw, truth), "reg": _stats(cal.prvm, truth),
-           "noise": repeat_noise_px(capture, cal.raw, truth, **bench),
+           "noise": repeat_noise_px(capture, cal, truth, **bench),
            "bound": phase_noise_bound_px(capture, cal, truth), "floor": stage_floor(truth)}
     pts = [capture.display_to_wcs(p.coord[0], p.coord[1], p.z_mm) for p in cal.positions]
     obj, img = dense_correspondences(pts, [p.valid for p in cal.positions])
@@ -222,8 +224,10 @@ def run(quick: bool = False) -> list[Figure]:
                                ok=reg["plane"].rms <= 0.02))
             figs.append(Figure(g, "ray error p99, regularised (plane)", reg["plane"].p99, "px", goal="<= 0.06",
                                ok=reg["plane"].p99 <= 0.06))
-            figs.append(Figure(g, "ray noise RMS, unregularised (plane; two captures)", r["noise"], "px",
-                               "phase-noise bound", r["bound"], "<= 1.2x bound", r["noise"] <= 1.2 * r["bound"]))
+            noise, noise_reg = r["noise"]
+            figs.append(Figure(g, "ray noise RMS, unregularised (plane; two captures)", noise, "px",
+                               "phase-noise bound", r["bound"], "<= 1.2x bound", noise <= 1.2 * r["bound"]))
+            figs.append(Figure(g, "ray noise RMS, regularised (plane; two captures)", noise_reg, "px"))
             figs.append(Figure(g, "ray error RMS, unregularised (plane; noise + systematic)", raw["plane"].rms, "px",
                                "phase-noise bound", r["bound"]))
             # the issue's 10x (and 1.5x) goals are stated for the plane error; the volume figure beside it
