@@ -88,6 +88,12 @@ def _opencv_chessboard(capture, camera, width, height):
         return None
 
 
+def _raw_prvm(cal):
+    """The unregularised rays of the calibration `cal` as a PRVM (WCS, origins on the lines' plane z_ref)."""
+    from calib.prvm_file import PRVM
+    return PRVM(cal.raw.origin(), cal.raw.direction(), cal.raw.valid, meta={"reference_z_mm": cal.raw.z_ref})
+
+
 def repeat_noise_px(capture, cal, truth, sensor_seed: int = 1, **simulate) -> tuple[float, float]:
     """RMS (camera px, working plane) of the random error of the calibration `cal` of `capture`, from its
     unregularised and from its regularised rays: the RMS difference, over sqrt 2, between `cal`'s rays and
@@ -96,7 +102,7 @@ def repeat_noise_px(capture, cal, truth, sensor_seed: int = 1, **simulate) -> tu
     floor, the display's pixel grid seen through the decoding, the regularisation's bias)."""
     from calib.calibration import calibrate_camera
     from calib.capture import load_capture
-    from calib.evaluate import footprint_mm, working_plane
+    from calib.evaluate import footprint_mm, ray_error_px, working_plane
     from scanners.sim.calibration import simulate_calibration
     path = Path(capture.root).with_name(Path(capture.root).name + f"_sensor{sensor_seed}")
     simulate_calibration(path, sensor_seed=sensor_seed, **simulate)
@@ -104,11 +110,10 @@ def repeat_noise_px(capture, cal, truth, sensor_seed: int = 1, **simulate) -> tu
     z = working_plane(truth)
     footprint = footprint_mm(truth, z)
 
-    def noise(a, b, valid) -> float:
-        diff = np.linalg.norm(a - b, axis=-1)[valid] / footprint
+    def noise(a, b) -> float:
+        diff = ray_error_px(a, b, z_mm=z, footprint=footprint)[a.valid & b.valid]
         return float(np.sqrt(np.mean(diff ** 2) / 2))
-    return (noise(cal.raw.at(z), again.raw.at(z), cal.raw.valid & again.raw.valid),
-            noise(cal.prvm.at_z(z)[..., :2], again.prvm.at_z(z)[..., :2], cal.prvm.valid & again.prvm.valid))
+    return noise(_raw_prvm(cal), _raw_prvm(again)), noise(cal.prvm, again.prvm)
 
 
 def _stats(prvm, truth) -> dict:
@@ -129,8 +134,7 @@ def accuracy(lens: str, width: int, height: int, root: str, chessboard: bool = T
     simulate_calibration(out, chessboard=chessboard, **bench)
     capture, truth = load_capture(out), load_prvm(out / "truth.npz")
     cal = calibrate_camera(capture)
-    raw = PRVM(cal.raw.origin(), cal.raw.direction(), cal.raw.valid)
-    res = {"raw": _stats(raw, truth), "reg": _stats(cal.prvm, truth),
+    res = {"raw": _stats(_raw_prvm(cal), truth), "reg": _stats(cal.prvm, truth),
            "noise": repeat_noise_px(capture, cal, truth, **bench),
            "bound": phase_noise_bound_px(capture, cal, truth), "floor": stage_floor(truth)}
     pts = [capture.display_to_wcs(p.coord[0], p.coord[1], p.z_mm) for p in cal.positions]
