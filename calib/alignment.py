@@ -50,7 +50,7 @@ class PrvmRays:
     """The rays of a PRVM (its WCS, mm), bilinear between pixel centres (exact at integer pixels).
 
     centre: (3,) the projection centre (the point nearest to all rays, e.g.
-    `stereodic.virtual.fit_optical_centre`), for the distance and the expected crosshair.
+    `stereodic.virtual.camera.fit_optical_centre`), for the distance and the expected crosshair.
     """
 
     kind = "prvm"

@@ -8,7 +8,7 @@ and the display's response curve seen through that filter), and the lens bends e
 more than their neighbourhood would suggest. So the mosaic is taken apart into its four sub-lattices
 (one per position in the 2 x 2 block: the two greens are two sub-lattices), and each is
 
-- decoded as a camera of its own (`calib.calibration.decode_all` on a view of the capture that reads
+- decoded as a camera of its own (`calib.positions.decode_positions` on a view of the capture that reads
   only that sub-lattice): its own intensity matrix and display response, its own modulation thresholds;
 - regularised as a smooth field of its own (`smooth_planes`), on its own lattice (a window of W camera
   pixels is W / 2 sub-lattice pixels).
@@ -32,6 +32,9 @@ from calib.capture import Capture, Frame
 from calib.decode import DecodedPosition
 from calib.errors import InputError
 from calib.intensity import IntensityMatrix
+from calib.positions import decode_positions
+from calib.prvm import Lines
+from calib.ray_field import AUTO, auto_smoother, smooth_plane
 
 # sub-lattices: (row, column) offsets within the 2 x 2 block
 OFFSETS = ((0, 0), (0, 1), (1, 0), (1, 1))
@@ -124,14 +127,13 @@ def _assemble(parts: list, shape: tuple[int, ...], dtype) -> np.ndarray:
 
 
 def decode_bayer(capture: Capture, camera: str) -> tuple[list[DecodedPosition], BayerIntensity | None, list[str]]:
-    """`calib.calibration.decode_all` for a Bayer camera: each sub-lattice decoded as its own camera
+    """`calib.sensor.decode_all` for a Bayer camera: each sub-lattice decoded as its own camera
     (module docstring), the results put back together photosite by photosite."""
-    from calib.calibration import decode_all
     w, h = capture.cameras[camera]
     names = colours(capture.bayer[camera])
     per = []
     for off in OFFSETS:
-        positions, im, notes = decode_all(sublattice(capture, camera, off), camera)
+        positions, im, notes = decode_positions(sublattice(capture, camera, off), camera)
         per.append((positions, im, [f"{names[off]} photosites at {off}: {n}" for n in notes]))
     merged = []
     for k, first in enumerate(per[0][0]):
@@ -160,11 +162,9 @@ def _sub_position(p: DecodedPosition, offset: tuple[int, int]) -> DecodedPositio
 
 
 def smooth_planes(pattern: str, positions: list[DecodedPosition], smoother):
-    """The `smooth(lines, z_mm)` of `calib.calibration.regularise_lines` for a Bayer camera: each
+    """The `smooth(lines, z_mm)` of `calib.sensor.regularise_lines` for a Bayer camera: each
     sub-lattice's points on the plane smoothed as a field of its own (`smoother` as there; a fixed
     `Smoother`'s window is halved, as a sub-lattice pixel spans two camera pixels)."""
-    from calib.calibration import AUTO, auto_smoother, smooth_plane
-    from calib.prvm import Lines
 
     def own(off):
         if smoother is None or smoother == AUTO:

@@ -1,7 +1,7 @@
 """Calibration without a stage: the display held still in several unknown poses (the seed's tip 2.3,
 DESIGN.md's stage-free captures, frames with `pose`).
 
-1. Every pose decoded as on a stage (`calib.calibration.decode_all`: the intensity matrix from the
+1. Every pose decoded as on a stage (`calib.sensor.decode_all`: the intensity matrix from the
    flats, which may be at one pose only, then display coordinates per pixel).
 2. Starting poses from a central camera fitted to block means of the correspondences
    (`calib.pose_init`), in that camera's frame (its z along the optical axis: the working frame).
@@ -10,7 +10,7 @@ DESIGN.md's stage-free captures, frames with `pose`).
    shown) is reported and left out, and the others refined again, as long as `MIN_POSES` remain.
 4. Every pixel's ray fitted through its points at the refined poses (`calib.prvm.fit_posed_lines`, in
    the working frame), then regularised and given its uncertainty as on a stage
-   (`calib.calibration.regularise_lines`) on two planes z = const of the working frame (across the
+   (`calib.sensor.regularise_lines`) on two planes z = const of the working frame (across the
    optical axis) spanning where the displays were, and expressed in the WCS: the display's frame at pose
    0 (x along its columns, y along its rows, z away from the camera). Planes across the axis, not
    along pose 0's display (tilted by up to tens of degrees): a tilted plane's points are a perspective
@@ -33,7 +33,10 @@ from calib.capture import MIN_POSES, Capture
 from calib.errors import InputError
 from calib.pose_init import central_start
 from calib.poses import OUT_OF_FAMILY, PoseFit, log_so3, pose_sample, refine_poses
-from calib.prvm import Lines
+from calib.positions import dropped_quality, point_weights
+from calib.prvm import Lines, fit_posed_lines
+from calib.ray_field import Calibration, coverage_notes, ray_meta, ray_prvm
+from calib.sensor import decode_all, regularise_lines
 
 # the planes of the regularisation (working frame) and of the uncertainty (WCS): these quantiles of the
 # z of the displays' points in that frame
@@ -161,11 +164,8 @@ def _report(poses: list[int], fit: PoseFit, active: np.ndarray, chi: np.ndarray,
 
 
 def calibrate_handheld(capture: Capture, camera: str, smoother, z_ref: float = 0.0):
-    """Calibrate one camera of a stage-free capture (module docstring); a `calib.calibration.Calibration`
+    """Calibrate one camera of a stage-free capture (module docstring); a `calib.ray_field.Calibration`
     whose `poses` is the `PoseReport`."""
-    from calib.calibration import (Calibration, decode_all, dropped_quality, point_weights, ray_meta, ray_prvm,
-                                   regularise_lines, _coverage_notes)
-    from calib.prvm import fit_posed_lines
     poses = capture.poses(camera)
     if len(poses) < MIN_POSES:
         raise InputError(capture.manifest_path, f"camera {camera!r} has frames at {len(poses)} display pose(s); "
@@ -194,7 +194,7 @@ def calibrate_handheld(capture: Capture, camera: str, smoother, z_ref: float = 0
     quality = dropped_quality([positions[k] for k in idx])
     if not posed.lines.valid.any():
         raise InputError(capture.manifest_path, f"camera {camera!r}: no pixel was decoded at 2 or more poses")
-    notes += _coverage_notes(camera, quality, posed.lines.valid)
+    notes += coverage_notes(camera, quality, posed.lines.valid)
 
     report = _report(poses, fit, active, chi, start.rms_px, posed.rms_mm)
     used_positions = [positions[k] for k in idx]

@@ -30,6 +30,7 @@ import numpy as np
 
 from calib.capture import Capture
 from calib.decode import DecodedPosition
+from calib.positions import point_weights
 from calib.poses import PoseFit, information, log_so3, pose_sample, refine_poses, staged_basis
 
 SIGNIFICANCE = 5.0
@@ -86,7 +87,6 @@ class StageFit:
 
 def estimate_stage(capture: Capture, positions: list[DecodedPosition]) -> StageFit:
     """Refine the display's pose at each of 3 or more stage positions (module docstring)."""
-    from calib.calibration import point_weights
     z = np.array([p.z_mm for p in positions])
     ax, ay, az = capture.stage_axis
     nominal = np.stack([z * ax / az, z * ay / az, z], axis=1)

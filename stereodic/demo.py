@@ -74,7 +74,7 @@ def scan(out: Path) -> None:
     from scanners.sim.scan_scene import Sphere, surface_from_dict
     import open3d as o3d
 
-    from stereodic.fit import fit_sphere
+    from stereodic.scan.fit import fit_sphere
     data = out / "scan"
     _run("simulate", "scan", "--objects", "sphere", "--width", DEMO_SIZE[0], "--height", DEMO_SIZE[1],
          "-o", str(data))
@@ -116,7 +116,7 @@ def dic3d(out: Path) -> None:
     The rectified pair's overlay shows the row alignment (speckle has the texture it needs). States:
     translation, rotation, 1 % tension, bulge; the tension state's strain is held against the truth."""
     from scanners.sim.dic import load_dic_truth, truth_at_pixels
-    from stereodic.rig import load_rig
+    from stereodic.stereo.rig import load_rig
     data = out / "dic3d"
     _run("simulate", "dic", "-o", str(data))
     _run("rectify", str(data / "rig.npz"), str(data / "s000" / "cam0.png"), str(data / "s000" / "cam1.png"), "-o",

@@ -29,7 +29,7 @@ diffraction blur, pixel integration, vignetting, PRNU, shot and read noise and 8
 `simulate_dic` writes a `stereodic.capture/1` dataset of kind "dic" (cameras cam0 = left, cam1 = right,
 one image per camera and state: s{state:03d}/cam{k}.png), the TRUE camera models as PRVMs
 (truth_cam0.npz, truth_cam1.npz; the `simulate dic` command adds rig.npz, their rectified pair built by
-`stereodic.rig`) and truth.npz (`DicTruth`). `truth_at_pixels` gives the truth at the points the left
+`stereodic.stereo.rig`) and truth.npz (`DicTruth`). `truth_at_pixels` gives the truth at the points the left
 camera sees at given real pixels, through the simulator's own lens rays and the plate's geometry.
 """
 

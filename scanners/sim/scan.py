@@ -16,7 +16,7 @@ Rendering one camera frame:
 right; one state per scene; the projector's fringes along its columns, for each period its number of
 steps, per state and camera), with a top-level `projector` block (panel size, gamma, axis, periods, steps), the true
 PRVMs truth_cam0.npz / truth_cam1.npz (the `simulate scan` command adds rig.npz, their rectified pair
-built by `stereodic.rig`), and truth.npz whose `meta` lists every state's exact surfaces.
+built by `stereodic.stereo.rig`), and truth.npz whose `meta` lists every state's exact surfaces.
 """
 
 from __future__ import annotations
@@ -275,7 +275,7 @@ def simulate_scan(out_dir: str | os.PathLike, *, scenes: list[Scene] | None = No
     -------
     capture : Capture
         The loaded dataset (kind "scan", cameras cam0 = left, cam1 = right); beside it truth_cam0.npz and
-        truth_cam1.npz (true rays, WCS mm; `stereodic.rig.build_rig` makes their rectified pair) and
+        truth_cam1.npz (true rays, WCS mm; `stereodic.stereo.rig.build_rig` makes their rectified pair) and
         truth.npz (`load_truth`).
     """
     rig = rig or default_scan_rig(seed=seed)
@@ -306,7 +306,7 @@ def simulate_scan(out_dir: str | os.PathLike, *, scenes: list[Scene] | None = No
     p = rig.projector
     geometry = {"centre_mm": p.centre_mm.tolist(), "rotation": p.rotation.tolist(), "fx": p.fx, "fy": p.fy,
                 "cx": p.cx, "cy": p.cy, "k1": p.k1, "k2": p.k2, "distance_mm": p.distance_mm}
-    meta = {"format": "stereodic.scan-truth/1", "units": "WCS mm", "volume_mm": list(VOLUME_MM),
+    meta = {"format": "stereodic.scan.pipeline-truth/1", "units": "WCS mm", "volume_mm": list(VOLUME_MM),
             "L0_mm": L0_MM, "projector": {**p.record(), **geometry}, "ambient": rig.ambient,
             "states": [{"state": k, **sc.describe()} for k, sc in enumerate(scenes)]}
     write_npz(out / "truth.npz", meta=np.array(json.dumps(meta)))

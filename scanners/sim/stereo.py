@@ -14,7 +14,7 @@ Datasets (`simulate_stereo`):
 - separate: each camera calibrated on its own, facing the display straight (its axis along +z, centred
   on the display) in its own display WCS: left/ and right/ (each a dataset of one camera with its
   truth.npz); then register/, a joint dataset of both cameras in the stereo pose (the common WCS)
-  used only for the registration (`stereodic.register`): each camera's own rays are mapped into the
+  used only for the registration (`stereodic.stereo.register`): each camera's own rays are mapped into the
   common WCS by the rigid transform that best aligns them with the same pixels' rays decoded in
   register/. registration_truth.json holds the true transforms (X_common = R X_own + t).
 """

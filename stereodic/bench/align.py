@@ -55,7 +55,7 @@ def _error(m, cam) -> tuple[float, float]:
 def _prvm_rays(family: str, size):
     from calib.alignment import PrvmRays
     from scanners.sim.lenses import make_lens
-    from stereodic.virtual import fit_optical_centre
+    from stereodic.virtual.camera import fit_optical_centre
     prvm = make_lens(family, width=size[0], height=size[1], seed=0, pixel_mm=0.0053 * 1280 / size[0]).true_prvm()
     return PrvmRays(prvm, fit_optical_centre(prvm)[0])
 

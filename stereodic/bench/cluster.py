@@ -86,7 +86,7 @@ def _scan_batch(root: Path, datasets: int, width: int, height: int) -> Path:
     import shutil
 
     from scanners.sim.scan import default_scan_rig, simulate_scan, standard_scenes
-    from stereodic.rig import rig_from_files, save_rig
+    from stereodic.stereo.rig import rig_from_files, save_rig
     sim = root / "sim"
     simulate_scan(sim, scenes=standard_scenes(objects=("sphere",))[:1] + standard_scenes(objects=("plane",))[:1],
                   rig=default_scan_rig(width=width, height=height), periods=SCAN_PERIODS)

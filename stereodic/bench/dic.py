@@ -168,7 +168,7 @@ def _stereo(quick: bool) -> list[Figure]:
     from stereodic.dic import DicSettings, make_grid
     from stereodic.dic3d.dataset import load_states
     from stereodic.dic3d.stereo import StereoDic, StereoSettings
-    from stereodic.rig import load_rig, rig_from_files, save_rig
+    from stereodic.stereo.rig import load_rig, rig_from_files, save_rig
 
     width, height = (640, 512) if quick else (1280, 1024)
     figures = []

@@ -33,7 +33,7 @@ GOAL_PEAK_BYTES = 1.5 * 2 ** 30
 
 def _speed_sequence(root: Path, width: int, height: int, states: int) -> None:
     from scanners.sim.dic import DicState, simulate_dic
-    from stereodic.rig import rig_from_files, save_rig
+    from stereodic.stereo.rig import rig_from_files, save_rig
     seq = [DicState("reference")] + [DicState(f"load {k}", stretch=(1 + 0.0005 * k, 1 - 0.00015 * k),
                                               translation_mm=(0.03 * k, -0.02 * k, 0.05 * k)) for k in range(1, states)]
     simulate_dic(root, seq, width=width, height=height, supersample=1)
@@ -47,7 +47,7 @@ def _states_per_second(root: str) -> tuple[float, float, int]:
     from stereodic.dic3d.run import run_states, write_outputs
     from stereodic.dic3d.stereo import StereoSettings
     from stereodic.dic3d.store import RunStore
-    from stereodic.rig import load_rig
+    from stereodic.stereo.rig import load_rig
     rig = load_rig(f"{root}/rig.npz")
     data = load_states(root, rig)
     grid = make_grid(rig.sensor.width, rig.sensor.height, subset=25, step=10)
@@ -68,7 +68,7 @@ def _repeated_sequence(root: Path, count: int) -> Path:
     """A folder of `count` image pairs (hard links to 9 rendered states: reference, then 8 motions
     repeated) in DICe's naming."""
     from scanners.sim.dic import DicState, simulate_dic
-    from stereodic.rig import rig_from_files, save_rig
+    from stereodic.stereo.rig import rig_from_files, save_rig
     seq = [DicState("reference")] + [DicState(f"m{k}", translation_mm=(0.1 * k, -0.05 * k, 0.2 * k),
                                               stretch=(1 + 0.001 * k, 1 - 0.0003 * k)) for k in range(1, 9)]
     simulate_dic(root / "sim", seq, width=640, height=512, supersample=1)

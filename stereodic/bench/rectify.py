@@ -12,9 +12,9 @@ import numpy as np
 from scanners.sim.lenses import LENS_FAMILIES, make_lens
 from stereodic.bench import Figure, best_time, rig
 from stereodic.bench.lines import line_centres, render_lines, straightness_rms
-from stereodic.imm import apply_imm, build_imm
-from stereodic.sampling import bilinear
-from stereodic.virtual import default_camera, fit_optical_centre, miss_in_pixels
+from stereodic.virtual.imm import apply_imm, build_imm
+from stereodic.virtual.sampling import bilinear
+from stereodic.virtual.camera import default_camera, fit_optical_centre, miss_in_pixels
 
 GROUP = "rectify"
 FULL = (2592, 2048)  # 5 MP

@@ -27,10 +27,10 @@ import numpy as np
 
 from scanners.sim.stereo import project_true, simulate_stereo, stereo_lenses
 from stereodic.bench import Figure
-from stereodic.rig import Rig, build_rig
-from stereodic.sampling import bilinear
-from stereodic.triangulate import triangulate
-from stereodic.virtual import project_to_plane
+from stereodic.stereo.rig import Rig, build_rig
+from stereodic.virtual.sampling import bilinear
+from stereodic.stereo.triangulate import triangulate
+from stereodic.virtual.camera import project_to_plane
 
 GROUP = "rectify"
 CENTRAL_MIXES = (("brown", "brown"), ("brown", "freeform"), ("freeform", "scheimpflug"))
@@ -104,7 +104,7 @@ def evm_triangulation(quick: bool) -> list[Figure]:
 
 def export_exactness(quick: bool) -> list[Figure]:
     """cv2.triangulatePoints with the exported P1, P2 against our plane points."""
-    from stereodic.export_rig import stereo_matrices
+    from stereodic.stereo.export import stereo_matrices
     lenses, prvms = _pair("brown", "freeform", *((320, 256) if quick else (1280, 1024)))
     rig = build_rig(*prvms)
     m = stereo_matrices(rig)
@@ -121,7 +121,7 @@ def export_exactness(quick: bool) -> list[Figure]:
 def rectify_speed(quick: bool) -> list[Figure]:
     """Rectifying one 8-bit pair (IMM only, float maps)."""
     from stereodic.bench import best_time
-    from stereodic.rectify import rectify_pair
+    from stereodic.stereo.rectify import rectify_pair
     size = (640, 512) if quick else (1280, 1024)
     lenses, prvms = _pair("brown", "brown", *size)
     t0 = time.perf_counter()

@@ -18,7 +18,7 @@ Figures, each from the cloud after statistical outlier removal, the points withi
   SD  sphere-spacing error: fitted minus true centre distance of the ball bar (largest magnitude, 7 poses)
   F   flatness: range of residuals of a least-squares plane (max over plate poses)
 Methods: "virtual pair + EVM" (the scan: rectified virtual pair, filtered phase, model-less rays);
-"... no phase filter" (the same without `stereodic.phase_filter`); "virtual pair, pinhole rays" (the
+"... no phase filter" (the same without `stereodic.scan.phase_filter`); "virtual pair, pinhole rays" (the
 scan's matches, pinhole rays: no EVM); "OpenCV stereoRectify" (each camera's OpenCV model - 14
 coefficients, fitted to its true rays - cv2.stereoRectify, the phase maps rectified with
 initUndistortRectifyMap and filtered like ours, the same 1-D matcher, cv2.triangulatePoints).
@@ -50,18 +50,18 @@ from calib.capture import Capture
 from calib.opencv_baseline import calibrate_opencv
 from calib.imageio import write_gray
 from calib.phase import phase_sigma
-from stereodic.scan import SMOOTH_PX, match_and_triangulate, scan_state, virtual_phase
+from stereodic.scan.pipeline import SMOOTH_PX, match_and_triangulate, scan_state, virtual_phase
 from scanners.sim.scan import (CAMERAS, DEFAULT_PERIODS, L0_MM, ScanRig, default_scan_rig, lit_view, load_truth,
                                render_frame,
                                scan_frames, simulate_scan, standard_scenes)
 from scanners.sim.scan_scene import Plane, Sphere, surface_from_dict
 from stereodic.bench import Figure, best_time
-from stereodic.cloud import make_cloud
-from stereodic.fit import fit_plane, fit_sphere, trimmed_range
-from stereodic.matching import match_rows
-from stereodic.phase_filter import convolve, smooth_phase
-from stereodic.rig import build_rig, load_rig, rig_from_files, save_rig
-from stereodic.triangulate import triangulate
+from stereodic.scan.cloud import make_cloud
+from stereodic.scan.fit import fit_plane, fit_sphere, trimmed_range
+from stereodic.scan.matching import match_rows
+from stereodic.scan.phase_filter import convolve, smooth_phase
+from stereodic.stereo.rig import build_rig, load_rig, rig_from_files, save_rig
+from stereodic.stereo.triangulate import triangulate
 
 GROUP = "scan"
 GOAL_UM = 10.0

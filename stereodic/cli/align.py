@@ -105,7 +105,7 @@ def _intrinsics(path: str | None):
     suffix = Path(path).suffix.lower()
     if suffix == ".npz":
         from calib.prvm_file import load_prvm
-        from stereodic.virtual import fit_optical_centre
+        from stereodic.virtual.camera import fit_optical_centre
         prvm = load_prvm(path)
         return PrvmRays(prvm, fit_optical_centre(prvm)[0])
     if suffix in (".yaml", ".yml", ".xml", ".json"):

@@ -51,7 +51,7 @@ def _smoother(args):
     if args.no_regularise:
         return None
     if args.window is None:
-        from calib.calibration import AUTO
+        from calib.ray_field import AUTO
         return AUTO
     if args.window < 5 or args.window % 2 == 0:
         raise InputError("--window", f"expected an odd number of pixels >= 5, got {args.window}")
@@ -153,7 +153,7 @@ def _reduced(args, capture, smoother) -> int:
     z = zs[0] if args.position is None else (int(args.position) if capture.posed else args.position)
     if z not in zs:
         raise InputError("--position", f"camera {camera!r} has no frames at {capture.label(z)} (have {zs})")
-    from calib.calibration import AUTO, auto_smoother
+    from calib.ray_field import AUTO, auto_smoother
     decoded = decode_position(capture, camera, z, intensity_matrix(capture, camera, z))
     umap = undistort_map(decoded.coord, decoded.valid, auto_smoother([decoded]) if smoother is AUTO else smoother)
     umap.meta.update({"camera": camera, "dataset": str(capture.root), **capture.at(z)})

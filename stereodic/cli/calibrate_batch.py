@@ -1,6 +1,6 @@
 """`stereodic calibrate` of several cameras (`--camera` repeated), several datasets (or a quoted pattern
 naming them), or on a Dask cluster (`--scheduler`): each camera of each dataset is a task
-(`stereodic.batch`) that reads its dataset where it runs and writes its PRVM file (and its report), by
+(`stereodic.cluster.batch`) that reads its dataset where it runs and writes its PRVM file (and its report), by
 `calib.calibration.calibrate_camera` as a single calibration does.
 
 Outputs: one camera, -o OUT.npz as a single calibration; several, the folder -o DIR: DIR/<camera>.npz,
@@ -26,7 +26,7 @@ def calibrate_task(dataset: str, camera: str, smoother, output: str, report_dir:
     `refine`: the stage pose refinement (`calibrate_camera`'s)."""
     from calib.calibration import calibrate_camera
     from calib.capture import load_capture
-    from stereodic.batch import Done
+    from stereodic.cluster.batch import Done
     from stereodic.cli.calibrate import report, summary
     capture = load_capture(dataset)
     cal = calibrate_camera(capture, camera=camera, smoother=smoother, refine=refine and not capture.posed)
@@ -88,7 +88,7 @@ def run(args, smoother) -> int:
     from calib import __version__
     from calib.batch import BatchRecord
     from calib.errors import InputError
-    from stereodic.batch import Task, run_batch
+    from stereodic.cluster.batch import Task, run_batch
     from stereodic.cli.common import wrote
     if args.reduced:
         raise InputError("--reduced", "calibrates one camera at a time, in this process (no --scheduler, one "

@@ -228,7 +228,7 @@ def wrote(path: str | os.PathLike, summary: str = "") -> None:
 
 # The library's defaults, repeated here so that building the parser imports nothing heavy (`--help`
 # stays instant); tests/stereodic/test_cli.py checks that they equal stereodic.dic.sequence.SWITCH_ZNCC
-# and stereodic.strain_measures.MEASURES.
+# and stereodic.strain.measures.MEASURES.
 SWITCH_ZNCC = 0.9
 STRAIN_MEASURES = ("green-lagrange", "euler-almansi", "log", "engineering")
 

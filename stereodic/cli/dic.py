@@ -163,7 +163,7 @@ def run(args) -> int:
     from stereodic.dic3d import epipolar
     from stereodic.dic3d.run import run_states, write_outputs
     from stereodic.dic3d.store import RunStore
-    from stereodic.rig import load_rig
+    from stereodic.stereo.rig import load_rig
 
     rig = load_rig(args.rig)
     width, height = rig.sensor.width, rig.sensor.height
@@ -210,7 +210,7 @@ def run(args) -> int:
             "state_labels": labels}
     dice = None
     if args.columns == "dice":
-        from stereodic.dice_columns import StereoDiceWriter
+        from stereodic.formats.dice_columns import StereoDiceWriter
         dice = StereoDiceWriter(out, grid, data, settings, args.step)
     write_outputs(store, grid, out, settings, info, vtk=not args.no_vtk, plot_every=plot_every,
                   dice=dice, csv=args.columns != "dice", state_files=not args.scheduler, labels=labels)

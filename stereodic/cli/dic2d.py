@@ -96,10 +96,10 @@ def run(args) -> int:
     from stereodic.dic import DicSettings, correlate_sequence
     from stereodic.dic.output import CsvWriter, image_arrays, plot_field, write_npz
     if args.strain_window:  # strain (and its scipy) only when asked for
-        from stereodic.strain import strain_2d
-        from stereodic.strain_measures import measure_strain
+        from stereodic.strain.fit import strain_2d
+        from stereodic.strain.measures import measure_strain
     if args.columns == "dice":
-        from stereodic.dice_columns import gauge_px, header, numbered, sigma_gamma, strain_columns, write_solution
+        from stereodic.formats.dice_columns import gauge_px, header, numbered, sigma_gamma, strain_columns, write_solution
 
     _check_args(args)
     ref = read_gray(args.ref)

@@ -51,12 +51,12 @@ def run(args) -> int:
     from calib.npzfile import read_npz
     from calib.prvm_file import FORMAT as PRVM_FORMAT
     from calib.prvm_file import load_prvm
-    from stereodic.export import export_text
-    from stereodic.export_rig import export_rig
-    from stereodic.rig import FORMAT as RIG_FORMAT
-    from stereodic.rig import world_from_rig
-    from stereodic.virtual import VirtualCamera, default_camera
-    from stereodic.virtual_prvm import is_virtual
+    from stereodic.virtual.export import export_text
+    from stereodic.stereo.export import export_rig
+    from stereodic.stereo.rig import FORMAT as RIG_FORMAT
+    from stereodic.stereo.rig import world_from_rig
+    from stereodic.virtual.camera import VirtualCamera, default_camera
+    from stereodic.virtual.prvm import is_virtual
 
     meta, _ = read_npz(args.file, (PRVM_FORMAT, RIG_FORMAT), "camera or rig", keys=())   # the meta alone
     rig = meta["format"] == RIG_FORMAT
@@ -64,7 +64,7 @@ def run(args) -> int:
     if Path(args.output).is_dir() != folder and Path(args.output).exists():
         raise InputError(args.output, f"is a file; the {args.format} export of a rig is a folder" if folder else
                          "is a directory; -o/--output expects a file name")
-    if rig:  # a stereo rig (RIG.npz): stereodic.export_rig, every format
+    if rig:  # a stereo rig (RIG.npz): stereodic.stereo.export, every format
         export_rig(args.file, args.output, fmt=args.format)
         wrote(args.output, f"{args.format} stereo rig of {args.file}")
         return 0

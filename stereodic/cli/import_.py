@@ -48,7 +48,7 @@ def run(args) -> int:
 
     from calib.prvm_file import PRVM
     from stereodic.formats import import_calibration
-    from stereodic.rig import save_rig
+    from stereodic.stereo.rig import save_rig
 
     names = [n.strip() for n in args.camera.split(",")] if args.camera else None
     imp = import_calibration(args.calibration, fmt=args.format, size=args.size, units=args.units, cameras=names,

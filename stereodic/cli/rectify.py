@@ -38,8 +38,8 @@ def run(args) -> int:
     from calib.atomic import atomic_output
     from calib.imageio import read_gray, write_gray
     from calib.numbers import fixed
-    from stereodic.rectify import plot_row_alignment, rectify_pair, row_alignment
-    from stereodic.rig import load_rig
+    from stereodic.stereo.rectify import plot_row_alignment, rectify_pair, row_alignment
+    from stereodic.stereo.rig import load_rig
 
     rig = load_rig(args.rig)
     left, right = rectify_pair(rig, read_gray(args.left), read_gray(args.right), intensity=not args.no_intensity,

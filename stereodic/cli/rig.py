@@ -9,7 +9,7 @@ and the intensity matrix. See docs/stereo-rig.md for the RIG.npz format.
 
 Separately calibrated cameras: --register LEFT_REG.npz RIGHT_REG.npz are the same two cameras calibrated
 from a registration dataset seen by both (the common WCS); each camera's rays are moved into that WCS by
-the rigid transform fitted to all its pixels (stereodic.register).
+the rigid transform fitted to all its pixels (stereodic.stereo.register).
 """
 
 from __future__ import annotations
@@ -42,8 +42,8 @@ def register(sub):
 def run(args) -> int:
     from calib.errors import InputError
     from calib.prvm_file import load_prvm
-    from stereodic.register import apply_registration, estimate_registration
-    from stereodic.rig import build_rig, save_rig, wcs_name
+    from stereodic.stereo.register import apply_registration, estimate_registration
+    from stereodic.stereo.rig import build_rig, save_rig, wcs_name
 
     prvms = [load_prvm(args.left), load_prvm(args.right)]
     names = [args.left, args.right]

@@ -1,4 +1,4 @@
-"""`stereodic scan RIG.npz DATASET... -o CLOUD.ply|DIR`: structured-light scan to a point cloud (stereodic.scan).
+"""`stereodic scan RIG.npz DATASET... -o CLOUD.ply|DIR`: structured-light scan to a point cloud (stereodic.scan.pipeline).
 
 DATASET is a capture of kind "scan" (fringes projected along the projector's columns, several periods
 and steps, a top-level `projector` block with the panel's width_px); RIG.npz is the rectified pair of
@@ -10,7 +10,7 @@ A dataset with several states gives one file per state, CLOUD_s<state>.ply. Seve
 quoted pattern naming them) are a batch into the folder -o DIR: DIR/<dataset folder name>.ply (or
 _s<state>.ply per state). A batch of several scans records each one done (CLOUD.batch.json, or
 DIR/scan.batch.json: calib.batch), so that the same command after a stop does only the rest; with
---scheduler each scan is a task on a Dask cluster (stereodic.batch). See docs/scanner.md and
+--scheduler each scan is a task on a Dask cluster (stereodic.cluster.batch). See docs/scanner.md and
 docs/cluster.md.
 """
 
@@ -71,7 +71,7 @@ def _jobs(args, rig, datasets):
     """The scans: per dataset its states (`plan_scans`), named as the module docstring says."""
 
     from calib.errors import InputError
-    from stereodic.scan import plan_scans
+    from stereodic.scan.pipeline import plan_scans
     if len(datasets) == 1:
         from stereodic.cli.common import check_file_output
         check_file_output(args.output, "-o/--output")
@@ -102,10 +102,10 @@ def _inputs(job, cameras) -> dict:
 
 def scan_task(rig_path: str, rig_sha256: str, job, options: dict):
     """One scan where it runs (in this process or on a worker: the rig loaded once per process)."""
-    from stereodic.batch import Done
+    from stereodic.cluster.batch import Done
     from stereodic.cluster import per_worker
-    from stereodic.rig import load_rig
-    from stereodic.scan import scan_job
+    from stereodic.stereo.rig import load_rig
+    from stereodic.scan.pipeline import scan_job
     rig = per_worker(f"rig:{rig_path}:{rig_sha256}", lambda: load_rig(rig_path))
     return Done([(path, f"{count} {what}") for path, count, what in scan_job(rig, job, **options)])
 
@@ -118,9 +118,9 @@ def run(args) -> int:
     from calib import __version__
     from calib.batch import BatchRecord, file_sha256
     from calib.image_files import expand_datasets
-    from stereodic.batch import Task, run_batch
-    from stereodic.rig import load_rig
-    from stereodic.scan import SMOOTH_PX
+    from stereodic.cluster.batch import Task, run_batch
+    from stereodic.stereo.rig import load_rig
+    from stereodic.scan.pipeline import SMOOTH_PX
     rig = load_rig(args.rig)
     datasets = [d for v in args.dataset for d in expand_datasets(v)]
     jobs = _jobs(args, rig, datasets)

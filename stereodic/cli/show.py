@@ -63,7 +63,7 @@ def _image(data, title: str, label: str, path: Path, cmap="viridis", vmax=None, 
         vmax = float(np.percentile(finite, 99.5))
     _panel(fig, ax, data, "" if quiver is not None else title, label, cmap, 0, vmax)
     if quiver is not None:
-        from stereodic.virtual_plots import arrows
+        from stereodic.virtual.plots import arrows
         arrows(ax, *quiver, "px")
         ax.set_title(title, fontsize=10, loc="left")
     return _save(fig, path)

@@ -25,7 +25,7 @@ def register(modes) -> None:
 
 def run(args) -> int:
     from scanners.sim.dic import simulate_dic, standard_states
-    from stereodic.rig import rig_from_files, save_rig
+    from stereodic.stereo.rig import rig_from_files, save_rig
     cap = simulate_dic(args.output, standard_states(args.strain, args.poisson, args.bulge), args.width, args.height,
                        args.seed, args.lens, args.supersample, args.noise, args.tilt)
     save_rig(cap.root / "rig.npz", rig_from_files(cap.root / "truth_cam0.npz", cap.root / "truth_cam1.npz"))

@@ -31,7 +31,7 @@ def register(modes) -> None:
 def run(args) -> int:
     from calib.errors import InputError
     from scanners.sim.scan import DEFAULT_PERIODS, default_scan_rig, simulate_scan, standard_scenes
-    from stereodic.rig import rig_from_files, save_rig
+    from stereodic.stereo.rig import rig_from_files, save_rig
     objects = [o.strip() for o in args.objects.split(",") if o.strip()]
     bad = sorted(set(objects) - set(OBJECTS))
     if bad or not objects:

@@ -4,7 +4,7 @@ DIC_RESULT is a `stereodic dic` output folder (or its dic.npz) or a `stereodic d
 DIR/strain.csv (state - or image for 2-D results -, x, y, exx, eyy, exy, e_major, e_minor, e_angle,
 e_vm, strain_valid: one row per active point and state), DIR/strain.npz (x, y, active and per state
 (S, ny, nx) the same arrays) and DIR/maps/ (PNG maps of exx, eyy, exy, e_vm per state), one state in
-memory at a time (stereodic.strain_results).
+memory at a time (stereodic.strain.results).
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ def run(args) -> int:
     from stereodic.cli.common import wrote
     from stereodic.dic.maps import save_map
     from stereodic.dic.output import STRAIN_COLUMNS, fmt
-    from stereodic.strain_results import map_axes, open_result, state_labels, strains
+    from stereodic.strain.results import map_axes, open_result, state_labels, strains
 
     result = open_result(args.result)
     own = (result.meta.get("settings", {}).get("strain_window") if result.kind == "dic" else None)

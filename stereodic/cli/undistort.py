@@ -46,8 +46,8 @@ def run(args) -> int:
     from calib.imageio import check_size, read_gray, write_gray
     from calib.prvm_file import load_prvm
     from calib.progress import progress
-    from stereodic.undistort import intensity_matrix, undistort_image
-    from stereodic.virtual_prvm import as_virtual, is_virtual, save_virtual
+    from stereodic.virtual.undistort import intensity_matrix, undistort_image
+    from stereodic.virtual.prvm import as_virtual, is_virtual, save_virtual
 
     prvm = load_prvm(args.camera)
     im = None if args.no_intensity else intensity_matrix(prvm)
@@ -81,8 +81,8 @@ def run(args) -> int:
 def virtual_setup(prvm, args):
     """The default virtual camera of `prvm` with the command's options, checked to have no blank pixel."""
     from calib.errors import InputError
-    from stereodic.virtual import default_camera
-    from stereodic.virtual_prvm import make_virtual
+    from stereodic.virtual.camera import default_camera
+    from stereodic.virtual.prvm import make_virtual
 
     width, height = args.size if args.size else (None, None)
     try:

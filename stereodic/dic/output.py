@@ -2,7 +2,7 @@
 
 CSV columns: image, x, y, u, v, zncc, converged, status, iterations, noise_px [, exx, eyy, exy, e_major,
 e_minor, e_angle, e_vm, strain_valid] (the strain measure's components, principal strains, the major
-direction in degrees from x, the von Mises equivalent: `stereodic.strain_measures`).
+direction in degrees from x, the von Mises equivalent: `stereodic.strain.measures`).
 Only active grid points are written. u, v are NaN exactly where converged is 0 (status says why);
 strains are NaN exactly where strain_valid is 0.
 """
@@ -22,7 +22,7 @@ from stereodic.dic.correlate import DicField, DicSettings
 from stereodic.dic.icgn import STATUS_NAMES
 
 if TYPE_CHECKING:  # strain measures (and scipy) are loaded only by the commands that compute strain
-    from stereodic.strain_measures import StrainMeasure
+    from stereodic.strain.measures import StrainMeasure
 
 STRAIN_COLUMNS = (("exx", "exx", "%.7f"), ("eyy", "eyy", "%.7f"), ("exy", "exy", "%.7f"),
                   ("e_major", "major", "%.7f"), ("e_minor", "minor", "%.7f"), ("e_angle", "angle_deg", "%.4f"),

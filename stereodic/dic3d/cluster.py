@@ -91,7 +91,7 @@ Paths are absolute: a worker's working folder is not the client's."""
 # ------------------------------------------------------------------------------------- on a worker
 
 def _rig(spec: RunSpec):
-    from stereodic.rig import load_rig
+    from stereodic.stereo.rig import load_rig
     return per_worker(f"rig:{spec.rig}:{spec.rig_sha256}", lambda: load_rig(spec.rig))
 
 

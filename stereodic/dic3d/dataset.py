@@ -28,8 +28,8 @@ from calib.capture import Frame, load_capture
 from calib.errors import InputError
 from calib.image_files import expand, natural_key
 from calib.imageio import IMAGE_SUFFIXES, check_size, read_gray
-from stereodic.rectify import rectify_pair
-from stereodic.rig import SIDES, Rig, check_camera_sizes
+from stereodic.stereo.rectify import rectify_pair
+from stereodic.stereo.rig import SIDES, Rig, check_camera_sizes
 
 
 @dataclass

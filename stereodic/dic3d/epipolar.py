@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stereodic.rig import Rig
-from stereodic.triangulate import rays_at
+from stereodic.stereo.rig import Rig
+from stereodic.stereo.triangulate import rays_at
 
 ROW_ERROR_PX = 0.02
 

@@ -33,7 +33,7 @@ from stereodic.dic.icgn import STATUS_NAMES
 from stereodic.dic.maps import MapAxes, save_map
 from stereodic.dic.output import STRAIN_COLUMNS, fmt
 from stereodic.dic3d.stereo import NO_REFERENCE, RAY_GAP, CameraMatch, StereoSettings, StereoState
-from stereodic.strain_measures import StrainMeasure
+from stereodic.strain.measures import StrainMeasure
 
 def csv_columns(has_strain: bool) -> list[str]:
     cols = ["state", "x", "y"]

@@ -23,7 +23,7 @@ from stereodic.dic3d.output import csv_rows, plot_state, write_csv, write_npz
 from stereodic.dic3d.stereo import PreparedPair, StereoRun, StereoSettings, StereoState, solve_state
 from stereodic.dic3d.store import RunStore
 from stereodic.dic3d.vtk import write_collection, write_state
-from stereodic.rig import Rig
+from stereodic.stereo.rig import Rig
 
 
 def prepare_pair(data: DicStates, rig: Rig, settings: StereoSettings, k: int) -> PreparedPair:

@@ -50,10 +50,10 @@ from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import OK, OUTSIDE, STATUS_NAMES, UNREACHED
 from stereodic.dic.sequence import (DECORRELATED, SWITCH_ZNCC, TrackCarry, merge_track, prefetch, register_direct,
                                     register_steps, shifted, switch_candidates)
-from stereodic.rig import Rig
-from stereodic.strain import Strain, StrainFit, strain_3d
-from stereodic.strain_measures import StrainMeasure, measure_strain
-from stereodic.triangulate import triangulate
+from stereodic.stereo.rig import Rig
+from stereodic.strain.fit import Strain, StrainFit, strain_3d
+from stereodic.strain.measures import StrainMeasure, measure_strain
+from stereodic.stereo.triangulate import triangulate
 
 CROSS_DECORRELATED = tuple(c for c in DECORRELATED if c != OUTSIDE)
 RAY_GAP = "ray_gap"        # combined statuses beyond the 2-D engine's

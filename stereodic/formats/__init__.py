@@ -80,7 +80,7 @@ def select(cams: list[CameraModel], names: list[str] | None, where) -> list[Came
 @dataclass
 class Imported:
     """What `import_calibration` made: the file's format, the cameras used, their PRVMs (internal frame)
-    and the result: the one camera's PRVM, or the rig (a `stereodic.rig.Rig`)."""
+    and the result: the one camera's PRVM, or the rig (a `stereodic.stereo.rig.Rig`)."""
 
     format: str
     cameras: list[CameraModel]
@@ -110,18 +110,18 @@ def import_calibration(paths: list[str | os.PathLike], *, fmt: str = "auto", siz
     cameras : list of str, optional
         One or two cameras by name or index; None: all, which must be one or two.
     model, virtual_size, pitch_mm, plane_z_mm
-        For two cameras, as `stereodic.rig.build_rig`'s model, (width, height), pitch_mm and plane_z_mm;
+        For two cameras, as `stereodic.stereo.rig.build_rig`'s model, (width, height), pitch_mm and plane_z_mm;
         plane_z_mm None: the cameras' working point.
 
     Returns
     -------
     imported : Imported
         The format, the cameras used, their PRVMs and ``result``: the one camera's `calib.prvm_file.PRVM`
-        or the `stereodic.rig.Rig` (built exactly as ``stereodic rig`` builds one). InputError naming the
+        or the `stereodic.stereo.rig.Rig` (built exactly as ``stereodic rig`` builds one). InputError naming the
         file when it is not a calibration of the format, or holds more than two cameras.
     """
     from calib.camera_models import prvms_of
-    from stereodic.rig import build_rig
+    from stereodic.stereo.rig import build_rig
     fmt, cams = read_calibration(paths, fmt, size=size, units=units)
     where = paths[-1] if len(paths) > 1 else paths[0]
     cams = select(cams, cameras, where)

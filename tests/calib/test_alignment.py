@@ -13,7 +13,7 @@ from scanners.sim.display import SimDisplay
 from scanners.sim.lenses import make_lens
 from scanners.sim.optics import rotation
 from scanners.sim.pose import DisplayPose, about_point
-from stereodic.virtual import fit_optical_centre
+from stereodic.virtual.camera import fit_optical_centre
 
 W, H = 96, 80
 PIXEL_MM = 0.0053 * 1280 / W              # the field of the default 1280x1024 camera

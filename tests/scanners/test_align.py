@@ -33,7 +33,7 @@ from scanners.sim.pose import DisplayPose
 from scanners.sim.sensor import Sensor
 from scanners.stage_url import open_stage
 from stereodic.cli import main
-from stereodic.virtual import fit_optical_centre
+from stereodic.virtual.camera import fit_optical_centre
 from tests.scanners.xvfb import read_back, virtual_screen
 
 SIZE = (320, 256)

@@ -8,7 +8,7 @@ import pytest
 
 from calib.prvm_file import load_prvm
 from scanners.sim.stereo import facing_straight, own_to_common, project_true, simulate_stereo, stereo_lenses
-from stereodic.register import apply_registration, estimate_registration
+from stereodic.stereo.register import apply_registration, estimate_registration
 
 SMALL = dict(width=160, height=128, pixel_mm=0.0053 * 8)
 
@@ -50,7 +50,7 @@ def test_registration_recovers_the_true_transform():
 @pytest.mark.slow
 def test_joint_dataset_calibrates_into_one_rig(tmp_path):
     from stereodic.cli import main
-    from stereodic.rig import load_rig
+    from stereodic.stereo.rig import load_rig
     out = simulate_stereo(tmp_path / "st", left="brown", right="freeform", width=160, height=128,
                           lens_options={"pixel_mm": SMALL["pixel_mm"]},
                           supersample=8)

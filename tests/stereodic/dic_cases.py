@@ -1,8 +1,8 @@
 """Simulated stereo DIC datasets for the tests, with the rig `stereodic simulate dic` adds: the rectified
-pair of the simulator's true camera models (truth_cam0.npz, truth_cam1.npz), built by `stereodic.rig`."""
+pair of the simulator's true camera models (truth_cam0.npz, truth_cam1.npz), built by `stereodic.stereo.rig`."""
 
 from scanners.sim.dic import simulate_dic
-from stereodic.rig import rig_from_files, save_rig
+from stereodic.stereo.rig import rig_from_files, save_rig
 
 
 def simulate_dic_with_rig(root, states, **options):

@@ -8,9 +8,9 @@ from functools import lru_cache
 import numpy as np
 
 from scanners.sim.stereo import project_true, stereo_lenses
-from stereodic.rig import Rig, build_rig
-from stereodic.sampling import bilinear
-from stereodic.virtual import project_to_plane
+from stereodic.stereo.rig import Rig, build_rig
+from stereodic.virtual.sampling import bilinear
+from stereodic.virtual.camera import project_to_plane
 
 W, H = 320, 256
 PIXEL_MM = 0.0053 * 1280 / W          # the full 1280-pixel field of view on a small sensor

@@ -38,5 +38,5 @@ def test_the_parsers_defaults_are_the_librarys():
     """cli.common repeats two library constants so that --help imports nothing heavy."""
     from stereodic.cli import common
     from stereodic.dic.sequence import SWITCH_ZNCC
-    from stereodic.strain_measures import MEASURES
+    from stereodic.strain.measures import MEASURES
     assert common.SWITCH_ZNCC == SWITCH_ZNCC and common.STRAIN_MEASURES == MEASURES

@@ -8,7 +8,7 @@ import pytest
 
 from scanners.sim.scan import default_scan_rig, simulate_scan, standard_scenes
 from stereodic.cli import main
-from stereodic.rig import rig_from_files, save_rig
+from stereodic.stereo.rig import rig_from_files, save_rig
 
 PERIODS = (1280, 160, 32)
 

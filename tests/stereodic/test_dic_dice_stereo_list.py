@@ -24,9 +24,9 @@ import pytest
 from stereodic.dic import DicSettings, make_grid
 from stereodic.dic3d.stereo import StereoDic, StereoSettings
 from stereodic.formats import import_calibration
-from stereodic.rectify import rectify_pair
-from stereodic.sampling import bilinear
-from stereodic.virtual import project_to_plane
+from stereodic.stereo.rectify import rectify_pair
+from stereodic.virtual.sampling import bilinear
+from stereodic.virtual.camera import project_to_plane
 from tests.stereodic.dice_gold import DATA, dice_fields, midpoints, rigid_fit, vic_cameras, vic_undistort, xyz
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(not DATA.is_dir(), reason="dice-stereo-list not present")]

@@ -11,7 +11,7 @@ from scanners.sim.dic import dic_lenses
 from scanners.sim.stereo import CAMERAS
 from stereodic.cli import main
 from stereodic.dic3d.epipolar import epipolar_error
-from stereodic.rig import build_rig, load_rig, save_rig
+from stereodic.stereo.rig import build_rig, load_rig, save_rig
 
 
 def _turned(prvm: PRVM, centre: np.ndarray, axis: np.ndarray, angle_rad: float) -> PRVM:

@@ -12,7 +12,7 @@ from calib.errors import InputError
 from scanners.sim.dic import dic_lenses, load_dic_truth, truth_at_pixels
 from scanners.sim.stereo import project_true
 from stereodic.cli import main
-from stereodic.rig import load_rig, save_rig
+from stereodic.stereo.rig import load_rig, save_rig
 
 OPTS = ["--step", "10", "--no-vtk", "--no-plot"]
 

@@ -11,7 +11,7 @@ from scanners.sim.speckle import make_speckle, render
 from stereodic.dic import DicSettings, correlate_sequence, make_grid
 from stereodic.dic3d.dataset import load_states
 from stereodic.dic3d.stereo import StereoDic, StereoSettings
-from stereodic.rig import load_rig
+from stereodic.stereo.rig import load_rig
 from tests.stereodic.dic_cases import simulate_dic_with_rig
 
 N, RADIUS = 256, 40.0

@@ -11,7 +11,7 @@ from stereodic.cli import main
 from stereodic.dic.maps import _decimals, active_box, pixel_axes, save_map, surface_axes
 from stereodic.dic3d.dataset import DicStates
 from stereodic.dic3d.store import RunStore
-from stereodic.strain_results import map_axes, open_result, state_labels
+from stereodic.strain.results import map_axes, open_result, state_labels
 
 XS, YS = np.arange(10, 300, 10.0), np.arange(5, 200, 10.0)
 

@@ -13,7 +13,7 @@ from stereodic.cli import main
 from stereodic.dic import DicSettings, make_grid
 from stereodic.dic3d.dataset import load_states
 from stereodic.dic3d.stereo import StereoDic, StereoSettings
-from stereodic.rig import load_rig
+from stereodic.stereo.rig import load_rig
 from tests.stereodic.dic_cases import simulate_dic_with_rig
 
 

@@ -7,10 +7,10 @@ import numpy as np
 from calib.pinhole import read_opencv_yaml
 from scanners.sim.lenses import make_lens
 from stereodic.cli import main
-from stereodic.export import export_text, pinhole_of
-from stereodic.sampling import bilinear
-from stereodic.virtual import VirtualCamera, default_camera, fit_optical_centre
-from stereodic.virtual_prvm import load_virtual, make_virtual, save_virtual
+from stereodic.virtual.export import export_text, pinhole_of
+from stereodic.virtual.sampling import bilinear
+from stereodic.virtual.camera import VirtualCamera, default_camera, fit_optical_centre
+from stereodic.virtual.prvm import load_virtual, make_virtual, save_virtual
 from virtual_cases import opencv_camera
 
 SMALL = dict(width=160, height=120, pixel_mm=0.0053 * 8)

@@ -8,8 +8,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from stereodic.cli import main
-from stereodic.rig import save_rig
-from stereodic.triangulate import triangulate
+from stereodic.stereo.rig import save_rig
+from stereodic.stereo.triangulate import triangulate
 from tests.stereodic.rig_cases import pair
 
 

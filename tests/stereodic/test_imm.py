@@ -7,9 +7,9 @@ import pytest
 from calib.errors import InputError
 from scanners.sim.lenses import make_lens
 from stereodic.bench.lines import line_centres, render_lines, straightness_rms
-from stereodic.imm import apply_imm, build_imm
-from stereodic.sampling import bilinear
-from stereodic.virtual import default_camera
+from stereodic.virtual.imm import apply_imm, build_imm
+from stereodic.virtual.sampling import bilinear
+from stereodic.virtual.camera import default_camera
 from virtual_cases import smooth_texture
 
 W, H = 240, 180

@@ -11,7 +11,7 @@ import pytest
 from calib.camera_models import CameraModel, pixel_grid, transform
 from stereodic.cli import main
 from stereodic.formats import import_calibration
-from stereodic.rig import load_rig
+from stereodic.stereo.rig import load_rig
 from stereodic.formats.vic3d import write as vic3d_xml
 
 W, H = 320, 240
@@ -188,7 +188,7 @@ def test_export_then_import_gives_back_the_rays(vic_rig, tmp_path, fmt):
     exported virtual pinhole cameras is the rig's own within 1e-6 virtual pixel, in the file's world frame."""
     path, imp = vic_rig
     rig_file = tmp_path / "rig.npz"
-    from stereodic.rig import save_rig
+    from stereodic.stereo.rig import save_rig
     save_rig(rig_file, imp.result)
     rig = load_rig(rig_file)
     out = tmp_path / ("out" if fmt == "mrcal" else "out.xml" if fmt in ("dice", "vic3d") else "out.yml")
@@ -207,7 +207,7 @@ def test_kalibr_camchain_gives_the_rays(vic_rig, tmp_path):
     equidistant camera's rays follow the fisheye model written here."""
     _, imp = vic_rig
     rig = imp.result
-    from stereodic.export_rig import rig_pinholes
+    from stereodic.stereo.export import rig_pinholes
     left, right = rig_pinholes(rig)
     rel_R = right.R @ left.R.T
     rel_t = (right.t - rel_R @ left.t) / 1000.0

@@ -19,7 +19,7 @@ from stereodic.cli import main
 from stereodic.dic import DicSettings, make_grid
 from stereodic.dic3d.dataset import load_states
 from stereodic.dic3d.stereo import StereoDic, StereoSettings
-from stereodic.rig import load_rig
+from stereodic.stereo.rig import load_rig
 
 pytestmark = pytest.mark.slow
 W, H, SEED = 640, 512, 0

@@ -9,9 +9,9 @@ import pytest
 
 from calib.camera_models import transform
 from stereodic.formats import import_calibration
-from stereodic.sampling import bilinear
-from stereodic.triangulate import triangulate
-from stereodic.virtual import project_to_plane
+from stereodic.virtual.sampling import bilinear
+from stereodic.stereo.triangulate import triangulate
+from stereodic.virtual.camera import project_to_plane
 from tests.stereodic.dice_gold import (DATA, dice_fields, midpoints, vic_cameras, vic_project, vic_undistort,
                                        xyz)
 

@@ -4,7 +4,7 @@ no smearing across a step edge or into holes."""
 import numpy as np
 import pytest
 
-from stereodic.phase_filter import continuous, kernel, noise_gain, radius, smooth_phase
+from stereodic.scan.phase_filter import continuous, kernel, noise_gain, radius, smooth_phase
 
 H, W = 200, 300
 

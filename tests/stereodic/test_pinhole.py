@@ -7,9 +7,9 @@ import pytest
 
 from calib.errors import InputError
 from calib.pinhole import PinholeCamera, opencv_yaml, prvm_from_opencv, read_opencv_yaml
-from stereodic.export import pinhole_of
-from stereodic.imm import apply_imm, build_imm
-from stereodic.virtual import VirtualCamera, VirtualSensor, fit_optical_centre
+from stereodic.virtual.export import pinhole_of
+from stereodic.virtual.imm import apply_imm, build_imm
+from stereodic.virtual.camera import VirtualCamera, VirtualSensor, fit_optical_centre
 
 from virtual_cases import CENTRE, H, W, opencv_camera, smooth_texture
 

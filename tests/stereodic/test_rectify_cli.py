@@ -7,7 +7,7 @@ import numpy as np
 from calib.imageio import read_gray, write_gray
 from scanners.sim.speckle import make_speckle, render
 from stereodic.cli import main
-from stereodic.rectify import row_alignment
+from stereodic.stereo.rectify import row_alignment
 from tests.stereodic.rig_cases import pair
 
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from stereodic.rig import load_rig, save_rig
+from stereodic.stereo.rig import load_rig, save_rig
 from tests.stereodic.rig_cases import inside, pair, seen_at, volume_points
 
 
@@ -48,7 +48,7 @@ def test_geometry_matches_the_seed():
 
 def test_common_field_is_largest_inside_both():
     """Growing the grid by a few pixels on each side makes some pixels blank in one of the cameras."""
-    from stereodic.imm import build_imm
+    from stereodic.virtual.imm import build_imm
     ll, lr, pl, pr, rig = pair()
     s = rig.sensor
     bigger = s.with_field(((s.width - 1) / 2 * s.pitch_mm[0], (s.height - 1) / 2 * s.pitch_mm[1]),
@@ -80,7 +80,7 @@ def test_save_and_load(tmp_path):
 
 
 def test_modelless_rig_has_the_same_images_and_no_evm():
-    from stereodic.rig import build_rig
+    from stereodic.stereo.rig import build_rig
     ll, lr, pl, pr, rig = pair("noncentral", "brown")
     ml = build_rig(pl, pr, model="modelless")
     assert np.array_equal(ml.left.imm.map_x, rig.left.imm.map_x)

@@ -11,7 +11,7 @@ from calib.prvm_file import load_prvm
 from scanners.sim.handheld import HandHeld
 from scanners.sim.stereo import simulate_stereo
 from stereodic.cli import main
-from stereodic.rig import build_rig
+from stereodic.stereo.rig import build_rig
 
 
 @pytest.mark.slow

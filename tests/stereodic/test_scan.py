@@ -9,13 +9,13 @@ import pytest
 
 from calib.capture import load_capture
 from calib.errors import InputError
-from stereodic.scan import scan_state
+from stereodic.scan.pipeline import scan_state
 from scanners.sim.scan import TARGET, default_scan_rig, load_truth, simulate_scan, standard_scenes
 from scanners.sim.scan_scene import Plane, Scene, Sphere, surface_from_dict
 from stereodic.cli import main
-from stereodic.fit import fit_plane, fit_sphere, trimmed_range
-from stereodic.matching import match_rows
-from stereodic.rig import load_rig, rig_from_files, save_rig
+from stereodic.scan.fit import fit_plane, fit_sphere, trimmed_range
+from stereodic.scan.matching import match_rows
+from stereodic.stereo.rig import load_rig, rig_from_files, save_rig
 
 PERIODS = (1280, 160, 32)       # a 320-pixel camera sees ~7 pixels per 32-px fringe
 
@@ -76,7 +76,7 @@ def test_matches_are_sub_pixel_against_the_true_correspondence(noise_free):
     plane = _objects(noise_free, 0)[0]
     # the true point: the left virtual pixel's ray (model-less) meets the true plane; the true right match
     # is where the right camera's centre -> point line crosses the common plane (central lenses)
-    from stereodic.triangulate import rays_at
+    from stereodic.stereo.triangulate import rays_at
     o, d = rays_at(rig, "left", result.x_left, result.row.astype(float))
     t = ((plane.centre - o) @ plane.normal) / (d @ plane.normal)
     x = o + t[:, None] * d
@@ -172,7 +172,7 @@ def test_wrong_inputs_exit_2(dataset, tmp_path, capsys):
     assert main(["scan", str(dataset / "truth_cam0.npz"), str(dataset), "-o", str(tmp_path / "c.ply")]) == 2
     assert "truth_cam0.npz" in capsys.readouterr().err
     with pytest.raises(InputError, match="no state 7"):
-        from stereodic.scan import scan_to_files
+        from stereodic.scan.pipeline import scan_to_files
         scan_to_files(load_rig(dataset / "rig.npz"), dataset, tmp_path / "c.ply", states=[7])
 
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from stereodic.strain import strain_2d, strain_3d
+from stereodic.strain.fit import strain_2d, strain_3d
 
 
 def _green_lagrange(ux, uy, vx, vy):

@@ -10,7 +10,7 @@ from calib.imageio import write_gray
 from scanners.sim.dic import load_dic_truth, truth_at_pixels
 from scanners.sim.speckle import make_speckle, render
 from stereodic.cli import main
-from stereodic.rig import load_rig
+from stereodic.stereo.rig import load_rig
 
 
 @pytest.fixture(scope="module")

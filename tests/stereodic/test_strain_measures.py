@@ -1,4 +1,4 @@
-"""Strain measures (stereodic.strain_measures) of homogeneous deformations, against closed forms computed
+"""Strain measures (stereodic.strain.measures) of homogeneous deformations, against closed forms computed
 independently with scipy's matrix functions: E = (C - I)/2, (I - C^-1)/2 (= R^T (I - B^-1)/2 R),
 ln U = logm(C)/2, U - I = sqrtm(C) - I, their eigenvalues and the von Mises equivalent."""
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy import linalg
 
-from stereodic.strain import strain_2d, strain_3d
-from stereodic.strain_measures import MEASURES, measure_strain
+from stereodic.strain.fit import strain_2d, strain_3d
+from stereodic.strain.measures import MEASURES, measure_strain
 
 F = np.array([[1.12, 0.07], [-0.15, 0.93]])        # stretch, shear and a rotation of about 8 degrees
 

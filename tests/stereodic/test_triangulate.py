@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from stereodic.triangulate import closest_points, triangulate
+from stereodic.stereo.triangulate import closest_points, triangulate
 from tests.stereodic.rig_cases import inside, pair, seen_at, volume_points
 
 
@@ -66,7 +66,7 @@ def test_closest_points_of_known_lines():
 @pytest.mark.parametrize("corrected", [True, False])
 def test_numba_kernel_equals_the_numpy_statement(corrected):
     """triangulate (fused numba kernel) == closest_points(*rays_at(left), *rays_at(right)), blank rays too."""
-    from stereodic.triangulate import rays_at
+    from stereodic.stereo.triangulate import rays_at
     *_, rig = pair("noncentral", "brown")
     rng = np.random.default_rng(5)
     n = 5000

@@ -10,8 +10,8 @@ from calib.imageio import read_gray
 from calib.intensity import IntensityMatrix
 from calib.patterns import DisplayResponse
 from stereodic.cli import main
-from stereodic.imm import apply_imm
-from stereodic.virtual_prvm import load_virtual
+from stereodic.virtual.imm import apply_imm
+from stereodic.virtual.prvm import load_virtual
 from virtual_cases import H, W, opencv_camera, smooth_texture
 
 

@@ -5,8 +5,8 @@ import pytest
 
 from calib.errors import InputError
 from scanners.sim.lenses import make_lens
-from stereodic.imm import build_imm
-from stereodic.virtual import (VirtualSensor, default_camera, fit_optical_centre, fit_telecentric_direction,
+from stereodic.virtual.imm import build_imm
+from stereodic.virtual.camera import (VirtualSensor, default_camera, fit_optical_centre, fit_telecentric_direction,
                                largest_field, miss_in_pixels)
 from virtual_cases import CENTRE, opencv_camera
 

@@ -28,9 +28,9 @@ import numpy as np
 
 from calib.errors import InputError
 from calib.prvm_file import PRVM, load_prvm
-from stereodic.imm import IMM, build_imm
-from stereodic.sampling import bilinear
-from stereodic.virtual import VirtualCamera
+from stereodic.virtual.imm import IMM, build_imm
+from stereodic.virtual.sampling import bilinear
+from stereodic.virtual.camera import VirtualCamera
 
 
 @dataclass
@@ -52,7 +52,7 @@ def make_virtual(real: PRVM, camera: VirtualCamera) -> VirtualSetup:
     real : PRVM
         The real camera's (H, W) rays, WCS mm.
     camera : VirtualCamera
-        The virtual sensor (Hv, Wv) and ray model (`stereodic.virtual.default_camera`).
+        The virtual sensor (Hv, Wv) and ray model (`stereodic.virtual.camera.default_camera`).
 
     Returns
     -------

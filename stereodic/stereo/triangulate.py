@@ -20,8 +20,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from stereodic.rig import Rig
-from stereodic.sampling import bilinear
+from stereodic.stereo.rig import Rig
+from stereodic.virtual.sampling import bilinear
 
 
 @dataclass
@@ -80,7 +80,7 @@ def closest_points(o1: np.ndarray, d1: np.ndarray, o2: np.ndarray, d2: np.ndarra
 
 @numba.njit(cache=True, inline="always")
 def _bilinear3(field, u, v, out):  # pragma: no cover - numba kernel
-    """`stereodic.sampling.bilinear` of an (H, W, 3) field at one (u, v), into out (3,)."""
+    """`stereodic.virtual.sampling.bilinear` of an (H, W, 3) field at one (u, v), into out (3,)."""
     h, w = field.shape[0], field.shape[1]
     if not (np.isfinite(u) and np.isfinite(v)):
         out[:] = np.nan

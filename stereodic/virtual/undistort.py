@@ -14,7 +14,7 @@ import numpy as np
 from calib.errors import InputError
 from calib.intensity import IntensityMatrix
 from calib.prvm_file import PRVM
-from stereodic.imm import IMM, apply_imm
+from stereodic.virtual.imm import IMM, apply_imm
 
 
 def intensity_matrix(prvm: PRVM) -> IntensityMatrix | None:
@@ -68,7 +68,7 @@ def undistort_image(image: np.ndarray, imm: IMM, *, im: IntensityMatrix | None =
     image : (H, W) uint8 or uint16
         The real image, the camera's size.
     imm : IMM
-        The virtual camera's Inverse Mapping Matrix (`stereodic.imm.build_imm`).
+        The virtual camera's Inverse Mapping Matrix (`stereodic.virtual.imm.build_imm`).
     im : IntensityMatrix, optional
         The camera's intensity matrix (`intensity_matrix`); its bit depth must be the image's.
     fixed_point : bool

@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from stereodic.imm import IMM
+from stereodic.virtual.imm import IMM
 
 
 def plot_noncentrality(miss_mm: np.ndarray, miss_px: np.ndarray | None = None, title: str = "non-centrality"):
     """Heat maps over the real image of how far each ray misses the fitted optical centre (mm) and,
-    if given, the pinhole model's resulting image error (pixels, `stereodic.virtual.miss_in_pixels`)."""
+    if given, the pinhole model's resulting image error (pixels, `stereodic.virtual.camera.miss_in_pixels`)."""
     import matplotlib.pyplot as plt
     maps = [(miss_mm, "miss distance (mm)")] + ([] if miss_px is None else [(miss_px, "pinhole error (px)")])
     fig, axes = plt.subplots(1, len(maps), figsize=(5.5 * len(maps), 4), squeeze=False)

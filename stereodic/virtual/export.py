@@ -17,7 +17,7 @@ import numpy as np
 from calib.errors import InputError
 from calib.pinhole import PinholeCamera, opencv_yaml
 from stereodic.formats import mrcal, vic3d
-from stereodic.virtual import VirtualCamera
+from stereodic.virtual.camera import VirtualCamera
 
 FORMATS = ("opencv", "colmap", "json", "vic3d", "mrcal")
 
@@ -100,7 +100,7 @@ def export_text(cameras: dict[str, VirtualCamera], *, fmt: str, world_from_rig: 
     """
     m = np.eye(4) if world_from_rig is None else np.asarray(world_from_rig, np.float64)
     if fmt == "json":
-        return json.dumps({"format": "stereodic.virtual-cameras/1", "world_from_rig": m.tolist(),
+        return json.dumps({"format": "stereodic.virtual.camera-cameras/1", "world_from_rig": m.tolist(),
                            "cameras": [camera_json(n, c) for n, c in cameras.items()]}, indent=1) + "\n"
     pinholes = [in_world(pinhole_of(c), m) for c in cameras.values()]
     if fmt == "vic3d":

@@ -1,7 +1,7 @@
 """Strain measures of a fitted deformation: Green-Lagrange, Euler-Almansi, logarithmic (Hencky) and
 engineering (Biot), their principal values and direction, and the von Mises equivalent strain.
 
-`stereodic.strain` fits, around every point, the deformed tangent vectors g_a = e_a + dD/ds_a of the
+`stereodic.strain.fit` fits, around every point, the deformed tangent vectors g_a = e_a + dD/ds_a of the
 local frame (e1, e2) (the surface's tangent plane, or the image plane in 2-D). Their dot products give the
 right Cauchy-Green tensor C = F^T F = [[g1.g1, g1.g2], [g1.g2, g2.g2]], with eigenvalues lambda_i^2 (the
 principal stretches squared) and eigenvectors N_i in the frame (e1, e2). Every measure is
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stereodic.strain import Strain
+from stereodic.strain.fit import Strain
 
 MEASURES = ("green-lagrange", "euler-almansi", "log", "engineering")
 _STRETCH = {  # f of the squared principal stretch

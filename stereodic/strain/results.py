@@ -20,8 +20,8 @@ from calib.npz_stream import iter_slices
 from calib.npzfile import read_npz
 from stereodic.dic.grid import Grid
 from stereodic.dic.maps import MapAxes, pixel_axes, surface_axes
-from stereodic.strain import StrainFit, strain_2d
-from stereodic.strain_measures import StrainMeasure, measure_strain
+from stereodic.strain.fit import StrainFit, strain_2d
+from stereodic.strain.measures import StrainMeasure, measure_strain
 
 FORMATS = {"stereodic.dic/1": "dic", "stereodic.dic2d/1": "dic2d"}
 

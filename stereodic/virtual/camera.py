@@ -23,7 +23,7 @@ import numpy as np
 
 from calib.errors import InputError
 from calib.prvm_file import PRVM
-from stereodic.sampling import bilinear
+from stereodic.virtual.sampling import bilinear
 
 MODELS = ("modelless", "pinhole", "telecentric")
 

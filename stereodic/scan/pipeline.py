@@ -10,14 +10,14 @@ Steps for one state (one scan) of a `kind: "scan"` dataset:
  2. rectify (`virtual_phase`): the absolute phase (never the wrapped one) and the modulation are
     interpolated through each camera's IMM into the common virtual image; a virtual pixel any of whose 4
     real neighbours is flagged or blank is NaN (the quality mask is carried along);
- 2b. filter (`stereodic.phase_filter.smooth_phase`): a local quadratic fit of each virtual phase map
+ 2b. filter (`stereodic.scan.phase_filter.smooth_phase`): a local quadratic fit of each virtual phase map
     (Gaussian weights, sigma SMOOTH_PX) where the whole window is valid and continuous, else NaN: the
     white phase noise drops 6.4-fold, edges, holes and silhouettes (mixed pixels) lose an 8-pixel band;
- 3. match (`stereodic.matching.match_rows`): equal phase along each row, sub-pixel, with monotonicity,
+ 3. match (`stereodic.scan.matching.match_rows`): equal phase along each row, sub-pixel, with monotonicity,
     slope and left-right checks;
- 4. triangulate (`stereodic.triangulate`) with the EVM-corrected (model-less) rays, or the pinhole rays
+ 4. triangulate (`stereodic.stereo.triangulate`) with the EVM-corrected (model-less) rays, or the pinhole rays
     for comparison; points whose rays pass further apart than `max_gap_px` virtual pixels are dropped;
- 5. cloud (`stereodic.cloud`): statistical outlier removal, normals, per-point quality = the smaller of
+ 5. cloud (`stereodic.scan.cloud`): statistical outlier removal, normals, per-point quality = the smaller of
     the two cameras' fringe modulations as a fraction of full scale (0..1), and the ray gap (mm).
 
 The manifest's top-level `projector` block: `width_px` (panel columns, the extent of the absolute phase,
@@ -40,10 +40,10 @@ from calib.capture import Capture, load_capture
 from calib.decode import DARK_FRACTION, MAX_MISMATCH_SIGMA, MODULATION_FRACTION
 from calib.errors import InputError
 from calib.phase import LOW_MODULATION, UNWRAP, WaveformCorrection, decode_frames, unwrap_temporal
-from stereodic.matching import match_rows
-from stereodic.phase_filter import smooth_phase
-from stereodic.rig import Rig, check_camera_sizes
-from stereodic.triangulate import triangulate
+from stereodic.scan.matching import match_rows
+from stereodic.scan.phase_filter import smooth_phase
+from stereodic.stereo.rig import Rig, check_camera_sizes
+from stereodic.stereo.triangulate import triangulate
 
 MIN_MODULATION_FRACTION = 0.02   # of full scale: fringes weaker than this are not measured
 SMOOTH_PX = 3.0                  # phase filter sigma (virtual pixels): white noise / 6.4, edges eroded by 8 px
@@ -261,7 +261,7 @@ def scan_state(rig: Rig, capture: Capture, state: int, *, cameras: tuple[str, st
     images : dict of str to ndarray, optional
         Frames already in memory, by file name; None: read from disk.
     smooth_px : float
-        The phase filter's Gaussian sigma, virtual pixels (`stereodic.phase_filter`); 0: none.
+        The phase filter's Gaussian sigma, virtual pixels (`stereodic.scan.phase_filter`); 0: none.
 
     Returns
     -------
@@ -336,7 +336,7 @@ def scan_job(rig: Rig, job: ScanJob, cameras: tuple[str, str] | None = None, cor
     """One scan (`scan_state`) into its cloud (statistical outliers removed, normals towards the rig) and
     mesh files; `capture`: the job's dataset already loaded. Returns [(file, count, what is counted:
     "points" or, for a mesh, "vertices")]."""
-    from stereodic.cloud import make_cloud, poisson_mesh, write_cloud, write_mesh
+    from stereodic.scan.cloud import make_cloud, poisson_mesh, write_cloud, write_mesh
     capture = capture or load_capture(job.dataset)
     viewpoint = (rig.left.centre + rig.right.centre) / 2
     result, _ = scan_state(rig, capture, job.state, cameras=cameras, corrected=corrected, smooth_px=smooth_px)

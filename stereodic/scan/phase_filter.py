@@ -23,7 +23,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from stereodic.matching import phase_step
+from stereodic.scan.matching import phase_step
 
 TRUNCATE = 2.5          # window radius in units of sigma
 

@@ -1,7 +1,7 @@
 """A rectified rig for legacy stereo software: the two virtual pinhole cameras, distortion zero (the
 virtual images are distortion free), in the formats such software reads.
 
-The virtual cameras (`stereodic.export.pinhole_of`) share the rotation R_v = [axis_u; axis_v; normal] and
+The virtual cameras (`stereodic.virtual.export.pinhole_of`) share the rotation R_v = [axis_u; axis_v; normal] and
 the plane distance d, so their camera matrices differ only in cx (by |baseline| / pitch_u): the pair is
 already rectified. In OpenCV's stereo terms (stereo_calib sample: x2 = R x1 + T, frames of camera 1):
   M1, M2 = the virtual camera matrices, D1 = D2 = 0, R = I, T = (-|b|, 0, 0) mm, R1 = R2 = I,
@@ -38,9 +38,9 @@ from scipy.spatial.transform import Rotation
 from calib.atomic import write_text
 from calib.errors import InputError
 from calib.pinhole import PinholeCamera
-from stereodic.export import camera_json, colmap_cameras, in_world, pinhole_of
+from stereodic.virtual.export import camera_json, colmap_cameras, in_world, pinhole_of
 from stereodic.formats import mrcal, vic3d
-from stereodic.rig import SIDES, Rig, load_rig
+from stereodic.stereo.rig import SIDES, Rig, load_rig
 
 FORMATS = ("opencv", "colmap", "dice", "json", "vic3d", "mrcal")
 
@@ -135,7 +135,7 @@ def _quaternion(r: np.ndarray) -> np.ndarray:
 
 def rig_json(rig: Rig) -> dict:
     """The rig as JSON data: both virtual cameras and the OpenCV stereo matrices."""
-    return {"format": "stereodic.rig-export/1", "model": rig.model, "baseline_mm": rig.baseline.tolist(),
+    return {"format": "stereodic.stereo.rig-export/1", "model": rig.model, "baseline_mm": rig.baseline.tolist(),
             "working_distance_mm": rig.working_distance_mm, "world_from_rig": rig.world_from_rig.tolist(),
             "cameras": [camera_json(side, rig.virtual_camera(side)) for side in SIDES],
             "stereo": {k: v.tolist() for k, v in stereo_matrices(rig).items()}}

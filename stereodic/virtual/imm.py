@@ -29,7 +29,7 @@ from scipy.ndimage import distance_transform_edt
 
 from calib.errors import InputError
 from calib.prvm_file import PRVM
-from stereodic.virtual import VirtualSensor, project_to_plane
+from stereodic.virtual.camera import VirtualSensor, project_to_plane
 
 BLANK = -1.0  # map value of a blank virtual pixel: outside the image, so cv2.remap gives the border (0)
 

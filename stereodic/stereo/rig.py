@@ -19,7 +19,7 @@ the plane, and both cameras see it on the same row (the epipolar plane through C
 plane along a row).
 
 Same WCS rule (`check_same_wcs`): a PRVM's WCS is named by its meta `wcs` (written by a registration,
-`stereodic.register`) or else by its `dataset` (the calibration dataset: one display, one stage, one
+`stereodic.stereo.register`) or else by its `dataset` (the calibration dataset: one display, one stage, one
 WCS). Two PRVMs whose names are both given and differ do not share a WCS. Geometry adds: the working
 point must lie in front of both centres, the centres must be apart (baseline >= 1e-3 x working
 distance), and the two real fields must overlap on the plane.
@@ -50,10 +50,10 @@ from calib.intensity import IntensityMatrix
 from calib.npzfile import read_npz
 from calib.prvm_file import FORMAT as PRVM_FORMAT
 from calib.prvm_file import PRVM, load_prvm
-from stereodic.imm import IMM, build_imm
-from stereodic.undistort import intensity_matrix
-from stereodic.virtual import VirtualCamera, VirtualSensor, fit_optical_centre, project_to_plane
-from stereodic.virtual_prvm import make_virtual
+from stereodic.virtual.imm import IMM, build_imm
+from stereodic.virtual.undistort import intensity_matrix
+from stereodic.virtual.camera import VirtualCamera, VirtualSensor, fit_optical_centre, project_to_plane
+from stereodic.virtual.prvm import make_virtual
 
 FORMAT = "stereodic.rig/1"
 SIDES = ("left", "right")

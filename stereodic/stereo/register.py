@@ -22,7 +22,7 @@ import numpy as np
 
 from calib.errors import InputError
 from calib.prvm_file import PRVM
-from stereodic.virtual import fit_optical_centre
+from stereodic.virtual.camera import fit_optical_centre
 
 
 @dataclass

@@ -3,7 +3,7 @@ virtual sensor; and how well the rows line up: features matched between the rect
 vertical disparity, and a picture that shows it.
 
 In the rectified pair a scene point lies on the same row of both images (exactly for central lenses;
-for non-central ones the EVM says how far off, see `stereodic.triangulate`).
+for non-central ones the EVM says how far off, see `stereodic.stereo.triangulate`).
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from stereodic.rig import Rig
-from stereodic.undistort import undistort_image
+from stereodic.stereo.rig import Rig
+from stereodic.virtual.undistort import undistort_image
 
 
 def rectify_pair(rig: Rig, left: np.ndarray, right: np.ndarray, *, intensity: bool = True,
@@ -25,7 +25,7 @@ def rectify_pair(rig: Rig, left: np.ndarray, right: np.ndarray, *, intensity: bo
     Parameters
     ----------
     rig : Rig
-        The rectified pair (`stereodic.rig.build_rig`, `load_rig`).
+        The rectified pair (`stereodic.stereo.rig.build_rig`, `load_rig`).
     left, right : (H, W) uint8 or uint16
         The real images, each its camera's size.
     intensity : bool
