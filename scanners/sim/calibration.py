@@ -134,10 +134,10 @@ def simulate_calibration(out_dir: str | os.PathLike, *, lens: str | Lens = "brow
         see the display.
     """
     periods = _check_list("--periods", periods, positive=True)
-    z_nominal = _check_list("--positions", z_positions)
+    z_nominal = _check_list("--positions-mm", z_positions)
     flats = [int(v) for v in _check_list("flat_levels", flat_levels, allow_empty=True)]
     if len(set(z_nominal)) != len(z_nominal):
-        raise InputError("--positions", f"stage positions must be distinct, got {z_nominal}")
+        raise InputError("--positions-mm", f"stage positions must be distinct, got {z_nominal}")
     steps = _check_list("--steps", [steps] * len(periods) if np.isscalar(steps) else steps)
     if len(steps) != len(periods) or any(int(n) != n or n < 3 for n in steps):
         raise InputError("--steps", f"need a whole number >= 3 of phase steps (one, or one per period), "

@@ -59,9 +59,9 @@ class HandHeld:
             raise InputError("--handheld", f"a stage-free capture needs at least 3 poses, got {self.poses}")
         lo, hi = self.distance_mm
         if not 0 < lo <= hi:
-            raise InputError("--distance", f"need 0 < near <= far (mm), got {self.distance_mm}")
+            raise InputError("--hold-distance-mm", f"need 0 < near <= far (mm), got {self.distance_mm}")
         if not 0 <= self.max_tilt_deg < 70 or not 0 <= self.roll_deg <= 180:
-            raise InputError("--max-tilt", f"tilt must be in [0, 70) and roll in [0, 180] degrees, got "
+            raise InputError("--max-tilt-deg", f"tilt must be in [0, 70) and roll in [0, 180] degrees, got "
                                            f"{self.max_tilt_deg} and {self.roll_deg}")
         if not 0 < self.min_cover <= 1:
             raise InputError("handheld", f"min_cover must be in (0, 1], got {self.min_cover}")

@@ -143,6 +143,23 @@ def render(speckle: Speckle, displacement: Displacement | tuple[float, float] | 
     return np.clip(np.rint(img), 0, top).astype(np.uint8 if bits == 8 else np.uint16)
 
 
+def affine_displacement(shift: tuple[float, float] = (0.0, 0.0), *, strain: float = 0.0, poisson: float = 0.0,
+                        rotation_deg: float = 0.0, centre: tuple[float, float] = (0.0, 0.0)) -> Displacement:
+    """The displacement field (x, y) -> (u, v), pixels, of a uniaxial stretch along x (engineering strain
+    `strain`, with the lateral contraction -poisson * strain along y), then a rotation by `rotation_deg`
+    (counter-clockwise on the screen's x right, y down axes: positive turns x towards y), both about
+    `centre` (x, y pixels), then the translation `shift` (x, y pixels). Exact: the map is affine."""
+    a = math.radians(rotation_deg)
+    c, s = math.cos(a), math.sin(a)
+    sx, sy = 1.0 + strain, 1.0 - poisson * strain
+    x0, y0 = centre
+
+    def field(x, y):
+        dx, dy = (x - x0) * sx, (y - y0) * sy
+        return x0 + c * dx - s * dy + shift[0] - x, y0 + s * dx + c * dy + shift[1] - y
+    return field
+
+
 @njit(cache=True)
 def _density_at(x, y, cx, cy, r, a, order, start, x0, y0, cell, nx, ny, out):
     """Optical density S at points (x, y): the sum of the Gaussian spots of the cells around each point

@@ -45,7 +45,7 @@ def stereo_lenses(left: str = "brown", right: str = "brown", width: int = 1280, 
     """Two lenses (families `left`, `right`) posed as a converging stereo pair (module docstring);
     `overrides` go to both make_lens calls (e.g. pixel_mm)."""
     if not baseline_mm > 0:
-        raise InputError("--baseline", f"must be positive, got {baseline_mm}")
+        raise InputError("--baseline-mm", f"must be positive, got {baseline_mm}")
     lenses = []
     for k, (family, sign) in enumerate(((left, -1.0), (right, 1.0))):
         lenses.append(make_lens(family, width=width, height=height, seed=seed + 1000 * k, distance_mm=distance_mm,

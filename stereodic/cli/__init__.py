@@ -29,7 +29,8 @@ COMMANDS = ["demo", "simulate", "patterns", "calibrate", "undistort", "rig", "re
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The parser of every command, or of `command` alone (what `main` builds for `stereodic COMMAND
     ...`: registering the other commands' parsers would cost start-up time and import their modules)."""
-    parser = argparse.ArgumentParser(
+    from stereodic.cli.common import Parser
+    parser = Parser(
         prog="stereodic",
         description="Per-pixel ray camera calibration, rectified virtual stereo, 3D scanning and DIC.")
     parser.add_argument("--version", action="version", version=f"stereodic {__version__}")

@@ -5,32 +5,31 @@ kept; running the same command again resumes where it stopped. See docs/real-ben
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import time
 
-from stereodic.cli.common import add_output, display_pitch, open_devices, parse_floats, wrote
+from stereodic.cli.common import add_output, deprecated, display_pitch, open_devices, parse_floats, wrote
 
 DEVICES = """devices:
-  --stage    zaber:///dev/ttyUSB0?device=1&axis=1&microstep_um=0.047625   Zaber ASCII
-             grbl:///dev/ttyACM0?axis=X&feed=600                           GRBL 1.1
-             zaber+socket://HOST:PORT, grbl+socket://HOST:PORT             the same over TCP
-             emulated:zaber, emulated:grbl                                 emulators (no hardware)
-             manual                                                        you move it when asked
-             serial options: baud, timeout (s), retries, move_timeout (s), home=auto|yes|no, tolerance_um;
-             zaber: device, axis, microstep_um; grbl: axis, feed (mm/min);
-             emulated: speed (mm/s), travel (mm), transport=pty|socket, fault=KIND@MOVE,
-             axis_deg=AX,AY (the simulated carriage's travel off the screen normal, degrees)
-  --display  screen[:N]          full screen on monitor N (0-based), 1:1 pixels (pygame)
-             file:DIR?size=WxH   write the patterns to DIR instead (headless)
-             sim                 the simulated display
-  --camera   cv:INDEX[?exposure_ms=E&gain=G&size=WxH&discard=N]
-                                                        an OpenCV VideoCapture device
-             folder:DIR[?size=WxH&timeout=S]            photos taken by hand arriving in DIR
-             sim[:LENS][?size=WxH&seed=N&pixel_um=P&tilt=TX,TY&roll=R]
-                                                        the simulated camera (needs --display sim and
-                                                        an emulated stage); tilt/roll aim it (degrees)
-  Cameras are named cam0, cam1, ... in the order given.
+  --stage URL
+    - Zaber ASCII: zaber:///dev/ttyUSB0?device=1&axis=1&microstep_um=0.047625
+    - GRBL 1.1: grbl:///dev/ttyACM0?axis=X&feed=600
+    - the same over TCP: zaber+socket://HOST:PORT, grbl+socket://HOST:PORT
+    - emulators (no hardware): emulated:zaber, emulated:grbl
+    - you move it when asked: manual
+    - serial options: baud, timeout (s), retries, move_timeout (s), home=auto|yes|no, tolerance_um;
+      zaber: device, axis, microstep_um; grbl: axis, feed (mm/min)
+    - emulated: speed (mm/s), travel (mm), transport=pty|socket, fault=KIND@MOVE, axis_deg=AX,AY
+      (the simulated carriage's travel off the screen normal, degrees)
+  --display SPEC
+    - full screen on monitor N (0-based), 1:1 pixels (pygame): screen[:N]
+    - write the patterns to DIR instead (headless): file:DIR?size=WxH
+    - the simulated display: sim
+  --camera SPEC (repeat it; cameras are named cam0, cam1, ... in the order given)
+    - an OpenCV VideoCapture device: cv:INDEX[?exposure_ms=E&gain=G&size=WxH&discard=N]
+    - photos taken by hand arriving in DIR: folder:DIR[?size=WxH&timeout=S]
+    - the simulated camera (needs --display sim and an emulated stage; tilt/roll aim it, degrees):
+      sim[:LENS][?size=WxH&seed=N&pixel_um=P&tilt=TX,TY&roll=R]
 """
 
 
@@ -38,19 +37,19 @@ def register(sub):
     p = sub.add_parser("acquire", help="drive the real stage, display and cameras; write a dataset",
                        description="Acquire a capture dataset on a bench (or on the simulated devices). "
                                    "Every frame is saved and listed as soon as it is taken; after a fault, "
-                                   "run the same command again to resume.",
-                       formatter_class=argparse.RawDescriptionHelpFormatter, epilog=DEVICES)
+                                   "run the same command again to resume.", epilog=DEVICES)
     modes = p.add_subparsers(dest="mode", metavar="MODE", required=True)
 
     c = modes.add_parser("calibration", help="fringes on a display moved by a stage",
                          description="At each stage position: flats (intensity), then x and y phase-shifting "
-                                     "fringes of every period, taken by every camera.",
-                         formatter_class=argparse.RawDescriptionHelpFormatter, epilog=DEVICES)
+                                     "fringes of every period, taken by every camera.", epilog=DEVICES)
     c.add_argument("--stage", required=True, metavar="URL", help="the linear stage (see below)")
-    c.add_argument("--positions", type=parse_floats, default=[0.0, 50.0],
+    c.add_argument("--positions-mm", type=parse_floats, default=[0.0, 50.0],
                    help="stage positions in mm (default 0,50)")
-    c.add_argument("--pitch-mm", type=parse_floats, default=None, metavar="PX[,PY]",
+    c.add_argument("--display-pitch-mm", type=parse_floats, default=None, metavar="PX[,PY]",
                    help="display pixel pitch in mm (required for a real screen; the data sheet's value)")
+    deprecated(c, "--positions", "--positions-mm")
+    deprecated(c, "--pitch-mm", "--display-pitch-mm")
     c.add_argument("--gamma", type=float, default=None, help="display gamma, if known (recorded only)")
     _pattern_options(c, flats="0,32,64,96,128,160,192,224,255")
     _common_options(c, with_display=True)
@@ -58,8 +57,7 @@ def register(sub):
 
     s = modes.add_parser("scan", help="projector patterns on an object, per state",
                          description="For each state (object pose): flats if asked, then projector fringes, "
-                                     "taken by every camera. You are asked to set up each state.",
-                         formatter_class=argparse.RawDescriptionHelpFormatter, epilog=DEVICES)
+                                     "taken by every camera. You are asked to set up each state.", epilog=DEVICES)
     s.add_argument("--axes", default="x", help="fringe axes on the projector: x, y or x,y (default x)")
     _pattern_options(s, flats="")
     _state_options(s)
@@ -68,8 +66,7 @@ def register(sub):
 
     d = modes.add_parser("dic", help="every camera at every load step",
                          description="For each state (load step) one frame per camera, nothing shown. You are "
-                                     "asked to apply each load step (or give --interval).",
-                         formatter_class=argparse.RawDescriptionHelpFormatter, epilog=DEVICES)
+                                     "asked to apply each load step (or give --interval).", epilog=DEVICES)
     _state_options(d)
     _common_options(d, with_display=False)
     d.set_defaults(func=run_dic)
@@ -89,8 +86,9 @@ def _pattern_options(p, flats: str):
 def _state_options(p):
     p.add_argument("--states", type=int, default=1, help="number of states to take (default 1)")
     p.add_argument("--first-state", type=int, default=0, help="number of the first state (default 0)")
-    p.add_argument("--interval", type=float, default=None, metavar="S",
+    p.add_argument("--interval-s", type=float, default=None, metavar="S",
                    help="wait S seconds between states instead of asking (time-lapse)")
+    deprecated(p, "--interval", "--interval-s")
 
 
 def _common_options(p, with_display: bool):
@@ -139,13 +137,13 @@ def _open_devices(args, stack: contextlib.ExitStack, stage_url: str | None):
 
 def _next_state(args):
     from scanners.acquire import ask_on_terminal
-    if args.interval is None:
+    if args.interval_s is None:
         return ask_on_terminal
     first = [True]
 
     def wait(state: int) -> None:
         if not first[0]:
-            time.sleep(args.interval)
+            time.sleep(args.interval_s)
         first[0] = False
     return wait
 
@@ -168,14 +166,14 @@ def run_calibration(args) -> int:
     from scanners.camera import SimulatedCamera
     from scanners.display import SimScreen
     _check(args)
-    if not args.positions or len(set(args.positions)) != len(args.positions):
-        raise InputError("--positions", f"expected distinct stage positions, got {args.positions}")
+    if not args.positions_mm or len(set(args.positions_mm)) != len(args.positions_mm):
+        raise InputError("--positions-mm", f"expected distinct stage positions, got {args.positions_mm}")
     with contextlib.ExitStack() as stack:
         stage, screen, cameras = _open_devices(args, stack, args.stage)
         if isinstance(screen, SimScreen):
             display = screen.sim.record()
         else:
-            display = Display(screen.size[0], screen.size[1], display_pitch(screen, args.pitch_mm), args.gamma)
+            display = Display(screen.size[0], screen.size[1], display_pitch(screen, args.display_pitch_mm), args.gamma)
         extra = _provenance(args, args.stage)
         sims = [c for c in cameras if isinstance(c, SimulatedCamera)]
         if sims:
@@ -183,12 +181,12 @@ def run_calibration(args) -> int:
             extra["simulated"] = {"truth": names if len(sims) > 1 else names[sims[0].name]}
         writer = open_writer(args.output, "calibration", cameras, display, extra)
         for cam in sims:
-            cam.set_exposure(args.high, args.positions[0])
+            cam.set_exposure(args.high, args.positions_mm[0])
             truth = cam.sim.lens.true_prvm(camera=cam.name, dataset="capture.json")
             # the emulated stages are exact to the microstep (< 0.03 um): true = nominal positions
-            truth.extra = {"stage_true_z_mm": np.array(args.positions, float)}
+            truth.extra = {"stage_true_z_mm": np.array(args.positions_mm, float)}
             truth.save(writer.capture.root / _truth_file(cam, len(sims)))
-        shots = calibration_plan(screen.size, args.positions, args.periods, args.steps,
+        shots = calibration_plan(screen.size, args.positions_mm, args.periods, args.steps,
                                  [int(v) for v in args.flat_levels], args.low, args.high)
         n = run(writer, shots, cameras, stage, screen, _settings(args))
     _report(writer, n)

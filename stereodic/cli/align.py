@@ -6,24 +6,28 @@ second (scanners.align). See docs/real-bench.md, "Aligning with stereodic align"
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import sys
 
-from stereodic.cli.common import add_input, add_output, parse_floats
+from stereodic.cli.common import add_input, add_output, deprecated, parse_floats
 
 DEVICES = """devices (as for `stereodic acquire`):
-  --display  screen[:N]          full screen on monitor N (the live aid; Esc stops, s re-measures the stage)
-             file:DIR?size=WxH   write every image shown to DIR (headless)
-             sim                 the simulated display (headless)
-  --camera   cv:INDEX[?exposure_ms=E&gain=G&size=WxH&discard=N]      an OpenCV VideoCapture device
-             folder:DIR[?size=WxH&timeout=S]                          photos arriving in DIR
-             sim[:LENS][?size=WxH&seed=N&pixel_um=P&tilt=TX,TY&roll=R] the simulated camera, aimed at
-                                                 known tilts (needs --display sim)
-  --stage    any `stereodic acquire` stage URL; emulated:zaber?axis_deg=AX,AY tilts the simulated travel
+  --display SPEC
+    - full screen on monitor N (the live aid; Esc stops, s re-measures the stage): screen[:N]
+    - write every image shown to DIR (headless): file:DIR?size=WxH
+    - the simulated display (headless): sim
+  --camera SPEC
+    - an OpenCV VideoCapture device: cv:INDEX[?exposure_ms=E&gain=G&size=WxH&discard=N]
+    - photos arriving in DIR: folder:DIR[?size=WxH&timeout=S]
+    - the simulated camera, aimed at known tilts (needs --display sim):
+      sim[:LENS][?size=WxH&seed=N&pixel_um=P&tilt=TX,TY&roll=R]
+  --stage URL
+    - any `stereodic acquire` stage URL; emulated:zaber?axis_deg=AX,AY tilts the simulated travel
+
 intrinsics: a PRVM (.npz, from `stereodic calibrate`) is exact for any lens; an OpenCV pinhole file
-  (.yaml/.yml/.xml/.json, `stereodic export --format opencv` or your own); without one the camera is
-  estimated from the pattern alone (rougher: see the docs).
+(.yaml/.yml/.xml/.json, `stereodic export --format opencv` or your own); without one the camera is
+estimated from the pattern alone (rougher: see the docs).
+
 headless runs (file:, sim) need --frames and -o; -o DIR gets fused_NNNN.png, stage.png, readings.json
 (and truth.json with a simulated camera)."""
 
@@ -32,12 +36,11 @@ def register(sub):
     p = sub.add_parser("align", help="live aid: camera square to the screen, stage axis along its normal",
                        description="Measure the camera's tilt, roll and distance against the pattern display "
                                    "(and the stage axis against the display's normal) from quick fringe sets, "
-                                   "and show the fused crosshair picture on the display.",
-                       formatter_class=argparse.RawDescriptionHelpFormatter, epilog=DEVICES)
+                                   "and show the fused crosshair picture on the display.", epilog=DEVICES)
     p.add_argument("--display", required=True, metavar="SPEC", help="the pattern display (see below)")
     p.add_argument("--camera", required=True, metavar="SPEC", help="the camera (see below)")
-    p.add_argument("--stage", metavar="URL", help="also measure the stage axis (moves to --positions)")
-    p.add_argument("--positions", type=parse_floats, default=[0.0, 50.0],
+    p.add_argument("--stage", metavar="URL", help="also measure the stage axis (moves to --positions-mm)")
+    p.add_argument("--positions-mm", type=parse_floats, default=[0.0, 50.0],
                    help="the two stage positions in mm for the stage axis; the camera is read at the first "
                         "(default 0,50)")
     add_input(p, "--intrinsics", what="intrinsics", metavar="FILE",
@@ -45,8 +48,10 @@ def register(sub):
     p.add_argument("--focal-px", type=float, metavar="F",
                    help="without --intrinsics: the focal length in pixels, if known (lens focal length / pixel "
                         "pitch)")
-    p.add_argument("--pitch-mm", type=parse_floats, metavar="PX[,PY]",
+    p.add_argument("--display-pitch-mm", type=parse_floats, metavar="PX[,PY]",
                    help="display pixel pitch in mm (required for a real screen)")
+    deprecated(p, "--positions", "--positions-mm")
+    deprecated(p, "--pitch-mm", "--display-pitch-mm")
     p.add_argument("--tolerance-deg", type=float, default=0.2, help="squareness tolerance (default 0.2 deg)")
     p.add_argument("--frames", type=int, default=0, metavar="N",
                    help="stop after N updates (default: until Esc on the screen; required when headless)")
@@ -78,8 +83,8 @@ def _check(args, headless: bool):
         raise InputError("--frames", f"must be >= 0, got {args.frames}")
     if headless and (args.frames == 0 or args.output is None):
         raise InputError("--display", f"{args.display!r} is headless: give --frames N and -o DIR")
-    if args.stage is not None and (len(args.positions) != 2 or args.positions[0] == args.positions[1]):
-        raise InputError("--positions", f"expected two distinct stage positions, got {args.positions}")
+    if args.stage is not None and (len(args.positions_mm) != 2 or args.positions_mm[0] == args.positions_mm[1]):
+        raise InputError("--positions-mm", f"expected two distinct stage positions, got {args.positions_mm}")
     if args.steps < 3:
         raise InputError("--steps", f"need >= 3 phase steps, got {args.steps}")
     if args.full_every < 1:
@@ -144,7 +149,7 @@ def run(args) -> int:
     with contextlib.ExitStack() as stack:
         stage, screen, (camera,) = open_devices(stack, args.stage, args.display, [args.camera],
                                                 args.settle_ms / 1000, args.vsync, still_z_mm=0.0)
-        pitch = display_pitch(screen, args.pitch_mm)
+        pitch = display_pitch(screen, args.display_pitch_mm)
         periods = tuple(args.periods) if args.periods else align.default_periods(screen.size)
         settings = align.AlignSettings(periods, args.steps, args.low, args.high, tolerance_deg=args.tolerance_deg,
                                        average=args.average, hold_s=hold, full_every=args.full_every)
@@ -157,19 +162,19 @@ def run(args) -> int:
         described = {"prvm": f"PRVM {args.intrinsics}", "pinhole": f"pinhole {args.intrinsics}"}.get(
             getattr(model, "kind", ""), "")
         if isinstance(camera, SimulatedCamera):
-            camera.set_exposure(args.high, args.positions[0] if stage is not None else 0.0)
+            camera.set_exposure(args.high, args.positions_mm[0] if stage is not None else 0.0)
         if record is not None:
             record.header = {"camera": {"spec": args.camera, "width": camera.size[0], "height": camera.size[1]},
                              "display": {"spec": args.display, "width_px": screen.size[0],
                                          "height_px": screen.size[1], "pitch_mm": list(pitch)},
                              "intrinsics": {"kind": model.kind if model is not None else "pattern",
                                             "file": args.intrinsics, "focal_px": args.focal_px},
-                             "stage_url": args.stage, "positions_mm": list(args.positions) if stage else None,
+                             "stage_url": args.stage, "positions_mm": list(args.positions_mm) if stage else None,
                              "settings": settings.to_json()}
             if isinstance(camera, SimulatedCamera):
                 write_json(record.folder / "truth.json",
-                           _truth(camera, screen, stage, args.positions[0] if stage is not None else 0.0))
-        done = align.run(session, updates=args.frames, stage=stage, positions=args.positions, record=record,
+                           _truth(camera, screen, stage, args.positions_mm[0] if stage is not None else 0.0))
+        done = align.run(session, updates=args.frames, stage=stage, positions=args.positions_mm, record=record,
                          described=described, report=lambda line: print(line, file=sys.stderr),
                          interactive=isinstance(screen, PygameScreen))
     if record is not None:

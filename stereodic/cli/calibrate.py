@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 
-from stereodic.cli.common import add_input, add_output, add_scheduler_option, check_file_output, wrote
+from stereodic.cli.common import add_input, add_output, add_scheduler_option, check_file_output, deprecated, wrote
 
 
 def register(sub):
@@ -21,10 +21,11 @@ def register(sub):
                    help="camera to calibrate (default: the dataset's only camera); repeat it for several")
     p.add_argument("--no-regularise", action="store_true",
                    help="keep each pixel's own ray (no spatial regularisation)")
-    p.add_argument("--window", type=int, default=None, metavar="PX",
+    p.add_argument("--regularise-window", type=int, default=None, metavar="PX",
                    help="one fixed regularisation window (odd, camera pixels; default: a window chosen per "
                         "pixel, from the smallest the data need up to the image's size): larger lowers noise, "
                         "smaller follows finer distortion")
+    deprecated(p, "--window", "--regularise-window")
     p.add_argument("--no-refine-poses", action="store_true",
                    help="with 3 or more stage positions: use the nominal positions as they are (default: "
                         "estimate the display's tilt and z and lateral errors at each position from the data and "
@@ -50,12 +51,13 @@ def _smoother(args):
     from calib.regularise import Smoother
     if args.no_regularise:
         return None
-    if args.window is None:
+    if args.regularise_window is None:
         from calib.ray_field import AUTO
         return AUTO
-    if args.window < 5 or args.window % 2 == 0:
-        raise InputError("--window", f"expected an odd number of pixels >= 5, got {args.window}")
-    return Smoother(half_window=args.window // 2)
+    if args.regularise_window < 5 or args.regularise_window % 2 == 0:
+        raise InputError("--regularise-window", f"expected an odd number of pixels >= 5, got "
+                                                f"{args.regularise_window}")
+    return Smoother(half_window=args.regularise_window // 2)
 
 
 def run(args) -> int:
@@ -82,8 +84,8 @@ def run(args) -> int:
     for line in pose_lines(cal.prvm.meta):
         print(line)
     if args.report:
-        for p in report(args.report, cal):
-            wrote(p)
+        for p, what in report(args.report, cal):
+            wrote(p, what)
     return 0
 
 
@@ -125,7 +127,7 @@ def summary(cal) -> str:
 
 
 def report(out_dir, cal) -> list:
-    """The pictures and the measured display response in `out_dir`; the files written."""
+    """The pictures and the measured display response in `out_dir`; each file written and what it is."""
     from pathlib import Path
 
     from calib.atomic import write_json
@@ -135,11 +137,11 @@ def report(out_dir, cal) -> list:
     if poses:
         path = Path(out_dir) / "poses.json"
         write_json(path, poses)
-        paths.append(path)
+        paths.append((path, "the display's estimated poses"))
     if cal.intensity is not None:
         path = Path(out_dir) / "display_response.json"
         write_json(path, cal.intensity.response.to_json())
-        paths.append(path)
+        paths.append((path, "the measured display response (for `stereodic patterns --response`)"))
     return paths
 
 

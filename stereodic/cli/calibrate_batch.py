@@ -97,7 +97,7 @@ def run(args, smoother) -> int:
     record = None
     if len(plan) > 1:
         record = BatchRecord(Path(plan[0][2]).parent / RECORD,
-                             {"software": __version__, "regularise": not args.no_regularise, "window": args.window,
+                             {"software": __version__, "regularise": not args.no_regularise, "window": args.regularise_window,
                               "report": args.report is not None, "refine_poses": not args.no_refine_poses})
     tasks = [Task(f"{ds}#{cam}", _inputs(ds, cam) if record else {}, (ds, cam, smoother, out, rep, not args.no_refine_poses))
              for ds, cam, out, rep in plan]

@@ -31,18 +31,22 @@ SPELLINGS = {  # argparse dest -> its option strings, wherever a command has it
     "min_zncc": ("--min-zncc",),
     "search": ("--search",),
     "strain_window": ("--strain-window",),
+    "regularise_window": ("--regularise-window",),
+    "start_point": ("--start-point",),
+    "virtual_size": ("--virtual-size",),
+    "virtual_pitch": ("--virtual-pitch-mm",),
+    "display_pitch": ("--display-pitch-mm",),
     "incremental": ("--incremental",),
     "model": ("--model",),
     "size": ("--size",),
-    "pitch": ("--pitch",),
-    "plane_z": ("--plane-z",),
+    "plane_z": ("--plane-z-mm",),
     "format": ("--format",),
     "no_intensity": ("--no-intensity",),
     "report": ("--report",),
     "state": ("--state",),
     "periods": ("--periods",),
     "steps": ("--steps",),
-    "positions": ("--positions",),
+    "positions": ("--positions-mm",),
     "flat_levels": ("--flat-levels",),
     "low": ("--low",),
     "high": ("--high",),
@@ -54,6 +58,16 @@ SPELLINGS = {  # argparse dest -> its option strings, wherever a command has it
     "scheduler": ("--scheduler",),
     "prefilter": ("--prefilter",),
 }
+# Spellings of earlier releases: each still works for one release, with a one-line note on stderr
+# (`deprecated`); option -> its spelling now. tests/stereodic/test_cli_options.py checks both.
+DEPRECATED = {
+    "--window": "--strain-window (strain), --regularise-window (calibrate)", "--size": "--virtual-size",
+    "--pitch": "--virtual-pitch-mm", "--pitch-mm": "--display-pitch-mm", "--pixel-mm": "--camera-pitch-mm",
+    "--plane-z": "--plane-z-mm", "--cameras": "--camera", "--seed": "--start-point (dic, dic2d)",
+    "--bulge": "--bulge-mm", "--tilt": "--tilt-deg", "--baseline": "--baseline-mm", "--distance": "--distance-mm",
+    "--hold-distance": "--hold-distance-mm", "--max-tilt": "--max-tilt-deg", "--positions": "--positions-mm",
+    "--interval": "--interval-s",
+}
 SYNONYMS = {  # second spellings of those meanings, refused by the test
     "--out": "output", "--outdir": "output", "--output-dir": "output", "--out-dir": "output", "-O": "output",
     "--cam": "camera", "--subset-size": "subset", "--window-size": "subset", "--grid-step": "step",
@@ -64,6 +78,77 @@ SYNONYMS = {  # second spellings of those meanings, refused by the test
 }
 
 INPUT_KINDS = ("file", "dir", "any", "dataset", "pattern")
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """--help wrapped to the terminal's width (80 columns where there is none). In a description or
+    epilog, lines at the left margin are paragraphs, filled again; an indented line starts an item (a
+    list entry, a table row: `  NAME  text`) wrapped under its text, and the more indented lines after
+    it continue the item unless they are an item of their own (a list marker, or two spaces inside)."""
+
+    def _fill_text(self, text, width, indent):
+        import re
+        import textwrap
+        out, para, item = [], [], None        # item: (first-line prefix, hanging indent, words)
+
+        def flush():
+            nonlocal para, item
+            if para:
+                out.append(textwrap.fill(" ".join(para), width, initial_indent=indent, subsequent_indent=indent))
+            if item:
+                first, hang, words = item
+                out.append(textwrap.fill(" ".join(words), width, initial_indent=indent + first,
+                                         subsequent_indent=indent + " " * len(hang)))
+            para, item = [], None
+
+        for line in text.strip("\n").splitlines():
+            lead = len(line) - len(line.lstrip())
+            body = line.strip()
+            if not body:
+                flush()
+                out.append("")
+            elif lead == 0:
+                if item:
+                    flush()
+                para.append(body)
+            elif (item and lead >= len(item[1]) and not re.search(r"\S {2,}\S", body)
+                  and not re.match(r"(\d+\.|-|\*) ", body)):
+                item[2].append(body)
+            else:
+                flush()
+                head = re.match(r"(\S+(?: \S+)?\s{2,}|(?:\d+\.|-|\*)\s+)", body)
+                first = " " * lead + (head.group(0) if head else "")
+                rest = body[len(head.group(0)):] if head else body
+                item = (first, first if head else " " * (lead + 2), [rest])
+        flush()
+        return "\n".join(out)
+
+
+class Parser(argparse.ArgumentParser):
+    """Every parser of the command line: help by `HelpFormatter`, whatever a command asked for."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs["formatter_class"] = HelpFormatter
+        super().__init__(*args, **kwargs)
+
+
+
+def deprecated(p: argparse.ArgumentParser, old: str, new: str) -> None:
+    """Keep the earlier spelling `old` of `p`'s option `new` working for a release: it sets the same
+    value, is left out of --help, and prints one line on stderr naming the spelling now."""
+    import copy
+    import sys
+    target = next(a for a in p._actions if new in a.option_strings)
+    alias = copy.copy(target)
+    alias.option_strings, alias.help = [old], argparse.SUPPRESS
+    base = type(target)
+
+    def call(self, parser, namespace, values, option_string=None):
+        print(f"stereodic: note: {old} is deprecated, use {new}", file=sys.stderr)
+        base.__call__(self, parser, namespace, values, option_string)
+    alias.__class__ = type(f"Deprecated{base.__name__}", (base,), {"__call__": call})
+    p._add_action(alias)
+
 OUTPUT_KINDS = ("file", "dir", "any")
 
 
@@ -166,6 +251,20 @@ def _check_output(path: Path, option: PathOption, inputs: set[Path]) -> None:
         raise InputError(path, f"cannot be written: no permission to write in {ancestor}")
     if option.kind == "file" and path.exists() and not os.access(path, os.W_OK):
         raise InputError(path, "exists and cannot be overwritten (no permission)")
+    _probe(path, ancestor)
+
+
+def _probe(path: Path, folder: Path) -> None:
+    """InputError unless a file can be created in `folder`: the outputs' temporary files are created
+    there (calib.atomic), and permissions alone do not tell (root writes past them; /proc, a read-only
+    mount or a full disk refuse everyone)."""
+    import tempfile
+    from calib.errors import InputError
+    try:
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".stereodic-probe-"):
+            pass
+    except OSError as exc:
+        raise InputError(path, f"cannot be written: {(exc.strerror or str(exc)).lower()} in {folder}") from None
 
 
 def check_paths(args: argparse.Namespace) -> None:
@@ -241,7 +340,7 @@ def add_simulation_options(p: argparse.ArgumentParser, width: int, height: int, 
     --supersample (sub-samples per pixel side) and -o DIR."""
     from scanners.sim import LENS_FAMILIES
     if lens is not None:
-        p.add_argument("--lens", choices=LENS_FAMILIES, default="brown", help=f"{lens} (default brown)")
+        p.add_argument("--lens", choices=LENS_FAMILIES, metavar="LENS", default="brown", help=f"{lens}: {', '.join(LENS_FAMILIES)} (default brown)")
     p.add_argument("--width", type=int, default=width, help=f"sensor width in pixels (default {width})")
     p.add_argument("--height", type=int, default=height, help=f"sensor height in pixels (default {height})")
     p.add_argument("--seed", type=int, default=0, help=f"random seed of {seeded}")
@@ -261,8 +360,9 @@ def add_grid_options(p: argparse.ArgumentParser, image: str) -> None:
                                                       "bounds)")
     add_input(p, "--mask", what="mask image", metavar="PNG",
               help=f"image of the {image}'s size: points where it is non-zero")
-    p.add_argument("--seed", action="append", default=[], metavar="X,Y",
+    p.add_argument("--start-point", action="append", default=[], metavar="X,Y",
                    help=f"start point of the propagation in the {image} (repeatable; default: automatic)")
+    deprecated(p, "--seed", "--start-point")
 
 
 def add_prefilter_option(p: argparse.ArgumentParser) -> None:
@@ -317,7 +417,7 @@ def display_pitch(screen, pitch_mm: list[float] | None) -> tuple[float, float]:
     if isinstance(screen, SimScreen):
         return screen.pitch_mm
     if not pitch_mm or len(pitch_mm) > 2 or min(pitch_mm) <= 0:
-        raise InputError("--pitch-mm", "give the display's pixel pitch in mm (PX or PX,PY)")
+        raise InputError("--display-pitch-mm", "give the display's pixel pitch in mm (PX or PX,PY)")
     return tuple(float(p) for p in pitch_mm) * (2 // len(pitch_mm))
 
 
@@ -326,10 +426,12 @@ def add_handheld_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--handheld", type=int, default=None, metavar="N",
                    help="hold the display by hand in N random poses instead of moving it on the stage (frames "
                         "carry 'pose'; the truth is in the display's frame at pose 0)")
-    p.add_argument("--hold-distance", type=parse_floats, default=[300.0, 600.0], metavar="NEAR,FAR",
+    p.add_argument("--hold-distance-mm", type=parse_floats, default=[300.0, 600.0], metavar="NEAR,FAR",
                    help="with --handheld: range of the display's distance from the camera, mm (default 300,600)")
-    p.add_argument("--max-tilt", type=float, default=35.0, metavar="DEG",
+    p.add_argument("--max-tilt-deg", type=float, default=35.0, metavar="DEG",
                    help="with --handheld: the largest tilt of the display, degrees (default 35)")
+    deprecated(p, "--hold-distance", "--hold-distance-mm")
+    deprecated(p, "--max-tilt", "--max-tilt-deg")
     p.add_argument("--disturb", type=int, default=None, metavar="POSE",
                    help="with --handheld: the display moves (0.2 mm, 0.1 deg) halfway through this pose's fringes")
 
@@ -343,9 +445,9 @@ def handheld_from(args):
         if args.disturb is not None:
             raise InputError("--disturb", "needs --handheld")
         return None
-    if len(args.hold_distance) != 2:
-        raise InputError("--hold-distance", f"expected NEAR,FAR in mm, got {args.hold_distance}")
-    return HandHeld(poses=args.handheld, distance_mm=tuple(args.hold_distance), max_tilt_deg=args.max_tilt,
+    if len(args.hold_distance_mm) != 2:
+        raise InputError("--hold-distance-mm", f"expected NEAR,FAR in mm, got {args.hold_distance_mm}")
+    return HandHeld(poses=args.handheld, distance_mm=tuple(args.hold_distance_mm), max_tilt_deg=args.max_tilt_deg,
                     disturbed=args.disturb)
 
 
@@ -452,14 +554,14 @@ def dic_grid(args, width: int, height: int, image: str, source: str):
             raise InputError(args.mask, f"mask is {mask.shape[1]}x{mask.shape[0]} but the {image} is "
                                         f"{width}x{height}")
     seeds = []
-    for text in args.seed:
-        x, y = parse_ints(text, 2, "--seed")
+    for text in args.start_point:
+        x, y = parse_ints(text, 2, "--start-point")
         if not (0 <= x < width and 0 <= y < height):
-            raise InputError("--seed", f"{text} is outside the {width}x{height} {image}")
+            raise InputError("--start-point", f"{text} is outside the {width}x{height} {image}")
         if roi and not (roi[0] <= x <= roi[2] and roi[1] <= y <= roi[3]):
-            raise InputError("--seed", f"{text} is outside the region of interest {args.roi}")
+            raise InputError("--start-point", f"{text} is outside the region of interest {args.roi}")
         if mask is not None and not mask[y, x]:
-            raise InputError("--seed", "a seed lies outside the mask")
+            raise InputError("--start-point", "a start point lies outside the mask")
         seeds.append((x, y))
     grid = make_grid(width, height, subset=args.subset, step=args.step, roi=roi, mask=mask)
     if not grid.active.any():

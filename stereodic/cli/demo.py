@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 
 from stereodic.cli.common import add_output
 
@@ -26,7 +25,7 @@ About 2-3 minutes on two cores; the first run after an install also compiles the
 
 def register(sub):
     p = sub.add_parser("demo", help="end-to-end run on the built-in simulated rig, no hardware",
-                       description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=DESCRIPTION)
     add_output(p, kind="dir", default="demo-out", metavar="DIR", help="output folder (default: demo-out)")
     p.set_defaults(func=run)
 

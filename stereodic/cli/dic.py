@@ -51,8 +51,8 @@ def register(sub):
     p.add_argument("--min-zncc", type=float, default=0.8, help="points below are flagged (default 0.8)")
     p.add_argument("--strain-window", type=int, default=5, metavar="N",
                    help="strains fitted over N x N grid points, odd; 0 = none (default 5)")
-    p.add_argument("--measure", choices=MEASURES, default="green-lagrange",
-                   help="strain measure (default green-lagrange)")
+    p.add_argument("--measure", choices=MEASURES, default="green-lagrange", metavar="MEASURE",
+                   help=f"strain measure: {', '.join(MEASURES)} (default green-lagrange)")
     p.add_argument("--switch-zncc", type=float, default=SWITCH_ZNCC, metavar="ZNCC",
                    help=f"a point whose ZNCC against the reference falls below this switches to incremental "
                         f"correlation, displacements still from the reference (default {SWITCH_ZNCC}; 0 = never)")
@@ -127,7 +127,7 @@ def _run_record(args, rig_path, data, settings):
     from calib import __version__
     from calib.batch import file_sha256, fingerprint
     grid_args = {"subset": args.subset, "step": args.step, "roi": args.roi,
-                 "mask": file_sha256(args.mask) if args.mask else None, "seeds": args.seed}
+                 "mask": file_sha256(args.mask) if args.mask else None, "seeds": args.start_point}
     record = {"software": __version__, "stereo": dataclasses.asdict(settings), "grid": grid_args}
     paths = [str(p) for p in data.left + data.right]
     root = os.path.commonpath([os.path.abspath(p) for p in paths])

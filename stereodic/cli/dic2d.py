@@ -40,9 +40,9 @@ def register(sub):
     p.add_argument("--incremental", action="store_true",
                    help="register each image against the previous one for every point (large deformations)")
     p.add_argument("--strain-window", type=int, metavar="N",
-                   help="add strains fitted over N x N grid points (odd)")
-    p.add_argument("--measure", choices=MEASURES, default="green-lagrange",
-                   help="strain measure (default green-lagrange)")
+                   help="add strains fitted over N x N grid points, odd; 0 = none (default: none)")
+    p.add_argument("--measure", choices=MEASURES, default="green-lagrange", metavar="MEASURE",
+                   help=f"strain measure: {', '.join(MEASURES)} (default green-lagrange)")
     p.add_argument("--columns", choices=["stereodic", "dice"], default="stereodic",
                    help="dice: DICe's solution files OUT_<k>.csv (its column names and layout) instead of OUT.csv")
     add_output(p, "--npz", metavar="OUT.npz", help="also write the fields as arrays (n_images, ny, nx)")
@@ -54,8 +54,8 @@ def register(sub):
 def _check_args(args) -> None:
     """The options beyond the grid's (stereodic.cli.common.dic_grid checks those)."""
     from calib.errors import InputError
-    if args.strain_window is not None and (args.strain_window < 3 or args.strain_window % 2 == 0):
-        raise InputError("--strain-window", f"must be an odd number >= 3, got {args.strain_window}")
+    if args.strain_window and (args.strain_window < 3 or args.strain_window % 2 == 0):
+        raise InputError("--strain-window", f"must be 0 or an odd number >= 3, got {args.strain_window}")
     for name, value in (("--min-zncc", args.min_zncc), ("--switch-zncc", args.switch_zncc)):
         if not 0 <= value <= 1:
             raise InputError(name, f"must be between 0 and 1, got {value}")

@@ -21,14 +21,13 @@ own world frame).
 
 from __future__ import annotations
 
-import argparse
 
 from stereodic.cli.common import add_input, add_output, wrote
 
 
 def register(sub):
     p = sub.add_parser("export", help="a virtual camera's pinhole model for other software",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=__doc__)
     add_input(p, "file", what="camera or rig", metavar="FILE",
               help="virtual camera file (VCAM.npz), camera PRVM file (CAM.npz) or stereo rig (RIG.npz)")
     p.add_argument("--format", required=True, choices=["opencv", "colmap", "dice", "json", "vic3d", "mrcal"],

@@ -14,14 +14,13 @@ See docs/import.md.
 
 from __future__ import annotations
 
-import argparse
 
-from stereodic.cli.common import add_input, add_output, parse_size, wrote
+from stereodic.cli.common import add_input, add_output, deprecated, parse_size, wrote
 
 
 def register(sub):
     p = sub.add_parser("import", help="another program's calibration as a rig (RIG.npz) or camera (CAM.npz)",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=__doc__)
     add_input(p, "calibration", what="calibration", nargs="+", metavar="CALIBRATION",
                    help="calibration file (two for a pair of mrcal models or OpenCV's intrinsics + extrinsics)")
     p.add_argument("--format", default="auto", choices=["auto", "opencv", "vic3d", "dice", "mrcal", "kalibr"],
@@ -35,10 +34,13 @@ def register(sub):
     p.add_argument("--model", choices=["pinhole", "modelless"], default="pinhole",
                    help="as `stereodic rig --model`: rays of the Virtual PRVMs (the images are the same)")
     p.add_argument("--virtual-size", type=parse_size, metavar="WxH",
-                   help="as `stereodic rig --size`: virtual image size (default: the left camera's)")
-    p.add_argument("--pitch", type=float, metavar="MM", help="as `stereodic rig --pitch`")
-    p.add_argument("--plane-z", type=float, metavar="MM",
-                   help="as `stereodic rig --plane-z`, in the rig's frame (default: the cameras' working point)")
+                   help="as `stereodic rig --virtual-size`: virtual image size (default: the left camera's)")
+    p.add_argument("--virtual-pitch-mm", type=float, metavar="MM", help="as `stereodic rig --virtual-pitch-mm`")
+    p.add_argument("--plane-z-mm", type=float, metavar="MM",
+                   help="as `stereodic rig --plane-z-mm`, in the rig's frame (default: the cameras' working "
+                        "point)")
+    deprecated(p, "--pitch", "--virtual-pitch-mm")
+    deprecated(p, "--plane-z", "--plane-z-mm")
     add_output(p, metavar="OUT.npz", help="output rig or camera file")
     p.set_defaults(func=run)
 
@@ -52,8 +54,8 @@ def run(args) -> int:
 
     names = [n.strip() for n in args.camera.split(",")] if args.camera else None
     imp = import_calibration(args.calibration, fmt=args.format, size=args.size, units=args.units, cameras=names,
-                             model=args.model, virtual_size=args.virtual_size, pitch_mm=args.pitch,
-                             plane_z_mm=args.plane_z)
+                             model=args.model, virtual_size=args.virtual_size, pitch_mm=args.virtual_pitch_mm,
+                             plane_z_mm=args.plane_z_mm)
     fmt, cams, out = imp.format, imp.cameras, imp.result
     flipped = "" if np.allclose(out.meta["world_from_rig"] if isinstance(out, PRVM) else out.world_from_rig,
                                 np.eye(4)) else " (rays in the file's frame turned to look along +z)"

@@ -10,14 +10,13 @@ need texture in both directions (speckle, a chessboard): a pair of stripes canno
 
 from __future__ import annotations
 
-import argparse
 
 from stereodic.cli.common import add_input, add_output, wrote
 
 
 def register(sub):
     p = sub.add_parser("rectify", help="rectify a stereo image pair with a rig",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=__doc__)
     add_input(p, "rig", what="rig", metavar="RIG.npz", help="rig file from `stereodic rig`")
     add_input(p, "left", what="image", metavar="LEFT_IMG", help="left camera's image (8/16-bit PNG or TIFF)")
     add_input(p, "right", what="image", metavar="RIGHT_IMG", help="right camera's image")

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import argparse
 
-from stereodic.cli.common import add_input, add_output, add_scheduler_option, wrote
+from stereodic.cli.common import add_input, add_output, add_scheduler_option, deprecated, wrote
 
 RECORD = "scan.batch.json"
 
@@ -32,7 +32,7 @@ def _pair(text: str) -> tuple[str, str]:
 
 def register(sub):
     p = sub.add_parser("scan", help="structured-light scan to a point cloud",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=__doc__)
     add_input(p, "rig", what="rig", metavar="RIG.npz", help="the rectified stereo rig (stereodic rig)")
     add_input(p, "dataset", kind="dataset", metavar="DATASET", nargs="+",
               help="scan dataset folder or its capture.json; several, or a quoted shell-style pattern, for a batch")
@@ -40,8 +40,9 @@ def register(sub):
                help="output point cloud (CLOUD_s<state>.ply per state if several); a folder for several datasets")
     p.add_argument("--state", type=int, action="append", metavar="N",
                    help="scan only this state (repeatable; default all)")
-    p.add_argument("--cameras", type=_pair, metavar="LEFT,RIGHT",
+    p.add_argument("--camera", type=_pair, metavar="LEFT,RIGHT",
                    help="dataset camera names of the rig's left and right camera (default: the rig's names)")
+    deprecated(p, "--cameras", "--camera")
     add_output(p, "--mesh", kind="any", metavar="MESH.ply|DIR",
                help="also write a Poisson surface mesh (named like the clouds; a folder for several datasets)")
     p.add_argument("--no-evm", action="store_true",
@@ -77,7 +78,7 @@ def _jobs(args, rig, datasets):
         check_file_output(args.output, "-o/--output")
         if args.mesh is not None:
             check_file_output(args.mesh, "--mesh")
-        return plan_scans(rig, datasets[0], args.output, args.state, args.cameras, args.mesh)
+        return plan_scans(rig, datasets[0], args.output, args.state, args.camera, args.mesh)
     out = _batch_folder(args.output, "-o/--output")
     mesh = None if args.mesh is None else _batch_folder(args.mesh, "--mesh")
     jobs, seen = [], {}
@@ -86,7 +87,7 @@ def _jobs(args, rig, datasets):
         if name in seen:
             raise InputError(ds, f"has the folder name of {seen[name]}: their clouds would have the same name")
         seen[name] = ds
-        jobs += plan_scans(rig, ds, out / f"{name}.ply", args.state, args.cameras,
+        jobs += plan_scans(rig, ds, out / f"{name}.ply", args.state, args.camera,
                            None if mesh is None else mesh / f"{name}.ply")
     return jobs
 
@@ -124,7 +125,7 @@ def run(args) -> int:
     rig = load_rig(args.rig)
     datasets = [d for v in args.dataset for d in expand_datasets(v)]
     jobs = _jobs(args, rig, datasets)
-    cameras = args.cameras or (rig.left.name, rig.right.name)
+    cameras = args.camera or (rig.left.name, rig.right.name)
     options = {"cameras": cameras, "corrected": not args.no_evm, "neighbours": args.outlier_neighbours,
                "std_ratio": args.outlier_std, "smooth_px": SMOOTH_PX if args.smooth is None else args.smooth}
     rig_sha = file_sha256(args.rig)

@@ -29,8 +29,8 @@ def run(args) -> int:
     if truth is not None:
         from calib.evaluate import check_truth
         check_truth(prvm, truth, args.prvm, args.truth)
-    for path in write_report(prvm, args.output, truth):
-        wrote(path)
+    for path, what in write_report(prvm, args.output, truth):
+        wrote(path, what)
     return 0
 
 
@@ -102,8 +102,9 @@ def distortion_px(prvm, z_mm: float):
                      (hom[1, 0] * x + hom[1, 1] * y + hom[1, 2]) / den - v])
 
 
-def write_report(prvm, out_dir, truth=None) -> list[Path]:
-    """Write the PNG pictures of `prvm` (and its error against `truth`) into out_dir; returns the paths."""
+def write_report(prvm, out_dir, truth=None) -> list[tuple[Path, str]]:
+    """Write the PNG pictures of `prvm` (and its error against `truth`) into out_dir; returns each
+    picture's path and what it shows."""
     import numpy as np
 
     from calib.evaluate import ErrorStats, footprint_mm, ray_error_px, working_plane
@@ -119,34 +120,39 @@ def write_report(prvm, out_dir, truth=None) -> list[Path]:
     h, w = valid.shape
     step = max(h, w) // 24
     v, u = np.mgrid[step // 2:h:step, step // 2:w:step]
-    paths.append(_image(mag, f"distortion: departure from the best\npinhole view of the plane z = "
-                             f"{fixed(z0, 3)} mm", "displacement (camera px)", out / "distortion.png",
-                        quiver=(u, v, d[0][v, u], d[1][v, u])))
+    paths.append((_image(mag, f"distortion: departure from the best\npinhole view of the plane z = "
+                              f"{fixed(z0, 3)} mm", "displacement (camera px)", out / "distortion.png",
+                         quiver=(u, v, d[0][v, u], d[1][v, u])),
+                  f"distortion map, largest {fixed(float(np.nanmax(mag)), 2)} camera px"))
     res = prvm.residual_mm
     if res is not None and np.isfinite(res).any():
-        paths.append(_image(np.where(valid, res * 1000, np.nan), "line-fit residual", "RMS distance (um)",
-                            out / "residual.png", cmap="magma"))
+        paths.append((_image(np.where(valid, res * 1000, np.nan), "line-fit residual", "RMS distance (um)",
+                             out / "residual.png", cmap="magma"),
+                      f"line-fit residual map, median {fixed(1000 * float(np.nanmedian(res[valid])), 2)} um"))
     unc = prvm.extra.get("uncertainty_mm")
     if unc is not None:
         fp = footprint_mm(prvm, z0)
-        paths.append(_image(np.where(valid, unc[..., 0] / fp, np.nan),
-                            f"1-sigma ray uncertainty at z = {fixed(z0, 3)} mm (per axis)", "camera pixels",
-                            out / "uncertainty.png", cmap="magma"))
+        paths.append((_image(np.where(valid, unc[..., 0] / fp, np.nan),
+                             f"1-sigma ray uncertainty at z = {fixed(z0, 3)} mm (per axis)", "camera pixels",
+                             out / "uncertainty.png", cmap="magma"), "ray uncertainty map (camera px)"))
     quality = prvm.extra.get("quality")
     if quality is not None or not valid.all():
-        paths.append(_mask(valid, quality, QUALITY_NAMES, out / "mask.png"))
+        paths.append((_mask(valid, quality, QUALITY_NAMES, out / "mask.png"),
+                      f"calibrated pixels and why the others are not ({valid.mean():.1%} calibrated)"))
     if truth is not None:
         err = ray_error_px(prvm, truth)
         s = ErrorStats.of(err)
         z = working_plane(truth)
-        paths.append(_image(err, f"ray error against the truth on the plane z = {fixed(z, 3)} mm\n"
-                                 f"RMS {fixed(s.rms, 4)} px, p99 {fixed(s.p99, 4)} px", "camera pixels",
-                            out / "error.png", cmap="magma"))
+        paths.append((_image(err, f"ray error against the truth on the plane z = {fixed(z, 3)} mm\n"
+                                  f"RMS {fixed(s.rms, 4)} px, p99 {fixed(s.p99, 4)} px", "camera pixels",
+                             out / "error.png", cmap="magma"),
+                      f"ray error map against the truth, RMS {fixed(s.rms, 4)} px"))
         pts = prvm.at_z(z) - truth.at_z(z)
         fp = footprint_mm(truth, z)
-        paths.append(_signed_pair(np.where(valid, pts[..., 0] / fp, np.nan), np.where(valid, pts[..., 1] / fp, np.nan),
-                                  f"signed ray error (calibration - truth) on the plane z = {fixed(z, 3)} mm",
-                                  "camera pixels", out / "error_xy.png"))
+        paths.append((_signed_pair(np.where(valid, pts[..., 0] / fp, np.nan),
+                                   np.where(valid, pts[..., 1] / fp, np.nan),
+                                   f"signed ray error (calibration - truth) on the plane z = {fixed(z, 3)} mm",
+                                   "camera pixels", out / "error_xy.png"), "signed ray error maps in x and y"))
     return paths
 
 

@@ -2,15 +2,17 @@
 
 Modes: `calibration` (fringes on a display moved by a stage, with truth.npz); `stereo` (two cameras,
 stereodic/cli/simulate_stereo.py); `scan` (projector + two cameras, stereodic/cli/simulate_scan.py); `dic` (a
-speckled plate under load, two cameras, stereodic/cli/simulate_dic.py).
+speckled plate under load, two cameras, stereodic/cli/simulate_dic.py); `dic2d` (a speckle image and a moved
+copy, stereodic/cli/simulate_dic2d.py).
 """
 
 from __future__ import annotations
 
 from stereodic.cli import simulate_dic as dic_mode
+from stereodic.cli import simulate_dic2d as dic2d_mode
 from stereodic.cli import simulate_scan as scan_mode
 from stereodic.cli import simulate_stereo as stereo_mode
-from stereodic.cli.common import (add_flaw_options, add_handheld_options, add_simulation_options, flaw_kwargs,
+from stereodic.cli.common import (add_flaw_options, add_handheld_options, add_simulation_options, deprecated, flaw_kwargs,
                                    handheld_from, parse_floats, wrote)
 
 
@@ -27,8 +29,9 @@ def register(sub):
                    help="fringe periods in display pixels (default 60,360,1920)")
     c.add_argument("--steps", type=parse_floats, default=[3],
                    help="phase steps per period, >= 3: one number, or one per period (default 3)")
-    c.add_argument("--positions", type=parse_floats, default=[0.0, 50.0],
+    c.add_argument("--positions-mm", type=parse_floats, default=[0.0, 50.0],
                    help="nominal stage positions in mm (default 0,50)")
+    deprecated(c, "--positions", "--positions-mm")
     c.add_argument("--flat-levels", type=parse_floats, default=None,
                    help="grey levels of the flat frames (default 0,32,...,224,255)")
     c.add_argument("--low", type=int, default=20, help="fringe minimum level (default 20)")
@@ -48,6 +51,7 @@ def register(sub):
     stereo_mode.register(modes)                         # `simulate stereo`: stereodic/cli/simulate_stereo.py
     scan_mode.register(modes)                           # `simulate scan`: stereodic/cli/simulate_scan.py
     dic_mode.register(modes)                            # `simulate dic`: stereodic/cli/simulate_dic.py
+    dic2d_mode.register(modes)                          # `simulate dic2d`: stereodic/cli/simulate_dic2d.py
 
 
 def run_calibration(args) -> int:
@@ -59,7 +63,7 @@ def run_calibration(args) -> int:
     steps = args.steps[0] if len(args.steps) == 1 else args.steps
     cap = simulate_calibration(
         args.output, lens=args.lens, width=args.width, height=args.height, seed=args.seed,
-        periods=args.periods, steps=steps, z_positions=args.positions,
+        periods=args.periods, steps=steps, z_positions=args.positions_mm,
         flat_levels=DEFAULT_FLATS if args.flat_levels is None else args.flat_levels, noise=args.noise,
         supersample=args.supersample, cover_glass=args.cover_glass, low=args.low, high=args.high,
         chessboard=args.chessboard, stage_error_um=args.stage_error_um, handheld=handheld_from(args),

@@ -10,7 +10,7 @@ memory at a time (stereodic.strain.results).
 from __future__ import annotations
 
 
-from stereodic.cli.common import add_input, add_output
+from stereodic.cli.common import add_input, add_output, deprecated
 
 
 def register(sub):
@@ -20,10 +20,11 @@ def register(sub):
                                    "another window or measure, without correlating again.")
     add_input(p, "result", kind="any", what="DIC result", metavar="DIC_RESULT",
               help="a `stereodic dic` output folder or dic.npz, or a dic2d NPZ")
-    p.add_argument("--window", type=int, metavar="N",
+    p.add_argument("--strain-window", type=int, metavar="N",
                    help="strain fitted over N x N grid points, odd (default: the run's own, else 5)")
-    p.add_argument("--measure", choices=MEASURES, default="green-lagrange",
-                   help="strain measure (default green-lagrange)")
+    deprecated(p, "--window", "--strain-window")
+    p.add_argument("--measure", choices=MEASURES, default="green-lagrange", metavar="MEASURE",
+                   help=f"strain measure: {', '.join(MEASURES)} (default green-lagrange)")
     add_output(p, kind="dir", metavar="DIR", help="output folder")
     p.add_argument("--no-plot", action="store_true", help="skip the PNG maps")
     p.set_defaults(func=run)
@@ -46,9 +47,9 @@ def run(args) -> int:
 
     result = open_result(args.result)
     own = (result.meta.get("settings", {}).get("strain_window") if result.kind == "dic" else None)
-    window = args.window or own or 5
+    window = args.strain_window or own or 5
     if window < 3 or window % 2 == 0:
-        raise InputError("--window", f"must be an odd number >= 3, got {window}")
+        raise InputError("--strain-window", f"must be an odd number >= 3, got {window}")
     out = Path(args.output)
     g = result.grid
     act = g.active.ravel()

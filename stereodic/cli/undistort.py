@@ -8,26 +8,28 @@ and bit depth.
 
 from __future__ import annotations
 
-import argparse
 
-from stereodic.cli.common import add_input, add_output, parse_size, wrote
+from stereodic.cli.common import add_input, add_output, deprecated, parse_size, wrote
 
 
 def register(sub):
     p = sub.add_parser("undistort", help="distortion-free virtual images of one camera's images",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=__doc__)
     add_input(p, "camera", what="camera", metavar="CAM.npz", help="camera PRVM file, or a virtual camera file")
     add_input(p, "images", what="image", metavar="IMAGE", nargs="+", help="8- or 16-bit grayscale PNG/TIFF")
     add_output(p, kind="dir", metavar="DIR", help="output folder")
     p.add_argument("--model", choices=["pinhole", "telecentric", "modelless"], default="pinhole",
                    help="ray model of the virtual camera (default pinhole; telecentric for telecentric "
                         "lenses); the images are the same, the saved Virtual PRVM and EVM differ")
-    p.add_argument("--size", type=parse_size, metavar="WxH", help="virtual image size (default: the real one)")
-    p.add_argument("--pitch", type=float, metavar="MM",
+    p.add_argument("--virtual-size", type=parse_size, metavar="WxH", help="virtual image size (default: the real one)")
+    p.add_argument("--virtual-pitch-mm", type=float, metavar="MM",
                    help="virtual pixel pitch on the sensor plane, mm (default: the largest field that fits)")
-    p.add_argument("--plane-z", type=float, metavar="MM",
+    p.add_argument("--plane-z-mm", type=float, metavar="MM",
                    help="the virtual sensor plane passes where the central ray crosses z = MM "
                         "(default: the PRVM's reference plane)")
+    deprecated(p, "--size", "--virtual-size")
+    deprecated(p, "--pitch", "--virtual-pitch-mm")
+    deprecated(p, "--plane-z", "--plane-z-mm")
     kind = p.add_mutually_exclusive_group()
     kind.add_argument("--float", dest="fixed_point", action="store_false",
                       help="float32 maps: exact bilinear interpolation (default)")
@@ -53,8 +55,8 @@ def run(args) -> int:
     im = None if args.no_intensity else intensity_matrix(prvm)
     setup = None
     if is_virtual(prvm):
-        if args.size or args.pitch or args.plane_z is not None:
-            raise InputError(args.camera, "is a virtual camera file: --size, --pitch and --plane-z do not apply")
+        if args.virtual_size or args.virtual_pitch_mm or args.plane_z_mm is not None:
+            raise InputError(args.camera, "is a virtual camera file: --virtual-size, --virtual-pitch-mm and --plane-z-mm do not apply")
         setup = as_virtual(prvm)
     out = Path(args.output)
     names = [Path(f).name for f in args.images]
@@ -84,10 +86,10 @@ def virtual_setup(prvm, args):
     from stereodic.virtual.camera import default_camera
     from stereodic.virtual.prvm import make_virtual
 
-    width, height = args.size if args.size else (None, None)
+    width, height = args.virtual_size if args.virtual_size else (None, None)
     try:
-        camera = default_camera(prvm, model=args.model, width=width, height=height, pitch_mm=args.pitch,
-                                plane_z_mm=args.plane_z)
+        camera = default_camera(prvm, model=args.model, width=width, height=height, pitch_mm=args.virtual_pitch_mm,
+                                plane_z_mm=args.plane_z_mm)
     except InputError as exc:
         raise InputError(args.camera, exc.problem) from None
     setup = make_virtual(prvm, camera)

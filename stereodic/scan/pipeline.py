@@ -111,7 +111,7 @@ def check_scan_dataset(capture: Capture, cameras: tuple[str, str], state: int) -
     for cam in cameras:
         if cam not in capture.cameras:
             raise InputError(where, f"has no camera {cam!r} (cameras: {', '.join(capture.cameras)}); name the "
-                                    f"rig's cameras with --cameras LEFT,RIGHT")
+                                    f"rig's cameras with --camera LEFT,RIGHT")
         sets: dict[float, list] = defaultdict(list)
         for f in capture.select(cam, state=state, type="fringe"):
             if f.pattern.axis != "x":

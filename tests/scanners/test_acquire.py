@@ -20,7 +20,7 @@ PERIODS = (120, 1920)
 FLATS = (0, 128, 240)
 PER_POSITION = len(FLATS) + 2 * len(PERIODS) * 3
 STAGE = "emulated:zaber?speed=5000&timeout=0.5"
-CLI = ["--display", "sim", "--camera", "sim:brown?size=96x80", "--positions", "0,50", "--periods", "120,1920",
+CLI = ["--display", "sim", "--camera", "sim:brown?size=96x80", "--positions-mm", "0,50", "--periods", "120,1920",
        "--flat-levels", "0,128,240", "--settle-ms", "0"]
 
 
@@ -172,7 +172,7 @@ def test_cli_fault_is_one_line_and_the_same_command_resumes(tmp_path, capsys):
 
 def test_cli_bad_arguments(tmp_path, capsys):
     base = ["acquire", "calibration", "--stage", STAGE, "-o", str(tmp_path / "x")]
-    assert main(base + CLI[:4] + ["--positions", "0,0"]) == 2
+    assert main(base + CLI[:4] + ["--positions-mm", "0,0"]) == 2
     assert "distinct" in capsys.readouterr().err
     assert main(base + CLI + ["--steps", "2"]) == 2
     assert main(["acquire", "calibration", "--stage", "thorlabs:///dev/x", *CLI, "-o", str(tmp_path)]) == 2
@@ -192,7 +192,7 @@ def test_dic_with_folder_cameras(tmp_path):
     photos(tmp_path / "right", 3)
     out = tmp_path / "dic"
     cmd = ["acquire", "dic", "--camera", f"folder:{tmp_path / 'left'}", "--camera",
-           f"folder:{tmp_path / 'right'}?timeout=0.3", "--states", "3", "--interval", "0", "-o", str(out)]
+           f"folder:{tmp_path / 'right'}?timeout=0.3", "--states", "3", "--interval-s", "0", "-o", str(out)]
     assert main(cmd) == 0
     cap = load_capture(out)
     assert cap.kind == "dic" and cap.states("cam0") == [0, 1, 2] and cap.states("cam1") == [0, 1, 2]
@@ -204,7 +204,7 @@ def test_dic_with_folder_cameras(tmp_path):
 def test_dic_resumes_without_reusing_photos(tmp_path, capsys):
     photos(tmp_path / "cam", 2)
     out = tmp_path / "dic"
-    cmd = ["acquire", "dic", "--camera", f"folder:{tmp_path / 'cam'}?timeout=0.2", "--states", "3", "--interval",
+    cmd = ["acquire", "dic", "--camera", f"folder:{tmp_path / 'cam'}?timeout=0.2", "--states", "3", "--interval-s",
            "0", "-o", str(out)]
     assert main(cmd) == 1                                  # the third photo never came
     assert "no new photo" in capsys.readouterr().err
@@ -219,7 +219,7 @@ def test_scan_plan_and_file_display(tmp_path):
     photos(tmp_path / "cam", 6)
     out, shown = tmp_path / "scan", tmp_path / "shown"
     cmd = ["acquire", "scan", "--display", f"file:{shown}?size=64x48", "--camera", f"folder:{tmp_path / 'cam'}",
-           "--periods", "64", "--steps", "3", "--states", "2", "--interval", "0", "-o", str(out)]
+           "--periods", "64", "--steps", "3", "--states", "2", "--interval-s", "0", "-o", str(out)]
     assert main(cmd) == 0
     cap = load_capture(out)
     assert cap.kind == "scan" and cap.extra["projector"] == {"width_px": 64, "height_px": 48}

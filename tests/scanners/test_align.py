@@ -277,7 +277,7 @@ def test_a_camera_that_does_not_see_the_pattern(tmp_path, capsys):
     for i in range(4):
         write_gray(tmp_path / "photos" / f"{i}.png", rng.integers(0, 12, (48, 64)).astype(np.uint8))
     out = tmp_path / "out"
-    assert main(["align", "--display", f"file:{tmp_path}/shown?size=320x180", "--pitch-mm", "0.5", "--camera",
+    assert main(["align", "--display", f"file:{tmp_path}/shown?size=320x180", "--display-pitch-mm", "0.5", "--camera",
                  f"folder:{tmp_path}/photos?timeout=1", "--frames", "1", "-o", str(out)]) == 2
     assert "cam0 does not see the pattern: only 0.0% of its pixels brighten" in one_line(capsys)
     assert not (out / "readings.json").exists()

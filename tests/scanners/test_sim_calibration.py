@@ -151,7 +151,7 @@ def test_an_interrupted_run_leaves_no_manifest(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("kwargs, where", [
     (dict(steps=2), "--steps"), (dict(periods=()), "--periods"), (dict(periods=(0, 60)), "--periods"),
-    (dict(z_positions=()), "--positions"), (dict(z_positions=(0, 0)), "--positions"),
+    (dict(z_positions=()), "--positions-mm"), (dict(z_positions=(0, 0)), "--positions-mm"),
     (dict(bit_depth=9), "--bit-depth"), (dict(cover_glass=(1.0, 0.5)), "--cover-glass"),
     (dict(lens="fisheye"), "--lens"), (dict(lens_options={"target_mm": (-400, -400, 0)}), "does not see"),
     (dict(steps=(3, 4, 5)), "--steps"), (dict(overexposure=1.5), "flaws"),
@@ -198,7 +198,7 @@ def test_a_real_benchs_flaws_are_in_the_images_and_the_truth(tmp_path):
 def test_command_line(tmp_path, capsys):
     out = tmp_path / "ds"
     assert main(["simulate", "calibration", "--lens", "telecentric", "--width", "64", "--height", "48",
-                 "--periods", "8,40", "--positions", "0,2", "--no-noise", "--cover-glass", "0.5,1.5",
+                 "--periods", "8,40", "--positions-mm", "0,2", "--no-noise", "--cover-glass", "0.5,1.5",
                  "--bit-depth", "16", "-o", str(out)]) == 0
     cap = load_capture(out)
     assert len(cap.frames) == 2 * (9 + 2 * 2 * 3) and cap.display.cover_glass.thickness_mm == 0.5

@@ -9,7 +9,7 @@ belongs (or a file where a folder belongs), an empty file, a corrupt image (cut 
 an image suffix), the wrong kind of .npz (a rig for a PRVM and the reverse, a DIC result for a rig, an
 .npz without meta, a zip that is not an .npz), an image of another size than the rig, PRVM or reference
 image it goes with, and an output that cannot be written (under a regular file; in a folder without write
-permission, unless the tests run as root). The inputs are small and built once per session.
+permission, or /proc when the tests run as root). The inputs are small and built once per session.
 """
 
 from __future__ import annotations
@@ -71,6 +71,7 @@ COMMANDS: dict[str, list[list]] = {
     "simulate stereo": [["simulate", "stereo", *SIM, "-o", Out("output", "dir", "stereo")]],
     "simulate scan": [["simulate", "scan", *SIM, "-o", Out("output", "dir", "scan")]],
     "simulate dic": [["simulate", "dic", *SIM, "-o", Out("output", "dir", "dic")]],
+    "simulate dic2d": [["simulate", "dic2d", "--width", "32", "--height", "32", "-o", Out("output", "dir", "dic2d")]],
     "patterns": [["patterns", "--display", "64x48", "--periods", "64,8", "--response",
                   In("response", "display response", "response"), "-o", Out("output", "dir", "patterns")]],
     "calibrate": [["calibrate", CAL, "-o", Out("output", "file", "cam.npz"), "--report",
@@ -401,11 +402,17 @@ def _output_slots():
             yield case
 
 
-@pytest.mark.skipif(os.geteuid() == 0, reason="running as root, where permissions do not stop writes (the "
-                                               "outputs under a regular file are checked instead)")
 @pytest.mark.parametrize("command,row,index", list(_output_slots()))
-def test_output_in_a_folder_without_write_permission(command, row, index, inputs, tmp_path, capfd):
+def test_output_in_a_folder_where_nothing_can_be_created(command, row, index, inputs, tmp_path, capfd):
+    """A folder without write permission; as root, where permissions do not stop writes, /proc (where no
+    one can create a file): refused before any work, whoever runs it."""
     line = COMMANDS[command][row]
+    if os.geteuid() == 0:
+        target = Path("/proc") / f"stereodic-{line[index].name}"
+        _refused(_argv(line, tmp_path, inputs, index, target), capfd, target.name,
+                 f"{command}: {line[index].dest} in /proc")
+        assert not target.exists()
+        return
     locked = tmp_path / "locked"
     locked.mkdir()
     locked.chmod(0o555)

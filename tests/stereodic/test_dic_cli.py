@@ -62,7 +62,7 @@ def test_csv_columns_values_and_strain(images, tmp_path):
 def test_real_images_through_the_command_line(tmp_path):
     out = tmp_path / "out.csv"
     assert main(["dic2d", str(DATA / "reference.tif"), str(DATA / "shift_x0.10_y0.10.tif"), "--subset", "35",
-                 "--roi", "100,100,400,400", "--seed", "250,250", "-o", str(out)]) == 0
+                 "--roi", "100,100,400,400", "--start-point", "250,250", "-o", str(out)]) == 0
     rows = _rows(out)
     assert all(r["converged"] == "1" for r in rows)
     assert abs(np.mean([float(r["u"]) for r in rows]) - 0.10) < 0.0015
@@ -95,15 +95,15 @@ def test_missing_state_in_a_sequence(images, tmp_path, capsys):
 
 @pytest.mark.parametrize("seed", ["500,20", "-3,40", "20"])
 def test_seed_outside_the_image(images, tmp_path, capsys, seed):
-    _fails([str(images / "ref.png"), str(images / "shift.png"), f"--seed={seed}", "-o", str(tmp_path / "o.csv")],
-           capsys, "--seed")
+    _fails([str(images / "ref.png"), str(images / "shift.png"), f"--start-point={seed}", "-o", str(tmp_path / "o.csv")],
+           capsys, "--start-point")
 
 
 def test_bad_options(images, tmp_path, capsys):
     base = [str(images / "ref.png"), str(images / "shift.png"), "-o", str(tmp_path / "o.csv")]
     _fails(base + ["--subset", "20"], capsys, "--subset", "odd")
     _fails(base + ["--roi", "10,10,400,50"], capsys, "--roi")
-    _fails(base + ["--roi", "50,50,100,100", "--seed", "20,20"], capsys, "--seed", "region of interest")
+    _fails(base + ["--roi", "50,50,100,100", "--start-point", "20,20"], capsys, "--start-point", "region of interest")
     mask = tmp_path / "mask.png"
     write_gray(mask, np.full((10, 10), 255, np.uint8))
     _fails(base + ["--mask", str(mask)], capsys, str(mask), "mask")

@@ -122,8 +122,8 @@ def _copy(src, dst):
 def test_bad_input_is_one_clear_line(small, tmp_path, capsys):
     from PIL import Image
     rig = str(small / "rig.npz")
-    assert main(["dic", rig, str(small), "--seed", "5000,10", "-o", str(tmp_path / "o")]) == 2
-    assert "--seed" in capsys.readouterr().err
+    assert main(["dic", rig, str(small), "--start-point", "5000,10", "-o", str(tmp_path / "o")]) == 2
+    assert "--start-point" in capsys.readouterr().err
     for option, value in (("--vertical-search", "-1"), ("--max-gap", "0"), ("--prefilter", "-0.5")):
         assert main(["dic", rig, str(small), option, value, "-o", str(tmp_path / "o")]) == 2
         err = capsys.readouterr().err

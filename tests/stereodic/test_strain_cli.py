@@ -33,7 +33,7 @@ def test_same_window_and_measure_give_the_runs_strains(result, tmp_path):
 
 def test_log_strain_of_the_tension_against_the_truth(dic_sim, result, tmp_path):
     """1 % tension (stretches 1.01, 0.997): log strains ln(1.01), ln(0.997) on the plate's axes."""
-    assert main(["strain", str(result / "dic.npz"), "--window", "9", "--measure", "log", "-o", str(tmp_path / "s")]) == 0
+    assert main(["strain", str(result / "dic.npz"), "--strain-window", "9", "--measure", "log", "-o", str(tmp_path / "s")]) == 0
     rig = load_rig(dic_sim / "rig.npz")
     with np.load(tmp_path / "s" / "strain.npz") as z, np.load(result / "dic.npz") as d:
         ok = z["strain_valid"][2]
@@ -56,7 +56,7 @@ def test_2d_results(tmp_path):
                                            seed=3, supersample=4))
     assert main(["dic2d", str(tmp_path / "ref.png"), str(tmp_path / "st.png"), "--step", "6", "--strain-window", "7",
                  "--measure", "engineering", "--npz", str(tmp_path / "f.npz"), "-o", str(tmp_path / "f.csv")]) == 0
-    assert main(["strain", str(tmp_path / "f.npz"), "--window", "7", "--measure", "engineering", "--no-plot",
+    assert main(["strain", str(tmp_path / "f.npz"), "--strain-window", "7", "--measure", "engineering", "--no-plot",
                  "-o", str(tmp_path / "s")]) == 0
     with np.load(tmp_path / "f.npz") as a, np.load(tmp_path / "s" / "strain.npz") as b:
         assert np.array_equal(a["exx"], b["exx"], equal_nan=True)

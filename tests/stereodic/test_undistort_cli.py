@@ -68,8 +68,8 @@ def test_bad_inputs_exit_2_with_a_reason(tmp_path, cam, capsys):
     out = str(tmp_path / "out")
     cases = [([str(tmp_path / "small.png")], [], "the camera is 320x240"),
              ([str(tmp_path / "float.tif")], [], "pixel type float32"),
-             ([str(tmp_path / "ok.png")], ["--pitch", "50"], "larger than the real field"),
-             ([str(tmp_path / "ok.png")], ["--size", "640x480", "--pitch", "1.0"], "larger than the real field")]
+             ([str(tmp_path / "ok.png")], ["--virtual-pitch-mm", "50"], "larger than the real field"),
+             ([str(tmp_path / "ok.png")], ["--virtual-size", "640x480", "--virtual-pitch-mm", "1.0"], "larger than the real field")]
     for images, opts, reason in cases:
         assert main(["undistort", str(cam), *images, "-o", out, *opts]) == 2
         err = capsys.readouterr().err
