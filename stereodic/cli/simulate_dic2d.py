@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+
 from stereodic.cli.common import add_output, parse_floats, wrote
 
 
@@ -22,8 +24,8 @@ def register(modes) -> None:
     s.add_argument("--width", type=int, default=512, help="image width in pixels (default 512)")
     s.add_argument("--height", type=int, default=512, help="image height in pixels (default 512)")
     s.add_argument("--seed", type=int, default=0, help="random seed of the speckle and the noise")
-    s.add_argument("--noise", type=float, default=1.0, metavar="SIGMA",
-                   help="Gaussian sensor noise, grey levels (default 1; 0 for none)")
+    s.add_argument("--noise", action=argparse.BooleanOptionalAction, default=True,
+                   help="sensor noise, 1 grey level RMS (default on); --no-noise renders the expected images")
     add_output(s, kind="dir", metavar="DIR", help="output folder")
     s.set_defaults(func=run)
 
@@ -47,10 +49,11 @@ def run(args) -> int:
                                 centre=centre)
     translation = args.strain == 0 and args.rotation_deg == 0
     speckle = make_speckle(args.width, args.height, seed=args.seed + 1)
+    sigma = 1.0 if args.noise else 0.0
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
-    write_gray(out / "reference.png", render(speckle, None, noise_sigma=args.noise, seed=args.seed + 2))
-    write_gray(out / "moved.png", render(speckle, shift if translation else field, noise_sigma=args.noise,
+    write_gray(out / "reference.png", render(speckle, None, noise_sigma=sigma, seed=args.seed + 2))
+    write_gray(out / "moved.png", render(speckle, shift if translation else field, noise_sigma=sigma,
                                          seed=args.seed + 3))
     y, x = np.mgrid[0:args.height, 0:args.width].astype(np.float64)
     u, v = field(x, y)
