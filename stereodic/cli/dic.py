@@ -38,13 +38,19 @@ def register(sub):
                    help="subset shape function (default affine)")
     p.add_argument("--disparity", metavar="DMIN,DMAX",
                    help="row search range of the seeds, x_right - x_left in pixels (default +-half the width)")
-    p.add_argument("--vertical-search", type=int, default=0, metavar="ROWS",
-                   help="rows above and below the row that the seeds' stereo search also covers (default 0: the "
-                        "row only; more for a rig whose calibration no longer fits its images, whose matches sit "
-                        "off the rectified rows)")
-    p.add_argument("--max-gap", type=float, default=1.0, metavar="PITCHES",
-                   help="largest distance between the two rays of a trusted point, in virtual pixel pitches "
-                        "(default 1; points beyond are flagged ray_gap)")
+    p.add_argument("--vertical-search", type=int, metavar="ROWS",
+                   help="rows above and below the row that the seeds' stereo search also covers (default: 0 for a "
+                        "rig that fits its images; for one whose rows are off, a band about the offsets measured "
+                        "in the reference pair, as wide as they scatter)")
+    p.add_argument("--max-gap", type=float, default=1.0, metavar="ROWS",
+                   help="largest epipolar error of a trusted match, in virtual pixels, beyond the rows' offset "
+                        "measured in the reference pair (default 1; points beyond are flagged ray_gap; the rays' "
+                        "distance of every point is reported as gap_mm)")
+    p.add_argument("--keep-rig", action="store_true",
+                   help="keep the rig's calibration as it is (default: when the reference pair's rows are off by "
+                        "more than it allows, its right camera is re-oriented from the speckle and the corrected "
+                        "rig written to DIR/rig_refit.npz); refused for a rig whose rows are off by more than "
+                        "--max-gap")
     p.add_argument("--search", type=int, default=40, metavar="PIXELS",
                    help="search range of the temporal seeds (default 40)")
     add_prefilter_option(p)
@@ -84,10 +90,10 @@ def _settings(args):
         raise InputError("--switch-zncc", f"must be between 0 and 1, got {args.switch_zncc}")
     if args.plot_every < 1:
         raise InputError("--plot-every", f"must be >= 1, got {args.plot_every}")
-    if args.vertical_search < 0:
+    if args.vertical_search is not None and args.vertical_search < 0:
         raise InputError("--vertical-search", f"must be >= 0 rows, got {args.vertical_search}")
     if not args.max_gap > 0:
-        raise InputError("--max-gap", f"must be > 0 pixel pitches, got {args.max_gap}")
+        raise InputError("--max-gap", f"must be > 0 rows, got {args.max_gap}")
     check_prefilter(args)
     disparity = None
     if args.disparity:
@@ -97,8 +103,7 @@ def _settings(args):
     dic = DicSettings(subset=args.subset, shape=args.shape, min_zncc=args.min_zncc, search_radius=args.search,
                       prefilter_sigma=args.prefilter)
     return StereoSettings(dic, disparity, args.strain_window or None, args.incremental, max_gap_px=args.max_gap,
-                          switch_zncc=args.switch_zncc, strain_measure=args.measure,
-                          vertical_search=args.vertical_search)
+                          switch_zncc=args.switch_zncc, strain_measure=args.measure)
 
 
 def _states(args, rig):
@@ -127,7 +132,7 @@ def _run_record(args, rig_path, data, settings):
     from calib import __version__
     from calib.batch import file_sha256, fingerprint
     grid_args = {"subset": args.subset, "step": args.step, "roi": args.roi,
-                 "mask": file_sha256(args.mask) if args.mask else None, "seeds": args.seed}
+                 "mask": file_sha256(args.mask) if args.mask else None, "seeds": args.seed, "keep_rig": args.keep_rig}
     record = {"software": __version__, "stereo": dataclasses.asdict(settings), "grid": grid_args}
     paths = [str(p) for p in data.left + data.right]
     root = os.path.commonpath([os.path.abspath(p) for p in paths])
@@ -156,11 +161,14 @@ def _summary(st, n) -> str:
 
 def run(args) -> int:
     import sys
+
+    import numpy as np
     from pathlib import Path
 
     from calib.progress import note
     from stereodic.cli.common import wrote
     from stereodic.dic3d import epipolar
+    from stereodic.dic3d.refit import reference_geometry
     from stereodic.dic3d.run import run_states, write_outputs
     from stereodic.dic3d.store import RunStore
     from stereodic.rig import load_rig
@@ -168,13 +176,26 @@ def run(args) -> int:
     rig = load_rig(args.rig)
     width, height = rig.sensor.width, rig.sensor.height
     data = _states(args, rig)                   # every state and file checked before the work
-    grid, seeds = dic_grid(args, width, height, "rectified image", args.rig)
     settings = _settings(args)
+    grid, seeds = dic_grid(args, width, height, "rectified image", args.rig)
+    geometry = reference_geometry(rig, lambda r: data.rectified_pair(r, 0), keep_rig=args.keep_rig,
+                                  max_gap_px=args.max_gap, rig_name=args.rig)
+    for line in geometry.notes:
+        print(line, file=sys.stderr if line.startswith("warning") else sys.stdout)
+    rig, settings = geometry.rig, geometry.settings(settings, band=args.vertical_search)
     record, inputs = _run_record(args, args.rig, data, settings)
     out = Path(args.output)
     store = RunStore(out)
     n = len(data)
     done = store.open(record, inputs, n, restart=args.restart)
+    rig_path, rig_sha = args.rig, inputs["rig"]
+    if geometry.correction is not None:
+        from calib.batch import file_sha256
+        from stereodic.rig import save_rig
+        rig_path = out / "rig_refit.npz"
+        save_rig(rig_path, rig)
+        rig_sha = file_sha256(rig_path)
+        wrote(rig_path, "the rig with its right camera re-oriented from the reference pair")
     outputs = {"columns": args.columns, "vtk": not args.no_vtk, "plot_every": 0 if args.no_plot else args.plot_every}
     if done == n and store.outputs_written(outputs):
         print(f"{out}: all {n} states are done and written; nothing to do (--restart to run again)")
@@ -189,7 +210,7 @@ def run(args) -> int:
 
         from stereodic.cluster import connect
         from stereodic.dic3d.cluster import RunSpec, run_states_on
-        spec = RunSpec.make(args.rig, inputs["rig"], out, data, grid, seeds, settings,
+        spec = RunSpec.make(str(rig_path), rig_sha, out, data, grid, seeds, settings,
                             functools.partial(_summary, n=active))
         with connect(args.scheduler) as client:
             state0 = run_states_on(client, store, data, spec, csv=args.columns != "dice", vtk=not args.no_vtk,
@@ -202,11 +223,15 @@ def run(args) -> int:
                             state0.right.noise_px[c0])
     if report is not None:
         print(report.line())
-        if report.bumped:
+        if report.bumped and geometry.correction is not None:
+            print(f"what a turn of the right camera does not explain (a lens, its focus or the scale changed since "
+                  f"the calibration?) is left: the stereo matches follow the rows measured in the reference pair, "
+                  f"the rays' distance is reported as gap_mm (median {np.nanmedian(state0.gap_mm):.3f} mm)")
+        elif report.bumped and not (geometry.before is not None and geometry.before.bumped):
             print(f"stereodic dic: warning: the rig's epipolar error (median {report.median:+.3f} px, p95 "
                   f"{report.p95:.3f} px) is larger than its calibration allows (p95 {report.expected_p95:.3f} px): "
                   f"has a camera moved since the calibration?", file=sys.stderr)
-    info = {"rig": str(args.rig), "dataset": data.source, "world_from_rig": rig.world_from_rig.tolist(),
+    info = {"rig": str(rig_path), "dataset": data.source, "world_from_rig": rig.world_from_rig.tolist(),
             "state_labels": labels}
     dice = None
     if args.columns == "dice":

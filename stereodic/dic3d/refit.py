@@ -62,8 +62,7 @@ class RowOffsets:
 
     def predict(self, x, y) -> np.ndarray:
         """The fitted row offset (pixels) at left positions (x, y)."""
-        x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
-        return _terms(x, y) @ np.asarray(self.coef)
+        return offset_at(self.coef, x, y)
 
     @property
     def band(self) -> int:
@@ -81,6 +80,12 @@ class RowOffsets:
 
 def _terms(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], axis=-1)
+
+
+def offset_at(coef: tuple[float, ...], x, y) -> np.ndarray:
+    """The row offset (pixels) of the quadratic surface `coef` (`RowOffsets.coef`) at left positions (x, y)
+    (arrays of one shape, pixels)."""
+    return _terms(np.asarray(x, np.float64), np.asarray(y, np.float64)) @ np.asarray(coef, np.float64)
 
 
 def measure_row_offsets(left: np.ndarray, right: np.ndarray, *, max_dy: int | None = None) -> RowOffsets | None:
@@ -121,13 +126,11 @@ def offset_seed_search(dmin: int, dmax: int, coef: tuple[float, ...], rows: int)
     """A seed search with `stereodic.dic.search_integer`'s signature (its radius and centre ignored) for
     a rectified pair whose rows are off by the surface `coef` (`RowOffsets.coef`): shifts dmin..dmax
     along the row and `rows` rows either side of the fitted offset (cv2.matchTemplate, ZNCC)."""
-    poly = np.asarray(coef, np.float64)
-
     def search(ref, dfm, x, y, half, radius, centre):
         h, w = ref.shape
         if not (half <= x < w - half and half <= y < h - half):
             return 0, 0, -1.0
-        dv0 = int(round(float(_terms(np.float64(x), np.float64(y)) @ poly)))
+        dv0 = int(round(float(offset_at(coef, x, y))))
         lo, hi = max(x + dmin, half), min(x + dmax, w - 1 - half)
         top, bottom = max(y + dv0 - rows, half), min(y + dv0 + rows, h - 1 - half)
         if hi < lo or bottom < top:
@@ -284,3 +287,78 @@ def correct_rig(rig: Rig, left: np.ndarray, right: np.ndarray, offsets: RowOffse
     after = measure_row_offsets(left2, right2)
     report = pair_report(fixed, left2, after) if after is not None else None
     return fixed, RigCorrection(a, c, R, before, report), after
+
+
+@dataclass
+class ReferenceGeometry:
+    """What the reference pair says about the rig: rig (the one to use: the calibration's, or
+    corrected), offsets (its rows' offsets in the reference pair, None: no feature matched), before (the
+    epipolar error of the calibration, None: not measured), correction (None: the calibration kept),
+    notes (lines for the user)."""
+
+    rig: Rig
+    offsets: RowOffsets | None
+    before: EpipolarReport | None
+    correction: RigCorrection | None
+    notes: list[str]
+
+    def settings(self, settings, *, band: int | None = None):
+        """The stereo settings (`stereo.StereoSettings`) with the seeds' search about the measured rows'
+        offsets when the rig does not fit (`band` rows either side; None: the fit's own band) and the
+        rig's rows otherwise (`band` rows either side; None: 0)."""
+        follow = self.offsets is not None and (self.correction is not None or (self.before and self.before.bumped))
+        if not follow:
+            return replace(settings, row_offsets=(), vertical_search=band or 0)
+        return replace(settings, row_offsets=self.offsets.coef,
+                       vertical_search=self.offsets.band if band is None else band)
+
+
+def reference_geometry(rig: Rig, rectify, *, keep_rig: bool = False, max_gap_px: float = 1.0,
+                       rig_name: str = "the rig") -> ReferenceGeometry:
+    """Measure the reference pair's rows' offsets and, when the rig does not fit them, re-orient its
+    right camera (module docstring).
+
+    Parameters
+    ----------
+    rig : Rig
+        The calibrated rectified pair.
+    rectify : callable
+        rectify(rig) -> the reference pair (left, right) rectified with a rig.
+    keep_rig : bool
+        Keep the calibration as it is: InputError naming --keep-rig when its rows are off by more than
+        `max_gap_px` (95th percentile), a warning note otherwise.
+    max_gap_px : float
+        Rows off by which a match is trusted, pixels.
+    rig_name : str
+        The rig's file, in messages.
+
+    Returns
+    -------
+    geometry : ReferenceGeometry
+        The rig to use, the offsets, the correction and the notes.
+    """
+    from calib.errors import InputError
+    left, right = rectify(rig)
+    offsets = measure_row_offsets(left, right)
+    if offsets is None:
+        return ReferenceGeometry(rig, None, None, None, [
+            "rows of the reference pair: fewer than 12 features of the left image matched in the right one (no "
+            "speckle in common?): the stereo seeds search along the rig's rows"])
+    before = pair_report(rig, left, offsets)
+    notes = [offsets.line()]
+    if before is None or not before.bumped:
+        return ReferenceGeometry(rig, offsets, before, None, notes)
+    if keep_rig:
+        if before.p95 > max_gap_px:
+            dy = offsets.matches.dy[offsets.inliers]
+            raise InputError("--keep-rig", f"{rig_name} does not fit these images: the reference pair's rows are "
+                                           f"{dy.min():+.1f} to {dy.max():+.1f} px off (epipolar error p95 "
+                                           f"{before.p95:.2f} px, it allows {before.expected_p95:.3f}, matches are "
+                                           f"trusted to --max-gap {max_gap_px:g}); leave out --keep-rig to re-orient "
+                                           f"its right camera from the speckle")
+        notes.append(f"warning: {before.line()}: has a camera moved since the calibration? (--keep-rig: kept; the "
+                     f"stereo search follows the measured rows)")
+        return ReferenceGeometry(rig, offsets, before, None, notes)
+    fixed, correction, after = correct_rig(rig, left, right, offsets, before, rectify)
+    notes.append(correction.line())
+    return ReferenceGeometry(fixed, after, before, correction, notes)
