@@ -258,7 +258,8 @@ def add_grid_options(p: argparse.ArgumentParser, image: str) -> None:
     p.add_argument("--subset", type=int, default=21, help="subset side in pixels, odd (default 21)")
     p.add_argument("--step", type=int, default=5, help="grid step in pixels (default 5)")
     p.add_argument("--roi", metavar="X0,Y0,X1,Y1", help=f"region of interest in the {image} (inclusive pixel "
-                                                      "bounds)")
+                                                      "bounds; default, without --mask: the subsets with speckle, "
+                                                      "leaving out a dark background or a blank fixture)")
     add_input(p, "--mask", what="mask image", metavar="PNG",
               help=f"image of the {image}'s size: points where it is non-zero")
     p.add_argument("--seed", action="append", default=[], metavar="X,Y",
@@ -432,10 +433,12 @@ def parse_roi(text: str | None, width: int, height: int, image: str) -> tuple[in
     return x0, y0, x1, y1
 
 
-def dic_grid(args, width: int, height: int, image: str, source: str):
+def dic_grid(args, width: int, height: int, image: str, source: str, *, reference=None):
     """The DIC point grid and seeds from the options --subset, --step, --roi, --mask and --seed, for a
     reference image of width x height pixels (`image` names it in messages, `source` is the file blamed
-    when no point fits). Returns (grid, seeds [(x, y), ...]); InputError for any option that does not fit.
+    when no point fits). Without --roi and --mask, `reference` (a callable giving the reference image)
+    places the points where it has speckle (`stereodic.dic.texture.specimen_mask`). Returns (grid, seeds
+    [(x, y), ...]); InputError for any option that does not fit.
     """
     from calib.errors import InputError
     from calib.imageio import read_gray
@@ -451,6 +454,12 @@ def dic_grid(args, width: int, height: int, image: str, source: str):
         if mask.shape != (height, width):
             raise InputError(args.mask, f"mask is {mask.shape[1]}x{mask.shape[0]} but the {image} is "
                                         f"{width}x{height}")
+    if roi is None and mask is None and reference is not None:
+        from stereodic.dic.texture import specimen_mask
+        mask = specimen_mask(reference(), subset=args.subset)
+        if not mask.any():
+            raise InputError(source, f"the {image} has no speckle that a {args.subset}-pixel subset can register "
+                                     f"(blank, dark or out of focus?); give --roi or --mask to measure anyway")
     seeds = []
     for text in args.seed:
         x, y = parse_ints(text, 2, "--seed")

@@ -177,12 +177,13 @@ def run(args) -> int:
     width, height = rig.sensor.width, rig.sensor.height
     data = _states(args, rig)                   # every state and file checked before the work
     settings = _settings(args)
-    grid, seeds = dic_grid(args, width, height, "rectified image", args.rig)
     geometry = reference_geometry(rig, lambda r: data.rectified_pair(r, 0), keep_rig=args.keep_rig,
                                   max_gap_px=args.max_gap, rig_name=args.rig)
     for line in geometry.notes:
         print(line, file=sys.stderr if line.startswith("warning") else sys.stdout)
     rig, settings = geometry.rig, geometry.settings(settings, band=args.vertical_search)
+    grid, seeds = dic_grid(args, width, height, "rectified image", str(data.left[0]),
+                           reference=lambda: data.rectified_pair(rig, 0)[0])
     record, inputs = _run_record(args, args.rig, data, settings)
     out = Path(args.output)
     store = RunStore(out)

@@ -112,7 +112,7 @@ def run(args) -> int:
     preloaded = [] if args.scheduler else [read(p) for p in defs[:PRELOAD_BYTES // ref.nbytes]]
     for path in defs[len(preloaded):]:
         check_size(path, (width, height), f"the reference {args.ref}")
-    grid, seeds = dic_grid(args, width, height, "reference", args.ref)
+    grid, seeds = dic_grid(args, width, height, "reference", args.ref, reference=lambda: ref)
     settings = DicSettings(subset=args.subset, shape=args.shape, order=3 if args.interp == "cubic" else 5,
                            prefilter_sigma=args.prefilter, min_zncc=args.min_zncc, search_radius=args.search)
     out = Path(args.output)
