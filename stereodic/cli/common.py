@@ -252,10 +252,11 @@ def add_simulation_options(p: argparse.ArgumentParser, width: int, height: int, 
     add_output(p, kind="dir", metavar="DIR", help="output folder")
 
 
-def add_grid_options(p: argparse.ArgumentParser, image: str) -> None:
-    """The DIC grid's options (checked by `dic_grid`): --subset, --step, --roi, --mask, --seed; `image`
-    names the image whose pixels they refer to ("reference image", "left rectified image")."""
-    p.add_argument("--subset", type=int, default=21, help="subset side in pixels, odd (default 21)")
+def add_grid_options(p: argparse.ArgumentParser, image: str, *, subset: int = 21) -> None:
+    """The DIC grid's options (checked by `dic_grid`): --subset (default `subset`), --step, --roi, --mask,
+    --seed; `image` names the image whose pixels they refer to ("reference image", "left rectified
+    image")."""
+    p.add_argument("--subset", type=int, default=subset, help=f"subset side in pixels, odd (default {subset})")
     p.add_argument("--step", type=int, default=5, help="grid step in pixels (default 5)")
     p.add_argument("--roi", metavar="X0,Y0,X1,Y1", help=f"region of interest in the {image} (inclusive pixel "
                                                       "bounds; default, without --mask: the subsets with speckle, "
