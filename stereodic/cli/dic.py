@@ -148,10 +148,13 @@ def _run_record(args, rig_path, data, settings, grid):
     return json.loads(json.dumps(record)), inputs
 
 
-def _summary(st, n) -> str:
+def _summary(st, n, active, search_px) -> str:
+    """The state's line (points, mean displacement and strain), and the diagnosis when it measured under
+    half of its points (`stereodic.dic3d.diagnose`)."""
     import numpy as np
 
     from calib.numbers import fixed
+    from stereodic.dic3d.diagnose import diagnosis
     c = st.converged
     mean = st.displacement[c].mean(0) if c.any() else np.full(3, np.nan)
     text = (f"state {st.state}: {int(c.sum())}/{n} points converged, mean dX {fixed(mean[0], 4)} dY "
@@ -161,10 +164,12 @@ def _summary(st, n) -> str:
                  f"{fixed(np.nanmean(st.measure.eyy) * 1e6, 0)} microstrain")
     if st.incremental.any():
         text += f", {int((st.incremental & c).sum())} incremental"
-    return text
+    why = diagnosis(st, active, search_px=search_px)
+    return text if why is None else f"{text}\n{why}"
 
 
 def run(args) -> int:
+    import functools
     import sys
 
     import numpy as np
@@ -209,20 +214,31 @@ def run(args) -> int:
     if done:
         print(f"{out}: resuming a run with {done} of {n} states done")
     active = int(grid.active.sum())
+    summary = functools.partial(_summary, n=active, active=grid.active, search_px=args.search)
+
+    def nothing_measured(st):
+        """InputError (exit status 2) with the diagnosis when the reference measured no point."""
+        if not st.converged.any():
+            from calib.errors import InputError
+            from stereodic.dic3d.diagnose import diagnosis
+            raise InputError(data.source, f"no point measured in the reference pair: "
+                                          f"{diagnosis(st, grid.active, search_px=args.search)}")
     plot_every = outputs["plot_every"]
     labels = [data.label(k) for k in range(n)]
     if args.scheduler:
-        import functools
-
         from stereodic.cluster import connect
         from stereodic.dic3d.cluster import RunSpec, run_states_on
-        spec = RunSpec.make(str(rig_path), rig_sha, out, data, grid, seeds, settings,
-                            functools.partial(_summary, n=active))
+        spec = RunSpec.make(str(rig_path), rig_sha, out, data, grid, seeds, settings, summary)
         with connect(args.scheduler) as client:
             state0 = run_states_on(client, store, data, spec, csv=args.columns != "dice", vtk=not args.no_vtk,
                                    plot_every=plot_every, labels=labels)
+        nothing_measured(state0)
     else:
-        state0 = run_states(store, data, rig, grid, seeds, settings, report=lambda st: note(_summary(st, active)))
+        def report(st):
+            note(summary(st))
+            if st.state == 0:
+                nothing_measured(st)
+        state0 = run_states(store, data, rig, grid, seeds, settings, report=report)
     c0 = state0.left.ok & state0.right.ok         # matched, whether or not the rays meet
     X, Y = (a.reshape(grid.shape) for a in grid.points())
     report = epipolar.check(rig, X[c0], Y[c0], (X + state0.right.u)[c0], (Y + state0.right.v)[c0],
