@@ -96,16 +96,13 @@ def measure_row_offsets(left: np.ndarray, right: np.ndarray, *, max_dy: int | No
     left, right : (H, W) array
         The rectified pair, pixels (blank pixels 0).
     max_dy : int, optional
-        Rows above and below its own that a feature is searched in; None: an eighth of the height (at
-        least 16).
+        Rows above and below its own that a feature is searched in; None: `rectify.row_band`.
 
     Returns
     -------
     offsets : RowOffsets or None
         The matches and the fitted surface, pixels; None when fewer than 12 features match.
     """
-    h = left.shape[0]
-    max_dy = max(16, h // 8) if max_dy is None else int(max_dy)
     m = row_alignment(left, right, max_dy=max_dy, half=MATCH_HALF, count=FEATURES)
     if m.dy.size < 12:
         return None
