@@ -37,6 +37,10 @@ def register(sub):
     # (Z^2 / (baseline f)), so stereo wants larger subsets than 2-D DIC's 21 (docs/dic.md: on the
     # dice-stereo-list case 21 gives 18 % more out-of-plane noise than DICe's 27, 29 6 % less)
     add_grid_options(p, "left rectified image", subset=29)
+    p.add_argument("--roi-frame", choices=["rectified", "original"], default="rectified",
+                   help="the image that --roi, --mask and --roi-polygon are drawn in: the left rectified image "
+                        "(default) or the left camera's original image (the frame a user draws in; its region "
+                        "is moved onto the rectified image through the rig)")
     p.add_argument("--shape", choices=["affine", "quadratic"], default="affine",
                    help="subset shape function (default affine)")
     p.add_argument("--disparity", metavar="DMIN,DMAX",
@@ -137,6 +141,8 @@ def _run_record(args, rig_path, data, settings, grid):
     from calib.batch import file_sha256, fingerprint
     grid_args = {"subset": args.subset, "step": args.step, "roi": args.roi,
                  "mask": file_sha256(args.mask) if args.mask else None, "seeds": args.seed, "keep_rig": args.keep_rig,
+                 "roi_polygon": file_sha256(args.roi_polygon) if args.roi_polygon else None,
+                 "roi_frame": args.roi_frame,
                  "active": hashlib.sha256(grid.active.tobytes()).hexdigest()}
     record = {"software": __version__, "stereo": dataclasses.asdict(settings), "grid": grid_args}
     paths = [str(p) for p in data.left + data.right]
@@ -187,13 +193,15 @@ def run(args) -> int:
     width, height = rig.sensor.width, rig.sensor.height
     data = _states(args, rig)                   # every state and file checked before the work
     settings = _settings(args)
+    grid, seeds = dic_grid(args, width, height, "rectified image", args.rig, original=rig.left.imm)
     geometry = reference_geometry(rig, lambda r: data.rectified_pair(r, 0), keep_rig=args.keep_rig,
                                   max_gap_px=args.max_gap, rig_name=args.rig)
     for line in geometry.notes:
         print(line, file=sys.stderr if line.startswith("warning") else sys.stdout)
     rig, settings = geometry.rig, geometry.settings(settings, band=args.vertical_search)
-    grid, seeds = dic_grid(args, width, height, "rectified image", str(data.left[0]),
-                           reference=lambda: data.rectified_pair(rig, 0)[0])
+    if not (args.roi or args.mask or args.roi_polygon):   # the options were checked above, before the work
+        grid, seeds = dic_grid(args, width, height, "rectified image", str(data.left[0]),
+                               reference=lambda: data.rectified_pair(rig, 0)[0])
     record, inputs = _run_record(args, args.rig, data, settings, grid)
     out = Path(args.output)
     store = RunStore(out)

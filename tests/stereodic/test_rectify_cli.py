@@ -71,6 +71,7 @@ def test_row_alignment_of_stripes_finds_nothing():
     assert row_alignment(stripes, np.roll(stripes, 5, axis=1)).dy.size == 0
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not DICE.is_dir(), reason="dice-stereo-list not present")
 def test_rectify_names_the_rows_offset_of_a_rig_that_no_longer_fits(tmp_path, capsys):
     """The dice-stereo-list pair through its imported VIC-3D calibration: the rectified rows are 12-39 px
