@@ -46,6 +46,7 @@ from stereodic.sampling import bilinear
 from stereodic.triangulate import rays_at
 
 MATCH_HALF = 10       # half-width of the features' subsets (row_alignment's)
+BUMP_DEG = 1.0        # a larger correction is warned about: more than a knock turns a camera on its mount
 FEATURES = 300        # features of the left image searched for
 
 
@@ -358,4 +359,8 @@ def reference_geometry(rig: Rig, rectify, *, keep_rig: bool = False, max_gap_px:
         return ReferenceGeometry(rig, offsets, before, None, notes)
     fixed, correction, after = correct_rig(rig, left, right, offsets, before, rectify)
     notes.append(correction.line())
+    if correction.angle_deg > BUMP_DEG:
+        notes.append(f"warning: a turn of {correction.angle_deg:.2f} deg is more than a bumped camera's: are the "
+                     f"cameras swapped (--left-suffix/--right-suffix, --left/--right), or is {rig_name} the rig of "
+                     f"another setup?")
     return ReferenceGeometry(fixed, after, before, correction, notes)

@@ -53,3 +53,13 @@ def test_a_reference_that_measures_nothing_stops_the_run(dic_sim, tmp_path, caps
     assert len(err) == 1 and str(pairs) in err[0] and "no point measured in the reference pair" in err[0]
     assert "right:" in err[0] and "the right camera does not find the left one's speckle" in err[0]
     assert not (tmp_path / "out" / "maps").exists() and not (tmp_path / "out" / "dic.npz").exists()
+
+
+def test_swapped_cameras_are_warned_about(dic_sim, tmp_path, capsys):
+    """The two cameras' images given the wrong way round: the rows are 8-20 px off and the turn that
+    would explain them is far beyond a bump: the run warns that the cameras may be swapped."""
+    args = [str(dic_sim / "rig.npz"), "--left", str(dic_sim / "s*" / "cam1.png"), "--right",
+            str(dic_sim / "s*" / "cam0.png"), *ARGS, "--no-plot", "-o", str(tmp_path / "out")]
+    assert main(["dic", *args]) == 0
+    err = capsys.readouterr().err
+    assert "swapped" in err and "--left-suffix" in err
