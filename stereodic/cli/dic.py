@@ -170,7 +170,8 @@ def _summary(st, n, active, search_px) -> str:
                  f"{fixed(np.nanmean(st.measure.eyy) * 1e6, 0)} microstrain")
     if st.incremental.any():
         text += f", {int((st.incremental & c).sum())} incremental"
-    why = diagnosis(st, active, search_px=search_px)
+    why = diagnosis(st.converged, st.status, active, label=f"state {st.state}", reference=st.state == 0,
+                    search_px=search_px)
     return text if why is None else f"{text}\n{why}"
 
 
@@ -230,7 +231,7 @@ def run(args) -> int:
             from calib.errors import InputError
             from stereodic.dic3d.diagnose import diagnosis
             raise InputError(data.source, f"no point measured in the reference pair: "
-                                          f"{diagnosis(st, grid.active, search_px=args.search)}")
+                                          f"{diagnosis(st.converged, st.status, grid.active, label='state 0', reference=True, search_px=args.search)}")
     plot_every = outputs["plot_every"]
     labels = [data.label(k) for k in range(n)]
     if args.scheduler:

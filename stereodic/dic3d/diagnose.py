@@ -1,8 +1,10 @@
-"""Why a state of a stereo DIC run measured little: the likely cause from how its points failed.
+"""Why a state of a stereo DIC run, or an image of a 2-D one, measured little: the likely cause from how
+its points failed.
 
 A state that measures under half of its active points gets one line naming the most frequent failure
 (the combined status of `stereo.StereoState`: the left match, the right match, the rays, the
-reference) and what it most likely means, with what changes it:
+reference; or the 2-D engine's status of a `dic2d` image, read as a left match) and what it most likely
+means, with what changes it:
 - left no_texture / low_texture: no speckle there (the region, the subset);
 - left or right outside: subsets reaching beyond the image or into the rectified pair's blank band;
 - right failures in the reference state: the right camera does not find the left one's speckle: rows
@@ -20,14 +22,14 @@ from collections import Counter
 
 import numpy as np
 
-from stereodic.dic3d.stereo import NO_REFERENCE, RAY_GAP, StereoState
+from stereodic.dic3d.stereo import NO_REFERENCE, RAY_GAP
 
 NO_SPECKLE = ("no_texture", "low_texture")
 OUTSIDE = ("outside",)
 
 
-def _cause(status: str, state: int, search_px: int) -> str:
-    side, _, what = status.partition(":")
+def _cause(status: str, reference: bool, search_px: int) -> str:
+    side, _, what = status.rpartition(":")
     if status == RAY_GAP:
         return ("rows off the rig: the matches sit further off the rows measured in the reference pair than "
                 "--max-gap allows (has a camera moved since the reference? raise --max-gap, or run the states "
@@ -40,40 +42,49 @@ def _cause(status: str, state: int, search_px: int) -> str:
     if what in OUTSIDE:
         return ("subsets beyond the image: they reach past its edge or into the rectified pair's blank band "
                 "(a smaller --subset, or a region further inside)")
-    if state == 0:
+    if reference:
         return ("the right camera does not find the left one's speckle on these rows: rows off the rig (a "
                 "calibration that does not fit: leave out --keep-rig, or widen --vertical-search) or the cameras "
                 "swapped (--left-suffix/--right-suffix, --left/--right)")
-    if side == "left":
+    if side in ("left", ""):
         return (f"motion beyond what was searched (the temporal seeds search +-{search_px} px: raise --search) or "
                 f"images out of order (check that the files sort in the order they were taken)")
     return ("a camera that moved: the right images no longer match the reference where the left ones do (a "
             "rig bumped during the test: run the states after it with a new reference)")
 
 
-def diagnosis(state: StereoState, active: np.ndarray, *, search_px: int) -> str | None:
-    """One line on why `state` measured under half of its `active` points, or None when it measured more.
+def diagnosis(converged: np.ndarray, status: np.ndarray, active: np.ndarray, *, label: str, reference: bool,
+              search_px: int) -> str | None:
+    """One line on why an image or state measured under half of its `active` points, or None when it
+    measured more.
 
     Parameters
     ----------
-    state : StereoState
-        The state's result (its ``converged`` and ``status``, (ny, nx)).
+    converged : (ny, nx) bool
+        The points measured.
+    status : (ny, nx) str
+        Their statuses: the 2-D engine's names (`stereodic.dic.STATUS_NAMES`), for a stereo state
+        prefixed 'left:' or 'right:', or `stereo.RAY_GAP`, `stereo.NO_REFERENCE`.
     active : (ny, nx) bool
         The grid's active points.
+    label : str
+        The state or image, as the line names it ("state 3", "image 2").
+    reference : bool
+        A stereo run's reference state (its right failures are the stereo match's).
     search_px : int
         The temporal seeds' search range, pixels (named in the advice).
 
     Returns
     -------
     line : str or None
-        "state k: only m of n points measured; most failed as <status> (count): likely <cause and what
+        "<label>: only m of n points measured; most failed as <status> (count): likely <cause and what
         changes it>".
     """
     n = int(active.sum())
-    measured = int((state.converged & active).sum())
+    measured = int((converged & active).sum())
     if n == 0 or 2 * measured >= n:
         return None
-    failed = Counter(state.status[active & ~state.converged].tolist())
-    status, count = failed.most_common(1)[0]
-    return (f"state {state.state}: only {measured} of {n} points measured; most failed as {status} ({count}): "
-            f"likely {_cause(status, state.state, search_px)}")
+    failed = Counter(np.asarray(status)[active & ~converged].tolist())
+    worst, count = failed.most_common(1)[0]
+    return (f"{label}: only {measured} of {n} points measured; most failed as {worst} ({count}): likely "
+            f"{_cause(worst, reference, search_px)}")

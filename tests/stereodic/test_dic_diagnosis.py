@@ -63,3 +63,17 @@ def test_swapped_cameras_are_warned_about(dic_sim, tmp_path, capsys):
     assert main(["dic", *args]) == 0
     err = capsys.readouterr().err
     assert "swapped" in err and "--left-suffix" in err
+
+
+def test_dic2d_names_the_cause_of_an_image_that_measures_little(dic_sim, tmp_path, capsys):
+    """dic2d: the deformed image another scene (the reference turned upside down): the line says why."""
+    ref = read_gray(dic_sim / "s000" / "cam0.png")
+    write_gray(tmp_path / "ref.png", ref)
+    write_gray(tmp_path / "other.png", ref[::-1].copy())
+    write_gray(tmp_path / "same.png", ref)
+    assert main(["dic2d", str(tmp_path / "ref.png"), str(tmp_path / "other.png"), str(tmp_path / "same.png"),
+                 "--step", "12", "-o", str(tmp_path / "out.csv")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    line = next(ln for ln in lines if ln.startswith("image 0: only"))
+    assert "motion beyond what was searched" in line and "--search" in line
+    assert not any(ln.startswith("image 1: only") for ln in lines)
