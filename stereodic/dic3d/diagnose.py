@@ -22,8 +22,9 @@ from collections import Counter
 
 import numpy as np
 
-from stereodic.dic3d.stereo import NO_REFERENCE, RAY_GAP
 
+RAY_GAP = "ray_gap"        # a stereo state's combined statuses beyond the 2-D engine's (`stereo._combine`)
+NO_REFERENCE = "no_reference"
 NO_SPECKLE = ("no_texture", "low_texture")
 OUTSIDE = ("outside",)
 

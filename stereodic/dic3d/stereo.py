@@ -54,6 +54,7 @@ from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import OK, OUTSIDE, STATUS_NAMES, UNREACHED
 from stereodic.dic.sequence import (DECORRELATED, SWITCH_ZNCC, TrackCarry, merge_track, prefetch, register_direct,
                                     register_steps, shifted, switch_candidates)
+from stereodic.dic3d.diagnose import NO_REFERENCE, RAY_GAP
 from stereodic.dic3d.epipolar import epipolar_error
 from stereodic.dic3d.refit import offset_at, offset_seed_search
 from stereodic.rig import Rig
@@ -62,8 +63,6 @@ from stereodic.strain_measures import StrainMeasure, measure_strain
 from stereodic.triangulate import triangulate
 
 CROSS_DECORRELATED = tuple(c for c in DECORRELATED if c != OUTSIDE)
-RAY_GAP = "ray_gap"        # combined statuses beyond the 2-D engine's
-NO_REFERENCE = "no_reference"
 
 
 @dataclass(frozen=True)
