@@ -263,7 +263,7 @@ def run(args) -> int:
                   f"{report.p95:.3f} px) is larger than its calibration allows (p95 {report.expected_p95:.3f} px): "
                   f"has a camera moved since the calibration?", file=sys.stderr)
     info = {"rig": str(rig_path), "dataset": data.source, "world_from_rig": rig.world_from_rig.tolist(),
-            "state_labels": labels}
+            "state_labels": labels, "rig_notes": geometry.notes}
     dice = None
     if args.columns == "dice":
         from stereodic.dice_columns import StereoDiceWriter

@@ -2,6 +2,8 @@
 a warning for a rig whose right camera turned after its calibration (a bumped rig), by as much as the
 turn predicts."""
 
+import json
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -106,6 +108,7 @@ def test_a_turned_rig_is_recovered(dic_sim, tmp_path, capsys):
         reach = z["converged"].sum(axis=(1, 2))
     with np.load(tmp_path / "out" / "dic.npz") as z:
         c, d = z["converged"], z["displacement"]
+        assert any("turned by" in line for line in json.loads(str(z["meta"]))["rig_notes"])
     print(c.sum(axis=(1, 2)), reach)
     # all the true rig measures, less the blank band the turn puts along the right image's edge
     assert (c.sum(axis=(1, 2)) >= 0.9 * reach).all()
