@@ -82,11 +82,11 @@ def row_alignment(left: np.ndarray, right: np.ndarray, *, max_dy: int | None = N
     Corners of the left image (Shi-Tomasi, at most `count`, whole subsets of half-width `half` inside
     both images' valid areas) are searched for in the right image over the whole width and rows within
     `max_dy` of their own (ZNCC, cv2.matchTemplate; None: an eighth of the height, at least 16 rows: a
-    rig whose calibration no longer fits its images can put them tens of rows apart); a match with a second peak nearly as good elsewhere
-    along the rows (a periodic or stripe pattern: no reliable position) is dropped; the rest are refined
-    to sub-pixel by IC-GN with an affine subset (the 2D DIC engine, `stereodic.dic`: the two views
-    foreshorten a surface differently) and kept where they converge with at least `min_zncc`. Pixels,
-    rectified images."""
+    rig whose calibration no longer fits its images can put them tens of rows apart); a match with a
+    second peak nearly as good elsewhere along the rows (a periodic or stripe pattern: no reliable
+    position) is dropped; the rest are refined to sub-pixel by IC-GN with an affine subset (the 2D DIC
+    engine, `stereodic.dic`: the two views foreshorten a surface differently) and kept where they
+    converge with at least `min_zncc`. Pixels, rectified images."""
     from stereodic.dic import BSplineImage, DicSettings, correlate_points
 
     lf, rf = left.astype(np.float32), right.astype(np.float32)

@@ -178,9 +178,9 @@ def _summary(st, n, active, search_px) -> str:
 def run(args) -> int:
     import functools
     import sys
+    from pathlib import Path
 
     import numpy as np
-    from pathlib import Path
 
     from calib.progress import note
     from stereodic.cli.common import wrote
@@ -198,7 +198,10 @@ def run(args) -> int:
     geometry = reference_geometry(rig, lambda r: data.rectified_pair(r, 0), keep_rig=args.keep_rig,
                                   max_gap_px=args.max_gap, rig_name=args.rig)
     for line in geometry.notes:
-        print(line, file=sys.stderr if line.startswith("warning") else sys.stdout)
+        if line.startswith("warning"):
+            print(f"stereodic dic: {line}", file=sys.stderr)
+        else:
+            print(line)
     rig, settings = geometry.rig, geometry.settings(settings, band=args.vertical_search)
     if not (args.roi or args.mask or args.roi_polygon):   # the options were checked above, before the work
         grid, seeds = dic_grid(args, width, height, "rectified image", str(data.left[0]),
@@ -231,7 +234,8 @@ def run(args) -> int:
             from calib.errors import InputError
             from stereodic.dic3d.diagnose import diagnosis
             raise InputError(data.source, f"no point measured in the reference pair: "
-                                          f"{diagnosis(st.converged, st.status, grid.active, label='state 0', reference=True, search_px=args.search)}")
+                                          f"{diagnosis(st.converged, st.status, grid.active, label='state 0', "
+                                          f"reference=True, search_px=args.search)}")
     plot_every = outputs["plot_every"]
     labels = [data.label(k) for k in range(n)]
     if args.scheduler:

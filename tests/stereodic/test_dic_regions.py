@@ -17,7 +17,8 @@ HOLE = [[100, 70], [150, 70], [150, 120], [100, 120]]
 
 
 def test_json_and_csv_polygons_with_holes_agree(tmp_path):
-    (tmp_path / "p.json").write_text(json.dumps([{"outer": OUTER, "holes": [HOLE]}, {"outer": [[5, 5], [20, 5], [5, 20]]}]))
+    parts = [{"outer": OUTER, "holes": [HOLE]}, {"outer": [[5, 5], [20, 5], [5, 20]]}]
+    (tmp_path / "p.json").write_text(json.dumps(parts))
     rings = "\n\n".join("\n".join(f"{x},{y}" for x, y in ring) for ring in (OUTER, HOLE))
     (tmp_path / "p.csv").write_text(f"# x,y\n{rings}\npart\n5,5\n20,5\n5,20\n")
     a = polygon_mask(read_polygons(tmp_path / "p.json"), 240, 192, where="p.json", image="image")

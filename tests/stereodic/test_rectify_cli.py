@@ -53,7 +53,8 @@ def test_rig_and_rectify_commands(tmp_path, capsys):
 
 def test_row_alignment_measures_a_known_vertical_disparity():
     """Features of a speckle pair whose right image is the left moved by (-23, dy) pixels, up to tens of
-    rows: the measured vertical disparity is dy (the renderer integrates the dots analytically: an exact sub-pixel shift)."""
+    rows: the measured vertical disparity is dy (the renderer integrates the dots analytically: an exact
+    sub-pixel shift)."""
     sp = make_speckle(320, 240, seed=7)
     left = render(sp, noise_sigma=1.0, seed=1)
     for dy in (0.0, 0.35, -1.6, 22.4):          # 22.4: a rig whose calibration no longer fits its images
