@@ -233,9 +233,9 @@ def run(args) -> int:
         if not st.converged.any():
             from calib.errors import InputError
             from stereodic.dic3d.diagnose import diagnosis
-            raise InputError(data.source, f"no point measured in the reference pair: "
-                                          f"{diagnosis(st.converged, st.status, grid.active, label='state 0', "
-                                          f"reference=True, search_px=args.search)}")
+            why = diagnosis(st.converged, st.status, grid.active, label="state 0", reference=True,
+                            search_px=args.search)
+            raise InputError(data.source, f"no point measured in the reference pair: {why}")
     plot_every = outputs["plot_every"]
     labels = [data.label(k) for k in range(n)]
     if args.scheduler:
