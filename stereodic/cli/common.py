@@ -27,6 +27,7 @@ SPELLINGS = {  # argparse dest -> its option strings, wherever a command has it
     "step": ("--step",),
     "roi": ("--roi",),
     "mask": ("--mask",),
+    "roi_polygon": ("--roi-polygon",),
     "shape": ("--shape",),
     "min_zncc": ("--min-zncc",),
     "search": ("--search",),
@@ -351,15 +352,21 @@ def add_simulation_options(p: argparse.ArgumentParser, width: int, height: int, 
     add_output(p, kind="dir", metavar="DIR", help="output folder")
 
 
-def add_grid_options(p: argparse.ArgumentParser, image: str) -> None:
-    """The DIC grid's options (checked by `dic_grid`): --subset, --step, --roi, --mask, --seed; `image`
-    names the image whose pixels they refer to ("reference image", "left rectified image")."""
-    p.add_argument("--subset", type=int, default=21, help="subset side in pixels, odd (default 21)")
+def add_grid_options(p: argparse.ArgumentParser, image: str, *, subset: int = 21) -> None:
+    """The DIC grid's options (checked by `dic_grid`): --subset (default `subset`), --step, --roi, --mask,
+    --start-point; `image` names the image whose pixels they refer to ("reference image", "left rectified
+    image")."""
+    p.add_argument("--subset", type=int, default=subset, help=f"subset side in pixels, odd (default {subset})")
     p.add_argument("--step", type=int, default=5, help="grid step in pixels (default 5)")
     p.add_argument("--roi", metavar="X0,Y0,X1,Y1", help=f"region of interest in the {image} (inclusive pixel "
-                                                      "bounds)")
+                                                      "bounds; default, without --mask: the subsets with speckle, "
+                                                      "leaving out a dark background or a blank fixture)")
     add_input(p, "--mask", what="mask image", metavar="PNG",
               help=f"image of the {image}'s size: points where it is non-zero")
+    add_input(p, "--roi-polygon", what="polygon file", metavar="FILE",
+              help=f"region of interest as polygons with holes in the {image}, pixels: JSON ([[x, y], ...], or "
+                   f"{{\"outer\": [...], \"holes\": [[...], ...]}}, or a list of those) or CSV (x,y per line, a "
+                   f"blank line between rings: outline first, then its holes; a line 'part' between parts)")
     p.add_argument("--start-point", action="append", default=[], metavar="X,Y",
                    help=f"start point of the propagation in the {image} (repeatable; default: automatic)")
     deprecated(p, "--seed", "--start-point")
@@ -534,18 +541,11 @@ def parse_roi(text: str | None, width: int, height: int, image: str) -> tuple[in
     return x0, y0, x1, y1
 
 
-def dic_grid(args, width: int, height: int, image: str, source: str):
-    """The DIC point grid and seeds from the options --subset, --step, --roi, --mask and --seed, for a
-    reference image of width x height pixels (`image` names it in messages, `source` is the file blamed
-    when no point fits). Returns (grid, seeds [(x, y), ...]); InputError for any option that does not fit.
-    """
+def _region(args, width: int, height: int, image: str):
+    """(roi, mask) of the options --roi, --mask and --roi-polygon in a width x height `image` (the mask
+    and the polygons' inside combined; None where not given); InputError naming the option or file."""
     from calib.errors import InputError
     from calib.imageio import read_gray
-    from stereodic.dic import make_grid
-    if args.subset < 5 or args.subset % 2 == 0:
-        raise InputError("--subset", f"must be an odd number >= 5, got {args.subset}")
-    if args.step < 1:
-        raise InputError("--step", f"must be >= 1, got {args.step}")
     roi = parse_roi(args.roi, width, height, image)
     mask = None
     if args.mask:
@@ -553,6 +553,52 @@ def dic_grid(args, width: int, height: int, image: str, source: str):
         if mask.shape != (height, width):
             raise InputError(args.mask, f"mask is {mask.shape[1]}x{mask.shape[0]} but the {image} is "
                                         f"{width}x{height}")
+    if args.roi_polygon:
+        from stereodic.dic.region import polygon_mask, read_polygons
+        inside = polygon_mask(read_polygons(args.roi_polygon), width, height, where=args.roi_polygon, image=image)
+        mask = inside if mask is None else mask & inside
+    return roi, mask
+
+
+def dic_grid(args, width: int, height: int, image: str, source: str, *, reference=None, original=None):
+    """The DIC point grid and seeds from the options --subset, --step, --roi, --mask, --roi-polygon and
+    --start-point, for a reference image of width x height pixels (`image` names it in messages, `source` is the
+    file blamed when no point fits). `original`: the IMM (stereodic.virtual.imm.IMM) of a rectified reference
+    image, whose --roi, --mask and --roi-polygon are in the original image with --roi-frame original.
+    Without any of them, `reference` (a callable giving the reference image) places the points where it
+    has speckle (`stereodic.dic.texture.specimen_mask`). Returns (grid, seeds [(x, y), ...]); InputError
+    for any option that does not fit.
+    """
+    import numpy as np
+
+    from calib.errors import InputError
+    from stereodic.dic import make_grid
+    if args.subset < 5 or args.subset % 2 == 0:
+        raise InputError("--subset", f"must be an odd number >= 5, got {args.subset}")
+    if args.step < 1:
+        raise InputError("--step", f"must be >= 1, got {args.step}")
+    if original is not None and getattr(args, "roi_frame", "rectified") == "original":
+        from stereodic.dic.region import to_rectified
+        rw, rh = original.real_size
+        roi, mask = _region(args, rw, rh, "original left image")
+        if roi is not None or mask is not None:
+            region = np.ones((rh, rw), bool) if mask is None else mask
+            if roi is not None:
+                box = np.zeros_like(region)
+                box[roi[1]:roi[3] + 1, roi[0]:roi[2] + 1] = True
+                region &= box
+            roi, mask = None, to_rectified(region, original.map_x, original.map_y, original.valid)
+            if not mask.any():
+                raise InputError("--roi-frame", f"the region drawn in the original left image lies outside the "
+                                                f"{image}")
+    else:
+        roi, mask = _region(args, width, height, image)
+    if roi is None and mask is None and reference is not None:
+        from stereodic.dic.texture import specimen_mask
+        mask = specimen_mask(reference(), subset=args.subset)
+        if not mask.any():
+            raise InputError(source, f"the {image} has no speckle that a {args.subset}-pixel subset can register "
+                                     f"(blank, dark or out of focus?); give --roi or --mask to measure anyway")
     seeds = []
     for text in args.start_point:
         x, y = parse_ints(text, 2, "--start-point")

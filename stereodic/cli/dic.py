@@ -33,18 +33,31 @@ def register(sub):
     p.add_argument("--left-suffix", default="_0", help="with --images: the left images' suffix (default _0)")
     p.add_argument("--right-suffix", default="_1", help="with --images: the right images' suffix (default _1)")
     add_output(p, kind="dir", metavar="DIR", help="output folder (also the run folder)")
-    add_grid_options(p, "left rectified image")
+    # 29: VIC-3D's default; a stereo match's random error reaches the shape amplified by the triangulation
+    # (Z^2 / (baseline f)), so stereo wants larger subsets than 2-D DIC's 21 (docs/dic.md: on the
+    # dice-stereo-list case 21 gives 18 % more out-of-plane noise than DICe's 27, 29 6 % less)
+    add_grid_options(p, "left rectified image", subset=29)
+    p.add_argument("--roi-frame", choices=["rectified", "original"], default="rectified",
+                   help="the image that --roi, --mask and --roi-polygon are drawn in: the left rectified image "
+                        "(default) or the left camera's original image (the frame a user draws in; its region "
+                        "is moved onto the rectified image through the rig)")
     p.add_argument("--shape", choices=["affine", "quadratic"], default="affine",
                    help="subset shape function (default affine)")
     p.add_argument("--disparity", metavar="DMIN,DMAX",
                    help="row search range of the seeds, x_right - x_left in pixels (default +-half the width)")
-    p.add_argument("--vertical-search", type=int, default=0, metavar="ROWS",
-                   help="rows above and below the row that the seeds' stereo search also covers (default 0: the "
-                        "row only; more for a rig whose calibration no longer fits its images, whose matches sit "
-                        "off the rectified rows)")
-    p.add_argument("--max-gap", type=float, default=1.0, metavar="PITCHES",
-                   help="largest distance between the two rays of a trusted point, in virtual pixel pitches "
-                        "(default 1; points beyond are flagged ray_gap)")
+    p.add_argument("--vertical-search", type=int, metavar="ROWS",
+                   help="rows above and below the row that the seeds' stereo search also covers (default: 0 for a "
+                        "rig that fits its images; for one whose rows are off, a band about the offsets measured "
+                        "in the reference pair, as wide as they scatter)")
+    p.add_argument("--max-gap", type=float, default=1.0, metavar="ROWS",
+                   help="largest epipolar error of a trusted match, in virtual pixels, beyond the rows' offset "
+                        "measured in the reference pair (default 1; points beyond are flagged ray_gap; the rays' "
+                        "distance of every point is reported as gap_mm)")
+    p.add_argument("--keep-rig", action="store_true",
+                   help="keep the rig's calibration as it is (default: when the reference pair's rows are off by "
+                        "more than it allows, its right camera is re-oriented from the speckle and the corrected "
+                        "rig written to DIR/rig_refit.npz); refused for a rig whose rows are off by more than "
+                        "--max-gap")
     p.add_argument("--search", type=int, default=40, metavar="PIXELS",
                    help="search range of the temporal seeds (default 40)")
     add_prefilter_option(p)
@@ -84,10 +97,10 @@ def _settings(args):
         raise InputError("--switch-zncc", f"must be between 0 and 1, got {args.switch_zncc}")
     if args.plot_every < 1:
         raise InputError("--plot-every", f"must be >= 1, got {args.plot_every}")
-    if args.vertical_search < 0:
+    if args.vertical_search is not None and args.vertical_search < 0:
         raise InputError("--vertical-search", f"must be >= 0 rows, got {args.vertical_search}")
     if not args.max_gap > 0:
-        raise InputError("--max-gap", f"must be > 0 pixel pitches, got {args.max_gap}")
+        raise InputError("--max-gap", f"must be > 0 rows, got {args.max_gap}")
     check_prefilter(args)
     disparity = None
     if args.disparity:
@@ -97,8 +110,7 @@ def _settings(args):
     dic = DicSettings(subset=args.subset, shape=args.shape, min_zncc=args.min_zncc, search_radius=args.search,
                       prefilter_sigma=args.prefilter)
     return StereoSettings(dic, disparity, args.strain_window or None, args.incremental, max_gap_px=args.max_gap,
-                          switch_zncc=args.switch_zncc, strain_measure=args.measure,
-                          vertical_search=args.vertical_search)
+                          switch_zncc=args.switch_zncc, strain_measure=args.measure)
 
 
 def _states(args, rig):
@@ -118,16 +130,20 @@ def _states(args, rig):
     return states_from_folder(args.images, args.left_suffix, args.right_suffix, rig)
 
 
-def _run_record(args, rig_path, data, settings):
+def _run_record(args, rig_path, data, settings, grid):
     """(settings, inputs) of the run manifest: everything that decides the results."""
     import dataclasses
+    import hashlib
     import json
     import os
 
     from calib import __version__
     from calib.batch import file_sha256, fingerprint
     grid_args = {"subset": args.subset, "step": args.step, "roi": args.roi,
-                 "mask": file_sha256(args.mask) if args.mask else None, "seeds": args.start_point}
+                 "mask": file_sha256(args.mask) if args.mask else None, "seeds": args.start_point, "keep_rig": args.keep_rig,
+                 "roi_polygon": file_sha256(args.roi_polygon) if args.roi_polygon else None,
+                 "roi_frame": args.roi_frame,
+                 "active": hashlib.sha256(grid.active.tobytes()).hexdigest()}
     record = {"software": __version__, "stereo": dataclasses.asdict(settings), "grid": grid_args}
     paths = [str(p) for p in data.left + data.right]
     root = os.path.commonpath([os.path.abspath(p) for p in paths])
@@ -138,10 +154,13 @@ def _run_record(args, rig_path, data, settings):
     return json.loads(json.dumps(record)), inputs
 
 
-def _summary(st, n) -> str:
+def _summary(st, n, active, search_px) -> str:
+    """The state's line (points, mean displacement and strain), and the diagnosis when it measured under
+    half of its points (`stereodic.dic3d.diagnose`)."""
     import numpy as np
 
     from calib.numbers import fixed
+    from stereodic.dic3d.diagnose import diagnosis
     c = st.converged
     mean = st.displacement[c].mean(0) if c.any() else np.full(3, np.nan)
     text = (f"state {st.state}: {int(c.sum())}/{n} points converged, mean dX {fixed(mean[0], 4)} dY "
@@ -151,16 +170,22 @@ def _summary(st, n) -> str:
                  f"{fixed(np.nanmean(st.measure.eyy) * 1e6, 0)} microstrain")
     if st.incremental.any():
         text += f", {int((st.incremental & c).sum())} incremental"
-    return text
+    why = diagnosis(st.converged, st.status, active, label=f"state {st.state}", reference=st.state == 0,
+                    search_px=search_px)
+    return text if why is None else f"{text}\n{why}"
 
 
 def run(args) -> int:
+    import functools
     import sys
     from pathlib import Path
+
+    import numpy as np
 
     from calib.progress import note
     from stereodic.cli.common import wrote
     from stereodic.dic3d import epipolar
+    from stereodic.dic3d.refit import reference_geometry
     from stereodic.dic3d.run import run_states, write_outputs
     from stereodic.dic3d.store import RunStore
     from stereodic.stereo.rig import load_rig
@@ -168,13 +193,32 @@ def run(args) -> int:
     rig = load_rig(args.rig)
     width, height = rig.sensor.width, rig.sensor.height
     data = _states(args, rig)                   # every state and file checked before the work
-    grid, seeds = dic_grid(args, width, height, "rectified image", args.rig)
     settings = _settings(args)
-    record, inputs = _run_record(args, args.rig, data, settings)
+    grid, seeds = dic_grid(args, width, height, "rectified image", args.rig, original=rig.left.imm)
+    geometry = reference_geometry(rig, lambda r: data.rectified_pair(r, 0), keep_rig=args.keep_rig,
+                                  max_gap_px=args.max_gap, rig_name=args.rig)
+    for line in geometry.notes:
+        if line.startswith("warning"):
+            print(f"stereodic dic: {line}", file=sys.stderr)
+        else:
+            print(line)
+    rig, settings = geometry.rig, geometry.settings(settings, band=args.vertical_search)
+    if not (args.roi or args.mask or args.roi_polygon):   # the options were checked above, before the work
+        grid, seeds = dic_grid(args, width, height, "rectified image", str(data.left[0]),
+                               reference=lambda: data.rectified_pair(rig, 0)[0])
+    record, inputs = _run_record(args, args.rig, data, settings, grid)
     out = Path(args.output)
     store = RunStore(out)
     n = len(data)
     done = store.open(record, inputs, n, restart=args.restart)
+    rig_path, rig_sha = args.rig, inputs["rig"]
+    if geometry.correction is not None:
+        from calib.batch import file_sha256
+        from stereodic.stereo.rig import save_rig
+        rig_path = out / "rig_refit.npz"
+        save_rig(rig_path, rig)
+        rig_sha = file_sha256(rig_path)
+        wrote(rig_path, "the rig with its right camera re-oriented from the reference pair")
     outputs = {"columns": args.columns, "vtk": not args.no_vtk, "plot_every": 0 if args.no_plot else args.plot_every}
     if done == n and store.outputs_written(outputs):
         print(f"{out}: all {n} states are done and written; nothing to do (--restart to run again)")
@@ -182,32 +226,48 @@ def run(args) -> int:
     if done:
         print(f"{out}: resuming a run with {done} of {n} states done")
     active = int(grid.active.sum())
+    summary = functools.partial(_summary, n=active, active=grid.active, search_px=args.search)
+
+    def nothing_measured(st):
+        """InputError (exit status 2) with the diagnosis when the reference measured no point."""
+        if not st.converged.any():
+            from calib.errors import InputError
+            from stereodic.dic3d.diagnose import diagnosis
+            why = diagnosis(st.converged, st.status, grid.active, label="state 0", reference=True,
+                            search_px=args.search)
+            raise InputError(data.source, f"no point measured in the reference pair: {why}")
     plot_every = outputs["plot_every"]
     labels = [data.label(k) for k in range(n)]
     if args.scheduler:
-        import functools
-
         from stereodic.cluster import connect
         from stereodic.dic3d.cluster import RunSpec, run_states_on
-        spec = RunSpec.make(args.rig, inputs["rig"], out, data, grid, seeds, settings,
-                            functools.partial(_summary, n=active))
+        spec = RunSpec.make(str(rig_path), rig_sha, out, data, grid, seeds, settings, summary)
         with connect(args.scheduler) as client:
             state0 = run_states_on(client, store, data, spec, csv=args.columns != "dice", vtk=not args.no_vtk,
                                    plot_every=plot_every, labels=labels)
+        nothing_measured(state0)
     else:
-        state0 = run_states(store, data, rig, grid, seeds, settings, report=lambda st: note(_summary(st, active)))
+        def report(st):
+            note(summary(st))
+            if st.state == 0:
+                nothing_measured(st)
+        state0 = run_states(store, data, rig, grid, seeds, settings, report=report)
     c0 = state0.left.ok & state0.right.ok         # matched, whether or not the rays meet
     X, Y = (a.reshape(grid.shape) for a in grid.points())
     report = epipolar.check(rig, X[c0], Y[c0], (X + state0.right.u)[c0], (Y + state0.right.v)[c0],
                             state0.right.noise_px[c0])
     if report is not None:
         print(report.line())
-        if report.bumped:
+        if report.bumped and geometry.correction is not None:
+            print(f"what a turn of the right camera does not explain (a lens, its focus or the scale changed since "
+                  f"the calibration?) is left: the stereo matches follow the rows measured in the reference pair, "
+                  f"the rays' distance is reported as gap_mm (median {np.nanmedian(state0.gap_mm):.3f} mm)")
+        elif report.bumped and not (geometry.before is not None and geometry.before.bumped):
             print(f"stereodic dic: warning: the rig's epipolar error (median {report.median:+.3f} px, p95 "
                   f"{report.p95:.3f} px) is larger than its calibration allows (p95 {report.expected_p95:.3f} px): "
                   f"has a camera moved since the calibration?", file=sys.stderr)
-    info = {"rig": str(args.rig), "dataset": data.source, "world_from_rig": rig.world_from_rig.tolist(),
-            "state_labels": labels}
+    info = {"rig": str(rig_path), "dataset": data.source, "world_from_rig": rig.world_from_rig.tolist(),
+            "state_labels": labels, "rig_notes": geometry.notes}
     dice = None
     if args.columns == "dice":
         from stereodic.formats.dice_columns import StereoDiceWriter

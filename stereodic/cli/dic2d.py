@@ -93,7 +93,8 @@ def run(args) -> int:
     from calib.numbers import fixed
     from calib.progress import note, progress
     from stereodic.cli.common import dic_grid, wrote
-    from stereodic.dic import DicSettings, correlate_sequence
+    from stereodic.dic import STATUS_NAMES, DicSettings, correlate_sequence
+    from stereodic.dic3d.diagnose import diagnosis
     from stereodic.dic.output import CsvWriter, image_arrays, plot_field, write_npz
     if args.strain_window:  # strain (and its scipy) only when asked for
         from stereodic.strain.fit import strain_2d
@@ -112,7 +113,7 @@ def run(args) -> int:
     preloaded = [] if args.scheduler else [read(p) for p in defs[:PRELOAD_BYTES // ref.nbytes]]
     for path in defs[len(preloaded):]:
         check_size(path, (width, height), f"the reference {args.ref}")
-    grid, seeds = dic_grid(args, width, height, "reference", args.ref)
+    grid, seeds = dic_grid(args, width, height, "reference", args.ref, reference=lambda: ref)
     settings = DicSettings(subset=args.subset, shape=args.shape, order=3 if args.interp == "cubic" else 5,
                            prefilter_sigma=args.prefilter, min_zncc=args.min_zncc, search_radius=args.search)
     out = Path(args.output)
@@ -159,6 +160,10 @@ def run(args) -> int:
             note(f"image {k} ({defs[k]}): {n_ok}/{int(grid.active.sum())} points converged, "
                  f"mean u {fixed(np.nanmean(f.u) if n_ok else np.nan, 4)} px, "
                  f"mean v {fixed(np.nanmean(f.v) if n_ok else np.nan, 4)} px")
+            why = diagnosis(f.ok, np.array(STATUS_NAMES, dtype=object)[f.status], grid.active, label=f"image {k}",
+                            reference=False, search_px=args.search)
+            if why is not None:
+                note(why)
         if args.npz:
             def values(key):
                 for k in range(len(defs)):

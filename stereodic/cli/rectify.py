@@ -37,7 +37,7 @@ def run(args) -> int:
     from calib.atomic import atomic_output
     from calib.imageio import read_gray, write_gray
     from calib.numbers import fixed
-    from stereodic.stereo.rectify import plot_row_alignment, rectify_pair, row_alignment
+    from stereodic.stereo.rectify import offset_text, plot_row_alignment, rectify_pair, row_alignment, row_band
     from stereodic.stereo.rig import load_rig
 
     rig = load_rig(args.rig)
@@ -51,7 +51,9 @@ def run(args) -> int:
     fig = plot_row_alignment(left, right, match, max(args.every, 2))
     with atomic_output(out / "overlay.png") as tmp:
         fig.savefig(tmp, dpi=100, bbox_inches="tight")
+    offset = offset_text(match)
     wrote(out / "overlay.png", f"row alignment: vertical disparity RMS {fixed(match.rms, 3)} px over "
-                               f"{match.dy.size} matched features" if match.dy.size else
-                               "row alignment: no feature with texture in both directions to measure it")
+                               f"{match.dy.size} matched features{'; ' + offset if offset else ''}" if match.dy.size
+                               else f"row alignment: no feature with texture in both directions matched within "
+                                    f"{row_band(left.shape[0])} rows of its own to measure it")
     return 0

@@ -2,7 +2,9 @@
 
 Modules, one job each: `interpolation` (B-spline coefficients and sampling), `icgn` (IC-GN registration
 of one subset, ZNSSD), `initial_guess` (integer ZNCC searches, also along rows for stereo),
-`propagation` (reliability-guided wavefronts over a grid), `grid` (points from ROI and mask),
+`propagation` (reliability-guided wavefronts over a grid), `grid` (points from ROI and mask), `region`
+(polygons with holes, a region of the original image on the rectified one), `texture` (noise, SSSIG,
+where the specimen's speckle is),
 `correlate` (one deformed image), `sequence` (series, switching point by point to incremental DIC),
 `output` (CSV, NPZ, PNG).
 

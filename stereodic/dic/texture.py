@@ -56,3 +56,53 @@ def predicted_noise(ref: BSplineImage, xs: np.ndarray, ys: np.ndarray, half: int
     with np.errstate(divide="ignore"):
         out[inside] = np.sqrt(2.0) * sigma / np.sqrt(least)
     return out
+
+
+def noise_gradient_gain(order: int = 3) -> float:
+    """Mean squared x-gradient of the B-spline interpolant of unit white noise, per pixel (the sum of
+    the squared taps of the linear filter that gives the gradients at pixel centres, from its impulse
+    response)."""
+    impulse = np.zeros((33, 33), np.float64)
+    impulse[16, 16] = 1.0
+    g = BSplineImage.from_image(impulse, order=order, prefilter_sigma=0.0).pixel_gradients()
+    return float(np.sum(np.square(g[1], dtype=np.float64)))
+
+
+def specimen_mask(image: np.ndarray, *, subset: int, contrast: float = 3.0) -> np.ndarray:
+    """Where a subset of the image has speckle to register: (H, W) bool over subset centres.
+
+    A subset is usable where its texture's gradients, in x and in y (the smaller SSSIG, `sssig`), have at
+    least `contrast` times the RMS that the image's noise alone gives (`estimate_noise`,
+    `noise_gradient_gain`): a dark background, a blank fixture or a saturated patch has only the noise's
+    gradients. Subsets leaving the image are not usable; patches of usable subsets smaller than 4
+    subsets' area (isolated specks) are left out.
+
+    Parameters
+    ----------
+    image : (H, W) array
+        The reference image, grey levels (blank pixels 0).
+    subset : int
+        The subset side, pixels.
+    contrast : float
+        The ratio of RMS gradients, texture to noise, of a usable subset.
+
+    Returns
+    -------
+    mask : (H, W) bool
+        True at the centres of usable subsets.
+    """
+    img = np.asarray(image, np.float64)
+    h, w = img.shape
+    half = subset // 2
+    b = BSplineImage.from_image(img, order=3, prefilter_sigma=0.0)
+    sx, sy = sssig(b, half)
+    sigma = max(estimate_noise(img), 1e-3 * max(float(np.ptp(img)), 1e-12))
+    floor = contrast ** 2 * noise_gradient_gain() * sigma ** 2 * subset ** 2
+    mask = np.minimum(sx, sy) >= floor
+    inside = np.zeros((h, w), bool)
+    inside[half:h - half, half:w - half] = True
+    mask &= inside
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    big = stats[:, cv2.CC_STAT_AREA] >= 4 * subset ** 2
+    big[0] = False
+    return big[labels]

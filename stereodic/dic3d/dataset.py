@@ -55,8 +55,9 @@ class DicStates:
         return read_gray(self.left[k]), read_gray(self.right[k])
 
     def rectified_pair(self, rig: Rig, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """The rectified (left, right) images of state k."""
-        return rectify_pair(rig, *self.read(k), where=(str(self.left[k]), str(self.right[k])))
+        """The rectified (left, right) images of state k, float32 (`rectify_pair(exact=True)`: grey levels
+        not rounded, which would add noise to every match)."""
+        return rectify_pair(rig, *self.read(k), where=(str(self.left[k]), str(self.right[k])), exact=True)
 
     def rectified(self, rig: Rig) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         """The rectified (left, right) images of each state, in order, read one state at a time."""

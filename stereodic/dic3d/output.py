@@ -156,7 +156,10 @@ def write_npz(path: str | os.PathLike, grid: Grid, values: Callable[[str], Itera
 
 def plot_state(folder: str | os.PathLike, st: StereoState, axes: MapAxes, label: str) -> None:
     """PNG maps of one state k, named `label` (its load case): state{k}_{Z,dX,dY,dZ}.png [+ _exx, _eyy,
-    _exy, microstrain] on `axes` (stereodic.dic.maps.surface_axes: the reference surface's X, Y in mm)."""
+    _exy, microstrain] on `axes` (stereodic.dic.maps.surface_axes: the reference surface's X, Y in mm); none
+    for a state that measured no point (its diagnosis says why: `stereodic.dic3d.diagnose`)."""
+    if not st.converged.any():
+        return
     folder = Path(folder)
     maps = {"Z": (st.points[..., 2], "mm", 3), "dX": (st.displacement[..., 0], "mm", 4),
             "dY": (st.displacement[..., 1], "mm", 4), "dZ": (st.displacement[..., 2], "mm", 4)}

@@ -3,7 +3,9 @@
 All image positions are in the rectified (virtual) images of the rig, pixels, x = column, y = row; the
 grid of points lies in the LEFT image of the reference state 0. Per state s:
 - stereo match of state 0 (left_0 -> right_0): seeds by a 1-D ZNCC search along the same row
-  (`row_seed_search`; the rectified pair puts a scene point on one row of both images), then IC-GN with
+  (`row_seed_search`; the rectified pair puts a scene point on one row of both images), or, for a rig
+  whose rows are off its images, in a band about the offset measured in the reference pair
+  (`refit.offset_seed_search`, `StereoSettings.row_offsets`), then IC-GN with
   the affine (or quadratic) subset shape - the right subset is foreshortened differently - and
   reliability-guided propagation (the 2-D engine, `stereodic.dic`);
 - temporal match left_0 -> left_s (the 2-D engine's tracking, `stereodic.dic.sequence`, each point
@@ -23,7 +25,9 @@ grid of points lies in the LEFT image of the reference state 0. Per state s:
   incremental from state 1;
 - triangulation of (left position, right position) with the EVM-corrected rays (`triangulate`,
   corrected=True; the right match may sit a fraction of a pixel off the row after IC-GN: passed as
-  row_right); a ray gap above `max_gap_px` virtual pixels means a wrong match and is flagged;
+  row_right), the rays' distance reported as gap_mm; a match more than `max_gap_px` rows off the row
+  where the left ray is seen (`epipolar.epipolar_error`), less the reference pair's measured offset
+  there (none for a rig that fits), is a wrong match and is flagged ray_gap;
 - 3D points and displacements X_s - X_0 in the rig's reporting frame (`Rig.to_world`: the rig's WCS
   unless it carries a world_from_rig transform), strain on the local tangent plane (`strain_3d`).
 A point is `converged` in a state only if both cameras' matches are OK there, the rays meet, and its
@@ -50,14 +54,15 @@ from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import OK, OUTSIDE, STATUS_NAMES, UNREACHED
 from stereodic.dic.sequence import (DECORRELATED, SWITCH_ZNCC, TrackCarry, merge_track, prefetch, register_direct,
                                     register_steps, shifted, switch_candidates)
+from stereodic.dic3d.diagnose import NO_REFERENCE, RAY_GAP
+from stereodic.dic3d.epipolar import epipolar_error
+from stereodic.dic3d.refit import offset_at, offset_seed_search
 from stereodic.stereo.rig import Rig
 from stereodic.strain.fit import Strain, StrainFit, strain_3d
 from stereodic.strain.measures import StrainMeasure, measure_strain
 from stereodic.stereo.triangulate import triangulate
 
 CROSS_DECORRELATED = tuple(c for c in DECORRELATED if c != OUTSIDE)
-RAY_GAP = "ray_gap"        # combined statuses beyond the 2-D engine's
-NO_REFERENCE = "no_reference"
 
 
 @dataclass(frozen=True)
@@ -66,10 +71,11 @@ class StereoSettings:
     search of the seeds (x_right - x_left), None = half the image width either way; strain_window: grid
     points per side of the strain fit (odd), None = no strain; incremental: every point incremental from
     state 1 (module docstring); switch_zncc: a point whose ZNCC against the reference falls below
-    switches to incremental (0 = never); max_gap_px: largest distance between the two rays, in virtual
-    pixel pitches, of a trusted point; strain_measure: one of `strain_measures.MEASURES`;
-    vertical_search: rows above and below the row that the seed search also covers (0: the row only; more
-    for a rig whose calibration no longer fits its images, whose matches sit off the row)."""
+    switches to incremental (0 = never); max_gap_px: largest epipolar error (rows, virtual pixels) of a
+    trusted match beyond the measured row offset; strain_measure: one of `strain_measures.MEASURES`;
+    vertical_search: rows above and below the (offset) row that the seed search also covers; row_offsets:
+    the quadratic surface of the reference pair's row offsets (`refit.RowOffsets.coef`, pixels), () =
+    none: the rig's rows."""
 
     dic: DicSettings = DicSettings()
     disparity: tuple[int, int] | None = None
@@ -79,6 +85,7 @@ class StereoSettings:
     switch_zncc: float = SWITCH_ZNCC
     strain_measure: str = "green-lagrange"
     vertical_search: int = 0
+    row_offsets: tuple[float, ...] = ()
 
 
 @dataclass
@@ -179,9 +186,19 @@ class StereoRun:
         w = self.rig.sensor.width
         return self.settings.disparity or (-(w // 2), w // 2)
 
-    @property
-    def max_gap_mm(self) -> float:
-        return self.settings.max_gap_px * float(np.max(self.rig.sensor.pitch_mm))
+    def seed_search(self):
+        """The stereo seeds' integer search: along the rows, or about their measured offsets."""
+        st = self.settings
+        if st.row_offsets:
+            return offset_seed_search(*self.disparity, st.row_offsets, st.vertical_search)
+        return row_seed_search(*self.disparity, rows=st.vertical_search)
+
+    def row_excess(self, xl: np.ndarray, yl: np.ndarray, xr: np.ndarray, yr: np.ndarray) -> np.ndarray:
+        """(N,) |epipolar error - measured row offset| of matches (xl, yl) <-> (xr, yr), rows."""
+        e = epipolar_error(self.rig, xl, yl, xr, yr)
+        if self.settings.row_offsets:
+            e = e - offset_at(self.settings.row_offsets, xl, yl)
+        return np.abs(e)
 
 
 CROSS_KEYS = ("warp", "zncc", "iterations", "status")
@@ -296,7 +313,7 @@ def stereo_match(run: StereoRun, pair: PreparedPair) -> tuple[PointResult, np.nd
     returns it and its predicted random error (N,) pixels."""
     X, Y = run.grid.points()
     return register_image(run.ref if pair.left is run.ref.image else pair.left_ref(), pair.right, pair.right_b,
-                          run.grid, X, Y, run.settings.dic, seeds=run.seed_idx, search=row_seed_search(*run.disparity, rows=run.settings.vertical_search))
+                          run.grid, X, Y, run.settings.dic, seeds=run.seed_idx, search=run.seed_search())
 
 
 def _reference_state(run: StereoRun, pair: PreparedPair) -> tuple[StereoState, StereoCarry]:
@@ -425,11 +442,14 @@ def _state(run: StereoRun, k: int, left: CameraMatch, right: CameraMatch, increm
     both = (left.ok & right.ok).ravel()
     pts = np.full((X.size, 3), np.nan)
     gap = np.full(X.size, np.nan)
+    excess = np.zeros(X.size)
     if both.any():
-        t = triangulate(rig, X[both] + left.u.ravel()[both], X[both] + right.u.ravel()[both],
-                        Y[both] + left.v.ravel()[both], row_right=Y[both] + right.v.ravel()[both], corrected=True)
+        xl, yl = X[both] + left.u.ravel()[both], Y[both] + left.v.ravel()[both]
+        xr, yr = X[both] + right.u.ravel()[both], Y[both] + right.v.ravel()[both]
+        t = triangulate(rig, xl, xr, yl, row_right=yr, corrected=True)
         pts[both], gap[both] = rig.to_world(t.points), t.gap_mm
-    gap_ok = ~(gap > run.max_gap_mm).reshape(g.shape)
+        excess[both] = run.row_excess(xl, yl, xr, yr)
+    gap_ok = ~(excess > run.settings.max_gap_px).reshape(g.shape)
     ref_points = run.ref_points if k > 0 else None
     ref_ok = np.ones(g.shape, bool) if ref_points is None else np.isfinite(ref_points).all(-1)
     view_ok = {side: in_view(run.views[side], X.reshape(g.shape) + m.u, Y.reshape(g.shape) + m.v) | ~m.ok

@@ -52,6 +52,12 @@ def rectify_pair(rig: Rig, left: np.ndarray, right: np.ndarray, *, intensity: bo
     return out[0], out[1]
 
 
+def row_band(height: int) -> int:
+    """Rows above and below its own that `row_alignment` searches a feature in by default: an eighth of
+    the image height, at least 16."""
+    return max(16, height // 8)
+
+
 @dataclass
 class RowAlignment:
     """Features matched between the two rectified images: left position (x, y), right column x_right, the
@@ -69,20 +75,22 @@ class RowAlignment:
         return float(np.sqrt(np.mean(self.dy ** 2))) if self.dy.size else float("nan")
 
 
-def row_alignment(left: np.ndarray, right: np.ndarray, *, max_dy: int = 6, half: int = 10, count: int = 150,
-                  min_zncc: float = 0.9) -> RowAlignment:
+def row_alignment(left: np.ndarray, right: np.ndarray, *, max_dy: int | None = None, half: int = 10,
+                  count: int = 150, min_zncc: float = 0.9) -> RowAlignment:
     """How well the rows of a rectified pair line up, from features with texture in both directions.
 
     Corners of the left image (Shi-Tomasi, at most `count`, whole subsets of half-width `half` inside
     both images' valid areas) are searched for in the right image over the whole width and rows within
-    `max_dy` of their own (ZNCC, cv2.matchTemplate); a match with a second peak nearly as good elsewhere
-    along the rows (a periodic or stripe pattern: no reliable position) is dropped; the rest are refined
-    to sub-pixel by IC-GN with an affine subset (the 2D DIC engine, `stereodic.dic`: the two views
-    foreshorten a surface differently) and kept where they converge with at least `min_zncc`. Pixels,
-    rectified images."""
+    `max_dy` of their own (ZNCC, cv2.matchTemplate; None: an eighth of the height, at least 16 rows: a
+    rig whose calibration no longer fits its images can put them tens of rows apart); a match with a
+    second peak nearly as good elsewhere along the rows (a periodic or stripe pattern: no reliable
+    position) is dropped; the rest are refined to sub-pixel by IC-GN with an affine subset (the 2D DIC
+    engine, `stereodic.dic`: the two views foreshorten a surface differently) and kept where they
+    converge with at least `min_zncc`. Pixels, rectified images."""
     from stereodic.dic import BSplineImage, DicSettings, correlate_points
 
     lf, rf = left.astype(np.float32), right.astype(np.float32)
+    max_dy = row_band(left.shape[0]) if max_dy is None else int(max_dy)
     side = 2 * half + 1
     valid = cv2.erode(((left > 0) & (right > 0)).astype(np.uint8), np.ones((side + 2, side + 2), np.uint8))
     corners = cv2.goodFeaturesToTrack(lf, count, 0.05, 2 * half, mask=valid)
@@ -107,6 +115,14 @@ def row_alignment(left: np.ndarray, right: np.ndarray, *, max_dy: int = 6, half:
                            np.stack([du, dv], 1), settings=settings)
     ok = np.isfinite(res.u) & (np.abs(res.v) <= max_dy)
     return RowAlignment(x[ok], y[ok], x[ok] + res.u[ok], res.v[ok], res.zncc[ok])
+
+
+def offset_text(match: RowAlignment) -> str:
+    """A sentence naming the rows' offset when the rows are more than a pixel apart, else ""."""
+    if not match.dy.size or np.median(np.abs(match.dy)) <= 1.0:
+        return ""
+    return (f"the rows are {match.dy.min():+.1f} to {match.dy.max():+.1f} px apart: the rig's calibration no longer "
+            f"fits these images (a camera moved or refocused?); `stereodic dic` re-orients it from the speckle")
 
 
 def plot_row_alignment(left: np.ndarray, right: np.ndarray, match: RowAlignment, every: int = 32):
@@ -149,13 +165,17 @@ def plot_row_alignment(left: np.ndarray, right: np.ndarray, match: RowAlignment,
     ax.set_ylim(h - 0.5, -0.5)
     ax.set_xticks([w / 2, 1.5 * w], ["left rectified image", "right rectified image"])
     ax.set_ylabel("rectified row (px)")
-    ax.set_title(f"Rectified pair: a scene point lies on the same row in both images (yellow lines every "
-                 f"{every} rows; circles: {n} features matched left to right)", fontsize=10)
+    title = (f"Rectified pair: a scene point lies on the same row in both images (yellow lines every {every} rows; "
+             f"circles: {n} features matched left to right)")
+    if n and offset_text(match):
+        title += "\n" + offset_text(match)
+    ax.set_title(title, fontsize=10, color="#c1121f" if n and offset_text(match) else "black")
     if n == 0:
         fig.add_subplot(grid[1, :]).text(
-            0.5, 0.5, "No feature with texture in both directions could be matched, so the row alignment\n"
-                      "cannot be measured from this pair (stripes or a blank scene?). Rectify a pair that\n"
-                      "shows speckle or a chessboard.", ha="center", va="center", fontsize=11)
+            0.5, 0.5, f"No feature with texture in both directions could be matched within {row_band(h)} rows of "
+                      f"its own,\nso the row alignment cannot be measured from this pair (stripes or a blank "
+                      f"scene?\nor rows further apart than that). Rectify a pair that shows speckle or a "
+                      f"chessboard.", ha="center", va="center", fontsize=11)
         fig.axes[-1].set_axis_off()
         return fig
     half = 20

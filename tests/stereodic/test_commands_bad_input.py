@@ -87,10 +87,12 @@ COMMANDS: dict[str, list[list]] = {
     "scan": [["scan", In("rig", "rig", "scan_rig", "dic_rig", "capture.json"), In("dataset", "scan dataset", "scan"),
               "-o", Out("output", "file", "cloud.ply"), "--mesh", Out("mesh", "file", "mesh.ply")]],
     "dic2d": [["dic2d", In("ref", IMG, "a"), In("defs", IMG, "b", "small"), "--mask", In("mask", IMG, "a", "small"),
-               "-o", Out("output", "file", "r.csv"), "--npz", Out("npz", "file", "r.npz"), "--plot",
+               "--roi-polygon", In("roi_polygon", "polygon file", "polygon"), "-o", Out("output", "file", "r.csv"),
+               "--npz", Out("npz", "file", "r.npz"), "--plot",
                Out("plot", "dir", "maps")]],
     "dic": [["dic", In("rig", "rig", "dic_rig", "scan_rig", "capture.json"), DIC, "--mask",
-             In("mask", IMG, "dic_left", "small"), "-o", Out("output", "dir", "run")],
+             In("mask", IMG, "dic_left", "small"), "--roi-polygon", In("roi_polygon", "polygon file", "polygon"),
+             "-o", Out("output", "dir", "run")],
             ["dic", In("rig", "rig", "dic_rig", "scan_rig", "cam0.png"), "--left", In("left", IMG, "dic_left", "small"),
              "--right", In("right", IMG, "dic_right", "small"), "-o", Out("output", "dir", "run")],
             ["dic", In("rig", "rig", "dic_rig", "scan_rig", "img_0000_0.png"), "--images",
@@ -191,6 +193,9 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
     assert paths["response"].is_file()
     _opencv_stereo_yaml(root / "stereo.yml")
     paths["opencv_yaml"] = root / "stereo.yml"
+    polygon = {"outer": [[2, 2], [61, 2], [61, 45], [2, 45]], "holes": [[[30, 20], [34, 20], [34, 24]]]}
+    (root / "polygon.json").write_text(json.dumps(polygon))     # inside the 64x48 images
+    paths["polygon"] = root / "polygon.json"
 
     bad = root / "bad"
     bad.mkdir()
@@ -210,6 +215,7 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
     with zipfile.ZipFile(bad / "not_numpy.npz", "w") as z:
         z.writestr("notes.txt", "a zip, but not of numpy arrays")
     (bad / "other.json").write_text(json.dumps({"format": "stereodic.capture/1", "kind": "dic"}))
+    (bad / "outside.json").write_text(json.dumps([[2, 2], [90, 2], [90, 40]]))    # beyond the 64x48 images
     for name, dataset in (("cal", paths["cal"]), ("dic", paths["dic"]), ("scan", paths["scan"]),
                           ("pairs", pairs)):
         for flaw in ("truncated", "other_size"):
@@ -268,6 +274,10 @@ def _bad_inputs(slot: In, paths) -> list[tuple[str, str, Path, str]]:
         if slot.wrong_size:
             cases += [("wrong size", "another size", paths[slot.wrong_size], paths[slot.wrong_size].name)]
         return cases
+    if slot.kind == "polygon file":
+        return cases + [("empty file", "empty", bad / "empty.json", "empty.json"),
+                        ("corrupt", "random bytes", bad / "random.json", "random.json"),
+                        ("wrong size", "a polygon outside the image", bad / "outside.json", "outside.json")]
     if slot.kind in ("display response", "calibration"):
         suffix = ".json" if slot.kind == "display response" else ".yml"
         cases += [("empty file", "empty", bad / f"empty{suffix}", f"empty{suffix}"),

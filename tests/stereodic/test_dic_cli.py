@@ -116,7 +116,14 @@ def test_textureless_region_is_flagged(images, tmp_path):
     write_gray(tmp_path / "ref.png", ref)
     write_gray(tmp_path / "def.png", dfm)
     out = tmp_path / "out.csv"
+    # by default the points are placed where the reference has speckle: none on the blank part
     assert main(["dic2d", str(tmp_path / "ref.png"), str(tmp_path / "def.png"), "--step", "8", "-o", str(out)]) == 0
+    rows = _rows(out)
+    assert rows and all(float(r["x"]) + 10 >= 70 - 3 for r in rows)
+    assert all(r["converged"] == "1" and abs(float(r["u"])) < 0.02 for r in rows if float(r["x"]) - 10 > 72)
+    # a region that takes it in: its points are flagged
+    assert main(["dic2d", str(tmp_path / "ref.png"), str(tmp_path / "def.png"), "--step", "8", "--roi",
+                 "0,0,159,127", "-o", str(out)]) == 0
     rows = _rows(out)
     blank = [r for r in rows if float(r["x"]) + 10 < 70 - 3]  # 3 px: the low-pass and B-spline reach
     textured = [r for r in rows if float(r["x"]) - 10 > 72]

@@ -2,6 +2,8 @@
 a warning for a rig whose right camera turned after its calibration (a bumped rig), by as much as the
 turn predicts."""
 
+import json
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -43,47 +45,75 @@ def test_the_error_of_the_true_rig_is_zero_on_its_rows(dic_sim):
     assert np.allclose(epipolar_error(rig, x, y, x - 30, y + 0.25), 0.25, atol=2e-4)
 
 
-def test_a_bumped_rig_is_reported(dic_sim, tmp_path, capsys):
+def _correction(out: str) -> tuple[float, float, float, float]:
+    """(turn about the baseline, about the viewing direction (degrees), epipolar median before, after (px))
+    from the correction line of a run's output."""
+    line = next(ln for ln in out.splitlines() if "does not fit these images" in ln)
+    about = [float(line.split(" deg (")[1].split(" about the baseline")[0]),
+             float(line.split("the baseline, ")[1].split(" about the viewing")[0])]
+    medians = [float(part.split(" px")[0]) for part in line.split("median ")[1:3]]
+    return about[0], about[1], medians[0], medians[1]
+
+
+def test_a_bumped_rig_is_re_oriented(dic_sim, tmp_path, capsys):
+    """A right camera turned by 0.046 degrees about the baseline after its calibration: the rows move by
+    ~0.38 px; by default the run finds the turn and corrects it; with --keep-rig it warns and keeps it."""
     args = ["--step", "12", "--no-vtk", "--no-plot", "--strain-window", "0"]
     assert main(["dic", str(dic_sim / "rig.npz"), str(dic_sim), *args, "-o", str(tmp_path / "good")]) == 0
     out = capsys.readouterr()
     line = next(ln for ln in out.out.splitlines() if ln.startswith("epipolar error"))
     median = float(line.split("median ")[1].split(" px")[0])
-    assert abs(median) < 0.01 and "warning" not in out.err
+    assert abs(median) < 0.01 and "warning" not in out.err and "does not fit" not in out.out
     angle = 0.8e-3                                              # 0.046 degrees
     rig = _rig(tmp_path / "bumped.npz", dic_sim, angle)
     shift_px = angle * rig.working_distance_mm / rig.sensor.pitch_mm[1]  # the rows move by about this
     assert 0.2 < shift_px < 0.6
     assert main(["dic", str(tmp_path / "bumped.npz"), str(dic_sim), *args, "-o", str(tmp_path / "bumped")]) == 0
     out = capsys.readouterr()
-    line = next(ln for ln in out.out.splitlines() if ln.startswith("epipolar error"))
-    median = float(line.split("median ")[1].split(" px")[0])
-    assert abs(median) == pytest.approx(shift_px, rel=0.2)
+    about_baseline, about_view, before, after = _correction(out.out)
+    assert abs(before) == pytest.approx(shift_px, rel=0.2) and abs(after) < 0.02
+    assert about_baseline == pytest.approx(-np.degrees(angle), abs=0.003) and abs(about_view) < 0.003
+    assert (tmp_path / "bumped" / "rig_refit.npz").is_file()
+    keep = ["--keep-rig", "-o", str(tmp_path / "kept")]
+    assert main(["dic", str(tmp_path / "bumped.npz"), str(dic_sim), *args, *keep]) == 0
+    out = capsys.readouterr()
     assert "warning" in out.err and "moved" in out.err and len(out.err.strip().splitlines()) == 1
 
 
-def test_a_rig_far_off_its_images_needs_the_wider_search(dic_sim, tmp_path, capsys):
-    """A right camera turned after its calibration by ~15 rows' worth (as in the dice-stereo-list case):
-    the seeds' search along the row finds nothing; --vertical-search finds the matches, whose rays no
-    longer meet (flagged ray_gap) until --max-gap admits them; the translation state's displacement is
-    then the simulated one to the rig's error (the rays' midpoints of a turned camera)."""
+def test_a_turned_rig_is_recovered(dic_sim, tmp_path, capsys):
+    """A right camera turned after its calibration by 0.3 degrees (about an axis between the baseline
+    and the viewing direction: its rows move by ~2.5 px and tilt): with the defaults the run finds the
+    turn, re-orients the rig and measures the translation state's displacement as with the true rig;
+    --keep-rig refuses a rig that far off its images (one line naming the option, exit status 2)."""
     true = load_rig(dic_sim / "rig.npz")
-    rig = _rig(tmp_path / "moved.npz", dic_sim, 15 * true.sensor.pitch_mm[1] / true.working_distance_mm)
-    args = [str(tmp_path / "moved.npz"), str(dic_sim), "--step", "12", "--no-vtk", "--no-plot", "--strain-window", "0"]
-    runs = {"row": [], "band": ["--vertical-search", "25"], "band_gap": ["--vertical-search", "25", "--max-gap", "100"]}
-    found = {}
-    for name, extra in runs.items():
-        assert main(["dic", *args, *extra, "-o", str(tmp_path / name)]) == 0
-        with np.load(tmp_path / name / "dic.npz") as z:
-            found[name] = {k: z[k] for k in ("converged", "right_status", "displacement", "gap_mm", "active")}
-    capsys.readouterr()
-    n = found["row"]["active"].sum()
-    assert not found["row"]["converged"].any() and not (found["row"]["right_status"][0] == 0).any()
-    matched = found["band"]["right_status"][0] == 0
-    assert matched.sum() > 0.7 * n and not found["band"]["converged"].any()      # every one a ray gap
-    gap_px = np.nanmedian(found["band_gap"]["gap_mm"][0]) / rig.sensor.pitch_mm[0]
-    assert 1 < gap_px < 100
-    c = found["band_gap"]["converged"]
-    assert (c.sum(axis=(1, 2)) > 0.6 * n).all()     # less the subsets reaching the rows it no longer sees
-    mean = found["band_gap"]["displacement"][1][c[1]].mean(axis=0)
-    assert np.abs(mean - (0.6, -0.4, 1.2)).max() < 0.05            # mm, of a 1.4 mm translation
+    left, right = dic_lenses(true.sensor.width, true.sensor.height)
+    e1 = (right.centre_mm - left.centre_mm) / np.linalg.norm(right.centre_mm - left.centre_mm)
+    n = true.sensor.normal - (true.sensor.normal @ e1) * e1
+    n /= np.linalg.norm(n)
+    angle, mix = np.radians(0.3), np.radians(30)              # 0.26 deg about the baseline, 0.15 about the view
+    axis = np.cos(mix) * e1 + np.sin(mix) * n
+    prvms = [ln.true_prvm(camera=c, dataset="bumped", wcs="bumped") for c, ln in zip(CAMERAS, (left, right))]
+    prvms[1] = _turned(prvms[1], right.centre_mm, axis, angle)
+    save_rig(tmp_path / "turned.npz", build_rig(*prvms, width=true.sensor.width, height=true.sensor.height,
+                                                where=tuple(CAMERAS)))
+    args = [str(tmp_path / "turned.npz"), str(dic_sim), "--step", "12", "--no-vtk", "--no-plot", "--strain-window", "0"]
+    assert main(["dic", *args, "-o", str(tmp_path / "out")]) == 0
+    about_baseline, about_view, before, after = _correction(capsys.readouterr().out)
+    print(about_baseline, about_view, before, after)
+    assert abs(before) > 1.5 and abs(after) < 0.05
+    assert about_baseline == pytest.approx(-np.degrees(angle * np.cos(mix)), abs=0.005)
+    assert about_view == pytest.approx(-np.degrees(angle * np.sin(mix)), abs=0.005)
+    assert main(["dic", str(dic_sim / "rig.npz"), *args[1:], "-o", str(tmp_path / "true")]) == 0
+    with np.load(tmp_path / "true" / "dic.npz") as z:
+        reach = z["converged"].sum(axis=(1, 2))
+    with np.load(tmp_path / "out" / "dic.npz") as z:
+        c, d = z["converged"], z["displacement"]
+        assert any("turned by" in line for line in json.loads(str(z["meta"]))["rig_notes"])
+    print(c.sum(axis=(1, 2)), reach)
+    # all the true rig measures, less the blank band the turn puts along the right image's edge
+    assert (c.sum(axis=(1, 2)) >= 0.9 * reach).all()
+    mean = d[1][c[1]].mean(axis=0)
+    assert np.abs(mean - (0.6, -0.4, 1.2)).max() < 0.01            # mm, of a 1.4 mm translation
+    assert main(["dic", *args, "--keep-rig", "-o", str(tmp_path / "kept")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--keep-rig" in err[0] and "does not fit" in err[0]

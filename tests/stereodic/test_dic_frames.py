@@ -14,7 +14,7 @@ from scanners.sim.stereo import project_true
 from stereodic.cli import main
 from stereodic.stereo.rig import load_rig, save_rig
 
-OPTS = ["--step", "10", "--no-vtk", "--no-plot"]
+OPTS = ["--step", "10", "--subset", "21", "--no-vtk", "--no-plot"]
 
 
 @pytest.fixture(scope="module")

@@ -151,8 +151,15 @@ def test_textureless_region_is_flagged_never_nan(small, tmp_path):
             img[100:160, 120:200] = 90
             Image.fromarray(img).save(p)
     out = tmp_path / "out"
+    # by default no point is placed on the blank patch; a region that takes it in flags its points
     assert main(["dic", str(blank / "rig.npz"), str(blank), "--no-vtk", "--no-plot", "-o", str(out)]) == 0
     rows = _rows(out / "dic.csv")
+    assert rows and not any("texture" in r["status"] for r in rows)
+    sensor = load_rig(blank / "rig.npz").sensor
+    roi = f"0,0,{sensor.width - 1},{sensor.height - 1}"
+    assert main(["dic", str(blank / "rig.npz"), str(blank), "--roi", roi, "--no-vtk", "--no-plot", "-o",
+                 str(tmp_path / "roi")]) == 0
+    rows = _rows(tmp_path / "roi" / "dic.csv")
     flagged = {r["status"] for r in rows if r["converged"] == "0"}
     assert any("no_texture" in s or "low_texture" in s for s in flagged)
     assert all(r["X"] != "nan" for r in rows if r["converged"] == "1")

@@ -3,11 +3,13 @@ appears at the same virtual pixels in both rectified images."""
 
 import cv2
 import numpy as np
+import pytest
 
 from calib.imageio import read_gray, write_gray
 from scanners.sim.speckle import make_speckle, render
 from stereodic.cli import main
 from stereodic.stereo.rectify import row_alignment
+from tests.stereodic.dice_gold import DATA as DICE
 from tests.stereodic.rig_cases import pair
 
 
@@ -50,11 +52,12 @@ def test_rig_and_rectify_commands(tmp_path, capsys):
 
 
 def test_row_alignment_measures_a_known_vertical_disparity():
-    """Features of a speckle pair whose right image is the left moved by (-23, dy) pixels: the measured
-    vertical disparity is dy (the renderer integrates the dots analytically: an exact sub-pixel shift)."""
+    """Features of a speckle pair whose right image is the left moved by (-23, dy) pixels, up to tens of
+    rows: the measured vertical disparity is dy (the renderer integrates the dots analytically: an exact
+    sub-pixel shift)."""
     sp = make_speckle(320, 240, seed=7)
     left = render(sp, noise_sigma=1.0, seed=1)
-    for dy in (0.0, 0.35, -1.6):
+    for dy in (0.0, 0.35, -1.6, 22.4):          # 22.4: a rig whose calibration no longer fits its images
         right = render(sp, (-23.0, dy), noise_sigma=1.0, seed=2)
         m = row_alignment(left, right)
         assert m.dy.size >= 30
@@ -67,3 +70,18 @@ def test_row_alignment_of_stripes_finds_nothing():
     x = np.arange(320)
     stripes = np.tile((128 + 100 * np.sin(2 * np.pi * x / 17)).astype(np.uint8), (240, 1))
     assert row_alignment(stripes, np.roll(stripes, 5, axis=1)).dy.size == 0
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not DICE.is_dir(), reason="dice-stereo-list not present")
+def test_rectify_names_the_rows_offset_of_a_rig_that_no_longer_fits(tmp_path, capsys):
+    """The dice-stereo-list pair through its imported VIC-3D calibration: the rectified rows are 12-39 px
+    apart (the calibration does not fit these images); the speckle is matched and the message says so."""
+    assert main(["import", str(DICE / "cal.xml"), "-o", str(tmp_path / "rig.npz")]) == 0
+    images = DICE / "images"
+    assert main(["rectify", str(tmp_path / "rig.npz"), str(images / "img_0000_0.tif"), str(images / "img_0000_1.tif"),
+                 "-o", str(tmp_path / "out")]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if "overlay.png" in ln)
+    count = int(line.split(" over ")[1].split(" matched")[0])
+    low, high = (float(v) for v in line.split("the rows are ")[1].split(" px apart")[0].split(" to "))
+    assert count >= 50 and -45 < low < -30 and -20 < high < -5 and "no longer fits" in line

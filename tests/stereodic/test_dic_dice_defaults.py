@@ -1,0 +1,57 @@
+"""A lab's first run on the dice-stereo-list case (../shared/data/dice-stereo-list: VIC-3D calibration,
+six image pairs of a static specimen, DICe's committed result) with the defaults and nothing else:
+`stereodic import cal.xml -o rig.npz`, then `stereodic dic rig.npz --images images -o out`.
+
+The calibration does not fit these images (their rectified rows are 12-39 px apart), so the run must
+find that by itself: re-orient the right camera from the reference pair's speckle, follow the rows that
+remain off, find the specimen without a region of interest, and say what it corrected. Checked against
+DICe's result as in test_dic_dice_stereo_list.py (which runs DICe's own settings): coverage of DICe's
+valid points (our nearest grid point converged in every state) and the static displacement noise of
+states 1-5, in the specimen's plane and along its normal, at those points."""
+
+import numpy as np
+import pytest
+
+from stereodic.cli import main
+from stereodic.formats import import_calibration
+from stereodic.virtual.camera import project_to_plane
+from tests.stereodic.dice_gold import DATA, dice_fields, xyz
+
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(not DATA.is_dir(), reason="dice-stereo-list not present")]
+
+
+def _components(d: np.ndarray, normal: np.ndarray) -> tuple[float, float]:
+    """RMS (mm) of displacements d (N, 3) in the plane of `normal` and along it."""
+    out = d @ normal
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1) - out ** 2))), float(np.sqrt(np.mean(out ** 2)))
+
+
+def test_the_defaults_measure_what_dice_measured(tmp_path, capsys):
+    rig = tmp_path / "rig.npz"
+    assert main(["import", str(DATA / "cal.xml"), "-o", str(rig)]) == 0
+    assert main(["dic", str(rig), "--images", str(DATA / "images"), "-o", str(tmp_path / "out")]) == 0
+    text = capsys.readouterr().out
+    assert "does not fit these images" in text and "turned by" in text and "before" in text and "after" in text
+
+    with np.load(tmp_path / "out" / "dic.npz") as z:
+        xs, ys, converged, disp = z["x"], z["y"], z["converged"], z["displacement"]
+    f = dice_fields()
+    ok = f["SIGMA"][0] >= 0
+    uv0 = np.stack([f["SUBSET_COORDINATES_X"][0], f["SUBSET_COORDINATES_Y"][0]], 1)[ok]
+    imp = import_calibration([DATA / "cal.xml"])
+    q = project_to_plane(imp.prvms[0], imp.result.sensor)[uv0[:, 1].astype(int), uv0[:, 0].astype(int)]
+    step = xs[1] - xs[0]
+    gx, gy = (q[:, 0] - xs[0]) / step, (q[:, 1] - ys[0]) / step
+    near = (np.clip(np.rint(gy).astype(int), 0, ys.size - 1), np.clip(np.rint(gx).astype(int), 0, xs.size - 1))
+    matched = np.all([c[near] for c in converged], axis=0)
+    assert matched.mean() >= 0.95
+
+    model = xyz(f, "MODEL_COORDINATES", 0)[ok]
+    c = model - model.mean(0)
+    normal = np.linalg.svd(c, full_matrices=False)[2][2]
+    ours = np.concatenate([d[near][matched] for d in disp[1:]])
+    theirs = np.concatenate([xyz(f, "MODEL_DISPLACEMENT", s)[ok][matched] for s in range(1, 6)])
+    own, dice = _components(ours, normal), _components(theirs, normal)
+    print(f"matched {matched.mean():.3f}, noise in-plane {own[0] * 1e3:.2f} um (DICe {dice[0] * 1e3:.2f}), "
+          f"out-of-plane {own[1] * 1e3:.2f} um (DICe {dice[1] * 1e3:.2f})")
+    assert own[0] <= dice[0] and own[1] <= dice[1]

@@ -1,0 +1,74 @@
+"""Regions of interest as a user draws them: polygons with holes (JSON or CSV) in the original left image,
+moved onto the rectified one through the rig; and the specimen found by itself without any region."""
+
+import json
+
+import numpy as np
+import pytest
+
+from calib.errors import InputError
+from stereodic.cli import main
+from stereodic.dic.region import polygon_mask, read_polygons
+from stereodic.dic.texture import specimen_mask
+from stereodic.stereo.rig import load_rig
+
+OUTER = [[40, 30], [200, 30], [200, 160], [40, 160]]
+HOLE = [[100, 70], [150, 70], [150, 120], [100, 120]]
+
+
+def test_json_and_csv_polygons_with_holes_agree(tmp_path):
+    parts = [{"outer": OUTER, "holes": [HOLE]}, {"outer": [[5, 5], [20, 5], [5, 20]]}]
+    (tmp_path / "p.json").write_text(json.dumps(parts))
+    rings = "\n\n".join("\n".join(f"{x},{y}" for x, y in ring) for ring in (OUTER, HOLE))
+    (tmp_path / "p.csv").write_text(f"# x,y\n{rings}\npart\n5,5\n20,5\n5,20\n")
+    a = polygon_mask(read_polygons(tmp_path / "p.json"), 240, 192, where="p.json", image="image")
+    b = polygon_mask(read_polygons(tmp_path / "p.csv"), 240, 192, where="p.csv", image="image")
+    assert np.array_equal(a, b)
+    assert a[50, 50] and not a[95, 125] and a[8, 8] and not a[3, 3] and not a[180, 220]
+    assert a.sum() == pytest.approx(161 * 131 - 51 * 51 + 16 * 17 / 2, rel=0.05)
+    with pytest.raises(InputError, match="outside the 100x100"):
+        polygon_mask(read_polygons(tmp_path / "p.json"), 100, 100, where="p.json", image="image")
+
+
+def test_a_polygon_in_the_original_left_image(dic_sim, tmp_path):
+    """The points of a run given a polygon with a hole in the ORIGINAL left image: every active point
+    samples (through the rig's IMM) a pixel inside the outline and outside the hole, and the points well
+    inside it are all active."""
+    (tmp_path / "roi.json").write_text(json.dumps({"outer": OUTER, "holes": [HOLE]}))
+    out = tmp_path / "out"
+    assert main(["dic", str(dic_sim / "rig.npz"), str(dic_sim), "--roi-polygon", str(tmp_path / "roi.json"),
+                 "--roi-frame", "original", "--subset", "21", "--step", "6", "--no-vtk", "--no-plot",
+                 "--strain-window", "0", "-o", str(out)]) == 0
+    rig = load_rig(dic_sim / "rig.npz")
+    with np.load(out / "dic.npz") as z:
+        xs, ys, active = z["x"], z["y"], z["active"]
+    X, Y = np.meshgrid(xs, ys)
+    real = rig.left.imm.real_position(X, Y)
+    inside = polygon_mask([*read_polygons(tmp_path / "roi.json")], 240, 192, where="", image="")
+    u, v = np.rint(real[..., 0]).astype(int), np.rint(real[..., 1]).astype(int)
+    assert active.sum() > 100 and inside[v[active], u[active]].all()
+    (tmp_path / "shrunk.json").write_text(json.dumps({"outer": [[44, 34], [196, 34], [196, 156], [44, 156]],
+                                                      "holes": [[[96, 66], [154, 66], [154, 124], [96, 124]]]}))
+    deep = polygon_mask(read_polygons(tmp_path / "shrunk.json"), 240, 192, where="", image="")
+    half = 10
+    fits = (X >= half) & (X < rig.sensor.width - half) & (Y >= half) & (Y < rig.sensor.height - half)
+    well = fits & np.isfinite(real).all(-1)
+    well[well] = deep[v[well], u[well]]
+    assert well.sum() > 100 and active[well].all()
+
+
+def test_the_specimen_is_found_on_a_dark_background():
+    """Speckle on a patch of a dark, noisy background: the mask covers the patch (less half a subset at its
+    edges) and none of the background."""
+    rng = np.random.default_rng(3)
+    img = rng.normal(12, 2.0, (160, 200))
+    dots = np.zeros((70, 90))
+    for _ in range(500):
+        y, x = rng.integers(0, 70), rng.integers(0, 90)
+        dots[max(y - 1, 0):y + 2, max(x - 1, 0):x + 2] = 1
+    img[40:110, 60:150] = 60 + 120 * dots + rng.normal(0, 2.0, (70, 90))
+    mask = specimen_mask(np.clip(img, 0, 255).astype(np.uint8), subset=21)
+    assert mask[50:100, 70:140].mean() > 0.99
+    background = np.ones_like(mask)
+    background[30:120, 50:160] = False
+    assert not mask[background].any()
