@@ -73,6 +73,7 @@ PUBLIC = [
     "stereodic.dic.initial_guess.row_search",
     "stereodic.dic3d.stereo.StereoDic",
     "stereodic.dic3d.stereo.StereoDic.run",
+    "stereodic.dic3d.refit.reference_geometry",
     # strain
     "stereodic.strain.fit.strain_2d",
     "stereodic.strain.fit.strain_3d",
