@@ -98,8 +98,16 @@ class CameraModel:
 
     @property
     def centre(self) -> np.ndarray:
-        """(3,) the optical centre in the file's world frame, mm: -R^T t."""
-        return -self.R.T @ self.t
+        """(3,) the optical centre in the file's world frame, mm: -R^-1 t (R as the file writes it, which
+        may be orthonormal only to its printed digits: the program projects with that R, so its inverse is
+        the inverse of that matrix, not its transpose)."""
+        return -np.linalg.solve(self.R, self.t)
+
+    def to_world(self, directions: np.ndarray) -> np.ndarray:
+        """(..., 3) camera-frame directions turned into the file's world frame: R^-1 d (as `centre`),
+        normalised to unit length."""
+        d = directions @ np.linalg.inv(self.R).T
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
     def to_dict(self) -> dict:
         """The model as JSON data (recorded in the PRVM meta of an imported camera)."""
@@ -186,11 +194,81 @@ def _jacobian(cam: CameraModel, xy: np.ndarray, h: float = 1e-7) -> np.ndarray:
     return np.stack([jx, jy], axis=-1)
 
 
+def _image_radius(cam: CameraModel) -> float:
+    """The largest distorted normalised radius of the image's corners (the part of the model that matters)."""
+    w, h = (cam.width or 2 * cam.cx + 1), (cam.height or 2 * cam.cy + 1)
+    corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]])
+    return float(np.linalg.norm(from_pixels(cam, corners), axis=1).max())
+
+
+def fold_radius(cam: CameraModel, *, directions: int = 720) -> tuple[np.ndarray, np.ndarray]:
+    """The valid region of a polynomial lens (module docstring): for `directions` angles phi of the
+    undistorted normalised plane, the radius where the model first stops being one-to-one and keeping
+    orientation, tracing outward from the principal point: the first zero (or pole) of the Jacobian
+    determinant of `distort`, whatever the sign of the radial factor; or where the distorted point leaves
+    twice the image's radius (no pixel lies beyond). Returns (phi (M,), r (M,)), phi in [-pi, pi)."""
+    phi = np.linspace(-np.pi, np.pi, directions, endpoint=False)
+    r = np.geomspace(1e-4, 1e4, 1500)
+    reach = 2 * _image_radius(cam)
+    out = np.full(directions, r[-1])
+    u = np.stack([np.cos(phi), np.sin(phi)], -1)
+    lo = np.zeros(directions)
+    hi = np.full(directions, np.nan)
+    for k0 in range(0, len(r), 100):      # in blocks, so that far radii are evaluated only where needed
+        todo = np.isnan(hi)
+        if not todo.any():
+            break
+        rk = r[k0:k0 + 100]
+        xy = (u[todo, None, :] * rk[None, :, None]).reshape(-1, 2)
+        det = _det(cam, xy).reshape(todo.sum(), len(rk))
+        far = (np.linalg.norm(distort(cam, xy), axis=1) > reach).reshape(det.shape)
+        stop = ~np.isfinite(det) | (det <= 0) | far
+        first = np.where(stop.any(1), stop.argmax(1), -1)
+        idx = np.nonzero(todo)[0]
+        hit = first >= 0
+        hi[idx[hit]] = rk[first[hit]]
+        lo[idx[hit]] = np.where(first[hit] > 0, rk[np.maximum(first[hit] - 1, 0)], r[k0 - 1] if k0 else 0.0)
+    found = np.isfinite(hi)
+    for _ in range(40):     # bisection between the last good and the first stopping radius
+        mid = (lo + np.where(found, hi, lo)) / 2
+        xy = u * mid[:, None]
+        det = _det(cam, xy)
+        far = np.linalg.norm(distort(cam, xy), axis=1) > reach
+        stop = ~np.isfinite(det) | (det <= 0) | far
+        hi = np.where(found & stop, mid, hi)
+        lo = np.where(found & ~stop, mid, lo)
+    out[found] = lo[found]
+    return phi, out
+
+
+def _det(cam: CameraModel, xy: np.ndarray) -> np.ndarray:
+    """(N,) the Jacobian determinant of `distort` at xy (N, 2), by central differences scaled to |xy|."""
+    h = 1e-7 * np.maximum(1.0, np.linalg.norm(xy, axis=1))[:, None]
+    jx = (distort(cam, xy + h * [1, 0]) - distort(cam, xy - h * [1, 0])) / (2 * h)
+    jy = (distort(cam, xy + h * [0, 1]) - distort(cam, xy - h * [0, 1])) / (2 * h)
+    with np.errstate(invalid="ignore", over="ignore"):
+        return jx[:, 0] * jy[:, 1] - jy[:, 0] * jx[:, 1]
+
+
+def _inside(fold: tuple[np.ndarray, np.ndarray], xy: np.ndarray) -> np.ndarray:
+    """(N,) whether normalised points xy (N, 2) lie inside the traced valid region `fold` (fold_radius)."""
+    phi, r = fold
+    a = np.arctan2(xy[:, 1], xy[:, 0])
+    limit = np.interp(a, np.append(phi, np.pi), np.append(r, r[0]))
+    return np.hypot(xy[:, 0], xy[:, 1]) < limit
+
+
 def _solve_polynomial(cam: CameraModel, target: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
-    """Normalised (x, y) with distort(x, y) = target (N, 2), by damped Newton steps; and whether each
-    converged (to TOL_PX in pixels) on the model's first sheet (Jacobian determinant > 0)."""
+    """Normalised (x, y) with distort(x, y) = target (N, 2), by damped Newton steps kept inside the valid
+    region (`fold_radius`); and whether each converged (to TOL_PX in pixels) inside it."""
     scale = max(abs(cam.fx), abs(cam.fy))
+    fold = fold_radius(cam)
     xy = target.copy()
+    start_out = ~_inside(fold, xy)
+    if start_out.any():       # start inside the region, on the same direction
+        phi, r = fold
+        lim = np.interp(np.arctan2(xy[start_out, 1], xy[start_out, 0]), np.append(phi, np.pi), np.append(r, r[0]))
+        xy[start_out] *= (0.5 * lim / np.maximum(np.hypot(xy[start_out, 0], xy[start_out, 1]), 1e-300))[:, None]
     err = np.linalg.norm(distort(cam, xy) - target, axis=1) * scale
     active = np.isfinite(err) & (err > TOL_PX)
     for _ in range(iterations):
@@ -204,26 +282,25 @@ def _solve_polynomial(cam: CameraModel, target: np.ndarray, iterations: int) -> 
             step = np.stack([j[:, 1, 1] * r[:, 0] - j[:, 0, 1] * r[:, 1],
                              j[:, 0, 0] * r[:, 1] - j[:, 1, 0] * r[:, 0]], axis=-1) / det[:, None]
         lam = np.ones(len(a))
-        for _halving in range(12):     # damping: accept a step only where it lowers the residual
+        for _halving in range(30):     # damping: accept a step only where it lowers the residual in the region
             trial = xy[a] - lam[:, None] * step
             e = np.linalg.norm(distort(cam, trial) - target[a], axis=1) * scale
-            better = np.isfinite(e) & (e < err[a])
+            better = np.isfinite(e) & (e < err[a]) & _inside(fold, trial)
             if better.all():
                 break
             lam = np.where(better, lam, lam / 2)
-        good = np.isfinite(e) & (e < err[a])
+        good = better
         xy[a[good]] = trial[good]
         err[a[good]] = e[good]
         active[a[~good]] = False   # no progress: converged to rounding, or no inverse here
         active[a[good]] = e[good] > TOL_PX
-    j = _jacobian(cam, xy)
-    det = j[:, 0, 0] * j[:, 1, 1] - j[:, 0, 1] * j[:, 1, 0]
-    return xy, (err < VALID_PX) & (det > 0)
+    return xy, (err < VALID_PX) & _inside(fold, xy)
 
 
 def _solve_equidistant(cam: CameraModel, target: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
-    """Camera-frame unit directions whose equidistant image is `target` (N, 2) (Newton on theta), and
-    whether each converged on the rising branch of theta_d(theta) below 180 degrees."""
+    """Camera-frame unit directions whose equidistant image is `target` (N, 2), and whether each lies on
+    the first rising branch of theta_d(theta) (below its first fold, and below 180 degrees): Newton's
+    method on theta kept inside the bracket where theta_d is monotonic (bisection where a step leaves it)."""
     k = cam.coefficients
     theta_d = np.hypot(target[:, 0], target[:, 1])
     phi = np.arctan2(target[:, 1], target[:, 0])
@@ -233,13 +310,22 @@ def _solve_equidistant(cam: CameraModel, target: np.ndarray, iterations: int) ->
         return t * (1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3])))), \
             1 + t2 * (3 * k[0] + t2 * (5 * k[1] + t2 * (7 * k[2] + t2 * 9 * k[3])))
 
-    theta = theta_d.copy()
+    grid = np.linspace(0.0, np.pi, 20001)
+    falling = np.nonzero(f(grid)[1] <= 0)[0]
+    top = grid[falling[0]] if len(falling) else np.pi        # the first fold (or 180 degrees)
+    lo, hi = np.zeros_like(theta_d), np.full_like(theta_d, top)
+    reach = theta_d < f(np.array([top]))[0][0]
+    theta = np.clip(theta_d, 0.0, top / 2)
     for _ in range(iterations):
         val, der = f(theta)
-        theta = theta - (val - theta_d) / der
+        below = val < theta_d
+        lo, hi = np.where(below, theta, lo), np.where(below, hi, theta)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            step = theta - (val - theta_d) / der
+        theta = np.where((step > lo) & (step < hi), step, (lo + hi) / 2)
     val, der = f(theta)
     scale = max(abs(cam.fx), abs(cam.fy))
-    ok = (np.abs(val - theta_d) * scale < VALID_PX) & (der > 0) & (theta >= 0) & (theta < np.pi)
+    ok = reach & (np.abs(val - theta_d) * scale < VALID_PX) & (der > 0) & (theta < top)
     d = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], axis=-1)
     return d, ok
 
@@ -281,7 +367,7 @@ def world_rays(cam: CameraModel, *, step: int = 1) -> tuple[np.ndarray, np.ndarr
     column, their validity (H', W') and the camera centre (3,)."""
     v, u = np.mgrid[0:cam.height:step, 0:cam.width:step].astype(np.float64)
     d, ok = unproject(cam, np.stack([u.ravel(), v.ravel()], axis=-1))
-    return (d @ cam.R).reshape(v.shape + (3,)), ok.reshape(v.shape), cam.centre
+    return cam.to_world(d).reshape(v.shape + (3,)), ok.reshape(v.shape), cam.centre
 
 
 def internal_frame(cams: list[CameraModel]) -> np.ndarray:
@@ -341,7 +427,7 @@ def prvm_of(cam: CameraModel, *, world_from_internal: np.ndarray | None = None, 
     wfi = np.eye(4) if world_from_internal is None else np.asarray(world_from_internal, np.float64)
     inner = invert(wfi)
     d, ok = unproject(cam, pixel_grid(cam.width, cam.height))
-    d = d @ cam.R @ inner[:3, :3].T        # camera -> world -> internal
+    d = cam.to_world(d) @ inner[:3, :3].T        # camera -> world -> internal
     c = transform(inner, cam.centre)
     if not ok.any():
         raise InputError(where, f"camera {cam.name!r}: its lens model has no ray for any pixel")
