@@ -81,7 +81,7 @@ def test_unknown_models_and_cameras(tmp_path, capsys):
     _one_line(*_run(["import", str(tmp_path / "c.yaml"), "-o", str(tmp_path / "o.npz")], capsys), "c.yaml", "omni")
     path = _stereo_yaml(tmp_path / "stereo.yml")
     _one_line(*_run(["import", path, "--camera", "7", "-o", str(tmp_path / "o.npz")], capsys), "stereo.yml",
-              "no camera '7'")
+              "no camera named '7'")
 
 
 def test_output_checked_before_the_work(tmp_path, capsys):
