@@ -52,7 +52,7 @@ def run(args) -> int:
     from stereodic.formats import import_calibration
     from stereodic.rig import save_rig
 
-    names = [n.strip() for n in args.camera.split(",")] if args.camera else None
+    names = [n.strip() for n in args.camera.split(",")] if args.camera is not None else None
     imp = import_calibration(args.calibration, fmt=args.format, size=args.size, units=args.units, cameras=names,
                              model=args.model, virtual_size=args.virtual_size, pitch_mm=args.pitch,
                              plane_z_mm=args.plane_z)
