@@ -46,6 +46,7 @@ LENSES = ("opencv", "radial", "equidistant")
 OPENCV_LENGTHS = (0, 4, 5, 8, 12, 14)
 FLIP_X = np.diag([1.0, -1.0, -1.0, 1.0])   # the rotation of 180 degrees about x, as a 4x4 transform
 TOL_PX = 1e-10                              # Newton's target on the re-projection of an inverted pixel
+SINGLE_PLANE_MM = 1000.0                    # a lone camera's reference plane, in front of its centre (prvms_of)
 VALID_PX = 1e-7                             # an inverse that does not re-project this well is not one
 
 
@@ -398,16 +399,28 @@ def internal_frame(cams: list[CameraModel]) -> np.ndarray:
     return out
 
 
+def central_ray(cam: CameraModel) -> tuple[np.ndarray, np.ndarray]:
+    """The ray of the image's centre pixel ((W - 1) / 2, (H - 1) / 2): (centre (3,), unit direction (3,)) in
+    the file's world frame (the optical axis where the principal point is the image's centre)."""
+    d, ok = unproject(cam, np.array([[(cam.width - 1) / 2, (cam.height - 1) / 2]]))
+    if not ok[0]:
+        return cam.centre, cam.to_world(np.array([0.0, 0.0, 1.0]))
+    return cam.centre, cam.to_world(d[0])
+
+
 def convergence_z(cams: list[CameraModel], world_from_internal: np.ndarray) -> float:
-    """z (internal frame, mm) of the point where the first two cameras' optical axes pass closest (the
-    working point of a stereo rig), if it lies in front of both; else ten baselines in front of them."""
+    """z (internal frame, mm) of the point where the first two cameras' central rays (`central_ray`) pass
+    closest: the working point of a stereo rig, also of an exported rectified pair, whose off-centre
+    principal points make the central rays meet on the pair's common plane although the optical axes are
+    parallel. If they do not meet in front of both cameras: ten baselines in front of them."""
     inner = invert(world_from_internal)
-    c = [transform(inner, cam.centre) for cam in cams[:2]]
-    a = [inner[:3, :3] @ cam.R[2] for cam in cams[:2]]
+    rays = [central_ray(cam) for cam in cams[:2]]
+    c = [transform(inner, r[0]) for r in rays]
+    a = [inner[:3, :3] @ r[1] for r in rays]
     w = c[0] - c[1]
     b = a[0] @ a[1]
     den = 1 - b * b
-    if den > 1e-9:
+    if den > 1e-12:
         s = (b * (a[1] @ w) - a[0] @ w) / den
         t = ((a[1] @ w) - b * (a[0] @ w)) / den
         if s > 0 and t > 0:
@@ -446,10 +459,17 @@ def prvm_of(cam: CameraModel, *, world_from_internal: np.ndarray | None = None, 
 
 def prvms_of(cams: list[CameraModel], *, where=None, dataset: str = "") -> list[PRVM]:
     """The PRVMs of the cameras of one file in one internal frame (`internal_frame`), origins on the plane
-    through their working point (`convergence_z`; z = 0 of the internal frame for a single camera)."""
+    through their working point (`convergence_z`). A single camera's plane is z = 0 of the internal frame
+    if that lies in front of its optical centre (a board's or a world's plane seen by the camera), else
+    the plane SINGLE_PLANE_MM in front of the centre (a camera at its file's origin: a plane through the
+    centre would hold no field)."""
     for cam in cams:
         if cam.width is None or cam.height is None:
             raise InputError(where, f"camera {cam.name!r} has no image size")
     wfi = internal_frame(cams)
-    z = convergence_z(cams, wfi) if len(cams) > 1 else 0.0
+    if len(cams) > 1:
+        z = convergence_z(cams, wfi)
+    else:
+        cz = transform(invert(wfi), cams[0].centre)[2]
+        z = 0.0 if cz < -SINGLE_PLANE_MM / 100 else cz + SINGLE_PLANE_MM
     return [prvm_of(c, world_from_internal=wfi, reference_z_mm=z, where=where, dataset=dataset) for c in cams]
