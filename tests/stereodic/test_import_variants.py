@@ -246,3 +246,82 @@ def test_camera_by_exact_name_or_position(tmp_path, capsys):
     assert len(err.splitlines()) == 1 and "2 cameras named ''" in err
     imp = import_calibration([tmp_path / "dice.xml"], cameras=["#1"])
     assert np.allclose(imp.cameras[0].t, [-60.0, 0, 0])
+
+
+def test_camera_at_its_origin_exports_and_comes_back(tmp_path):
+    """A pose-less OpenCV camera (at its file's origin): its export (the default virtual pinhole camera)
+    imports back to that virtual camera's rays: every exported pixel's ray passes through the virtual
+    camera's sensor point of that pixel and its centre, within 1e-6 virtual pixel."""
+    from calib.prvm_file import load_prvm
+    from stereodic.virtual import default_camera
+    dist = np.array([-0.2, 0.05, 0.001, 0.0, 0.0])
+    path = _fs(tmp_path / "cam.yml", [("image_width", W), ("image_height", H), ("camera_matrix", K),
+                                      ("distortion_coefficients", dist.reshape(1, -1))])
+    assert main(["import", str(path), "-o", str(tmp_path / "cam.npz")]) == 0
+    assert main(["export", str(tmp_path / "cam.npz"), "--format", "opencv", "-o", str(tmp_path / "out.yml")]) == 0
+    vcam = default_camera(load_prvm(tmp_path / "cam.npz"))
+    back = import_calibration([tmp_path / "out.yml"]).result
+    wfr = np.asarray(back.meta["world_from_rig"])
+    o, d = transform(wfr, back.origin), back.direction @ wfr[:3, :3].T
+    v, u = np.mgrid[0:vcam.sensor.height, 0:vcam.sensor.width].astype(float)
+    assert back.valid.all() and back.valid.shape == u.shape
+    for p in (vcam.sensor.points(u, v), np.broadcast_to(vcam.centre, o.shape)):
+        w = p - o
+        miss = np.linalg.norm(w - np.sum(w * d, -1)[..., None] * d, axis=-1)
+        assert miss.max() / min(vcam.sensor.pitch_mm) < 1e-6
+
+
+def _dice_convergent(path, angle_deg=35.0):
+    """A DICe camera system of two cameras converging by `angle_deg` on a point 500 mm away, K1R2_K2R4_K3R6
+    lenses, rotations printed to 6 digits (as DICe's examples are): returns the cameras as written."""
+    from scipy.spatial.transform import Rotation
+    cams, xml = [], ""
+    for i, a in enumerate((angle_deg / 2, -angle_deg / 2)):
+        R = np.round(Rotation.from_euler("y", a, degrees=True).as_matrix(), 6)
+        t = -R @ (np.array([0.0, 0.0, 500.0]) - 500.0 * R[2])
+        cams.append((R, t))
+        rows = "".join(f'<Parameter name="ROW {j}" type="string" value="{{ {R[j, 0]:.6f}, {R[j, 1]:.6f}, '
+                       f'{R[j, 2]:.6f} }}"/>' for j in range(3))
+        xml += (f'<ParameterList name="CAMERA {i}"><Parameter name="CAMERA_ID" type="string" value="cam{i}"/>'
+                f'<Parameter name="CX" type="double" value="79.5"/><Parameter name="CY" type="double" value="59.5"/>'
+                f'<Parameter name="FX" type="double" value="300"/><Parameter name="FY" type="double" value="300.5"/>'
+                + "".join(f'<Parameter name="T{c}" type="double" value="{float(v)!r}"/>' for c, v in zip("XYZ", t))
+                + '<Parameter name="LENS_DISTORTION_MODEL" type="string" value="K1R2_K2R4_K3R6"/>'
+                '<Parameter name="K1" type="double" value="-0.1"/><Parameter name="K2" type="double" value="0.02"/>'
+                f'<Parameter name="IMAGE_HEIGHT_WIDTH" type="string" value="{{ {H}, {W} }}"/>'
+                f'<ParameterList name="rotation_3x3_matrix">{rows}</ParameterList></ParameterList>')
+    path.write_text('<ParameterList><Parameter name="xml_file_format" type="string" '
+                    f'value="DICe_xml_camera_system_file"/>{xml}</ParameterList>')
+    return cams
+
+
+@pytest.mark.parametrize("fmt", ["opencv", "dice", "vic3d", "mrcal"])
+def test_convergent_dice_rig_projects_with_r_as_written_and_round_trips(tmp_path, fmt):
+    """A 35-degree convergent DICe rig whose rotations are orthonormal to 6 digits only: each imported
+    ray projects onto its pixel by DICe's model with R as written (x_cam = R X + t, then DICe's
+    K1R2_K2R4_K3R6: r_d = r + K1 r^2 + K2 r^4, written here) within 1e-6 px; its export imports back to the exported virtual cameras' rays
+    (1e-6 virtual px), on the plane the export carries."""
+    from stereodic.rig import load_rig, save_rig
+    from tests.stereodic.test_import import _ray_error_px
+    cams = _dice_convergent(tmp_path / "dice.xml")
+    assert np.abs(cams[0][0] @ cams[0][0].T - np.eye(3)).max() > 1e-7     # R as written is not orthonormal
+    imp = import_calibration([tmp_path / "dice.xml"])
+
+    def dice(R, t):
+        def project(p):
+            q = p @ R.T + t
+            x, y = q[:, 0] / q[:, 2], q[:, 1] / q[:, 2]
+            r = np.hypot(x, y)
+            s = (r - 0.1 * r ** 2 + 0.02 * r ** 4) / r
+            return np.stack([300.0 * x * s + 79.5, 300.5 * y * s + 59.5], -1)
+        return project
+    for prvm, (R, t) in zip(imp.prvms, cams):
+        assert prvm.valid.all() and _worst_px(prvm, dice(R, t), depths=(400.0, 700.0)) < 1e-6
+    save_rig(tmp_path / "rig.npz", imp.result)
+    rig = load_rig(tmp_path / "rig.npz")
+    out = tmp_path / ("out" if fmt == "mrcal" else f"out.{'yml' if fmt == 'opencv' else 'xml'}")
+    assert main(["export", str(tmp_path / "rig.npz"), "--format", fmt, "-o", str(out)]) == 0
+    files = [out / "left.cameramodel", out / "right.cameramodel"] if fmt == "mrcal" else [out]
+    back = import_calibration(files, fmt=fmt)
+    for side, prvm in zip(("left", "right"), back.prvms):
+        assert prvm.valid.all() and _ray_error_px(rig, side, prvm, back.result.world_from_rig) < 1e-6
