@@ -325,3 +325,33 @@ def test_convergent_dice_rig_projects_with_r_as_written_and_round_trips(tmp_path
     back = import_calibration(files, fmt=fmt)
     for side, prvm in zip(("left", "right"), back.prvms):
         assert prvm.valid.all() and _ray_error_px(rig, side, prvm, back.result.world_from_rig) < 1e-6
+
+
+def test_vic3d_kappa_reading_fits_vic3d_own_matches_best():
+    """VIC-3D's own automatic stereo matches stored in the shared cal.xml (dice-stereo-list), triangulated
+    and reprojected through each reading of the kappas (the models written here through CameraModel's
+    lenses): kappa1..3 on r^2, r^4, r^6 (ours) reprojects them within 0.06 px; DICe's reading
+    (k1 r + k2 r^2 + k3 r^3 added to r) at least twice as far (docs/import.md, "VIC-3D's distortion")."""
+    import os
+
+    from calib.camera_models import CameraModel, project, unproject
+    from stereodic.formats import read_calibration
+    from tests.stereodic.test_import_real import VIC_AUTO
+    path = "/work/shared/data/dice-stereo-list/cal.xml"
+    if not os.path.exists(path):
+        pytest.skip("the shared data is not here")
+    _, cams = read_calibration([path])
+    dice = [CameraModel(c.fx, c.fy, c.cx, c.cy, c.skew, "radial", c.coefficients[[0, 1, 4]], c.R, c.t, c.width,
+                        c.height, c.name, (0, 1, 2)) for c in cams]
+
+    def worst(cs):
+        uv = (VIC_AUTO[:, :2], VIC_AUTO[:, 2:])
+        rays = [(c.centre, c.to_world(unproject(c, p)[0])) for c, p in zip(cs, uv)]
+        (c0, d0), (c1, d1) = rays
+        w, b = c0 - c1, np.sum(d0 * d1, 1)
+        s = (b * (d1 @ w) - d0 @ w) / (1 - b * b)
+        t = ((d1 @ w) - b * (d0 @ w)) / (1 - b * b)
+        mid = (c0 + s[:, None] * d0 + c1 + t[:, None] * d1) / 2
+        return max(np.linalg.norm(project(c, mid) - p, axis=1).max() for c, p in zip(cs, uv))
+    ours, theirs = worst(cams), worst(dice)
+    assert ours < 0.06 and theirs > 2 * ours
