@@ -188,6 +188,24 @@ def project(cam: CameraModel, points: np.ndarray) -> np.ndarray:
     return to_pixels(cam, distort(cam, xy))
 
 
+def image_of(cam: CameraModel, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2) pixels of world points (N, 3) (the file's world frame, mm) through the model, and (N,)
+    whether each lies in the model's valid region (in front of the camera and inside the first fold,
+    `fold_radius`; below the first fold of an equidistant lens): the exact forward model, for maps that
+    need real positions at sub-pixel virtual positions without inverting anything."""
+    p = np.asarray(points, np.float64).reshape(-1, 3) @ cam.R.T + cam.t
+    if cam.lens == "equidistant":
+        ok = np.arctan2(np.hypot(p[:, 0], p[:, 1]), p[:, 2]) < _equidistant_top(cam)
+        uv = to_pixels(cam, distort(cam, p))
+    else:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            xy = p[:, :2] / np.where(p[:, 2:] > 0, p[:, 2:], np.nan)
+        ok = np.isfinite(xy).all(axis=1)
+        ok[ok] = _inside(_region(cam), xy[ok])
+        uv = to_pixels(cam, distort(cam, np.where(ok[:, None], xy, 0.0)))
+    return uv, ok & np.isfinite(uv).all(axis=1)
+
+
 def _jacobian(cam: CameraModel, xy: np.ndarray, h: float = 1e-7) -> np.ndarray:
     """(N, 2, 2) d distort / d xy by central differences."""
     jx = (distort(cam, xy + [h, 0]) - distort(cam, xy - [h, 0])) / (2 * h)
@@ -259,11 +277,25 @@ def _inside(fold: tuple[np.ndarray, np.ndarray], xy: np.ndarray) -> np.ndarray:
     return np.hypot(xy[:, 0], xy[:, 1]) < limit
 
 
+_REGIONS: dict = {}
+
+
+def _region(cam: CameraModel) -> tuple[np.ndarray, np.ndarray]:
+    """`fold_radius` of the camera, computed once per lens, intrinsics and image size."""
+    key = (cam.lens, cam.fx, cam.fy, cam.cx, cam.cy, cam.skew, cam.width, cam.height, tuple(cam.powers),
+           cam.coefficients.tobytes())
+    if key not in _REGIONS:
+        if len(_REGIONS) > 64:
+            _REGIONS.clear()
+        _REGIONS[key] = fold_radius(cam)
+    return _REGIONS[key]
+
+
 def _solve_polynomial(cam: CameraModel, target: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
     """Normalised (x, y) with distort(x, y) = target (N, 2), by damped Newton steps kept inside the valid
     region (`fold_radius`); and whether each converged (to TOL_PX in pixels) inside it."""
     scale = max(abs(cam.fx), abs(cam.fy))
-    fold = fold_radius(cam)
+    fold = _region(cam)
     xy = target.copy()
     start_out = ~_inside(fold, xy)
     if start_out.any():       # start inside the region, on the same direction
@@ -298,6 +330,17 @@ def _solve_polynomial(cam: CameraModel, target: np.ndarray, iterations: int) -> 
     return xy, (err < VALID_PX) & _inside(fold, xy)
 
 
+def _equidistant_top(cam: CameraModel) -> float:
+    """The angle (radians) of the equidistant lens's first fold, where theta_d(theta) stops rising (or 180
+    degrees): its valid region is theta below it."""
+    k = cam.coefficients
+    t = np.linspace(0.0, np.pi, 20001)
+    t2 = t * t
+    der = 1 + t2 * (3 * k[0] + t2 * (5 * k[1] + t2 * (7 * k[2] + t2 * 9 * k[3])))
+    falling = np.nonzero(der <= 0)[0]
+    return float(t[falling[0]]) if len(falling) else float(np.pi)
+
+
 def _solve_equidistant(cam: CameraModel, target: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
     """Camera-frame unit directions whose equidistant image is `target` (N, 2), and whether each lies on
     the first rising branch of theta_d(theta) (below its first fold, and below 180 degrees): Newton's
@@ -311,9 +354,7 @@ def _solve_equidistant(cam: CameraModel, target: np.ndarray, iterations: int) ->
         return t * (1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3])))), \
             1 + t2 * (3 * k[0] + t2 * (5 * k[1] + t2 * (7 * k[2] + t2 * 9 * k[3])))
 
-    grid = np.linspace(0.0, np.pi, 20001)
-    falling = np.nonzero(f(grid)[1] <= 0)[0]
-    top = grid[falling[0]] if len(falling) else np.pi        # the first fold (or 180 degrees)
+    top = _equidistant_top(cam)
     lo, hi = np.zeros_like(theta_d), np.full_like(theta_d, top)
     reach = theta_d < f(np.array([top]))[0][0]
     theta = np.clip(theta_d, 0.0, top / 2)
@@ -430,16 +471,18 @@ def convergence_z(cams: list[CameraModel], world_from_internal: np.ndarray) -> f
 
 
 def prvm_of(cam: CameraModel, *, world_from_internal: np.ndarray | None = None, reference_z_mm: float = 0.0,
-            where=None, dataset: str = "") -> PRVM:
+            where=None, dataset: str = "", step: int = 1) -> PRVM:
     """The PRVM of `cam` (every pixel's ray through its optical centre) in the internal frame given by
     `world_from_internal` (identity: the file's world frame), origins on z = reference_z_mm. Pixels where
-    the model has no inverse are not valid. InputError naming `where` if no pixel is valid or a ray does
-    not travel towards +z (it would not meet the display side)."""
+    the model has no inverse are not valid. `step` > 1 samples every step-th row and column only (a
+    coarse PRVM, for the geometry of a rig whose maps come from the model itself). InputError naming
+    `where` if no pixel is valid or a ray does not travel towards +z (it would not meet the display side)."""
     if cam.width is None or cam.height is None:
         raise InputError(where, f"camera {cam.name!r} has no image size")
     wfi = np.eye(4) if world_from_internal is None else np.asarray(world_from_internal, np.float64)
     inner = invert(wfi)
-    d, ok = unproject(cam, pixel_grid(cam.width, cam.height))
+    v, u = np.mgrid[0:cam.height:step, 0:cam.width:step].astype(np.float64)
+    d, ok = unproject(cam, np.stack([u.ravel(), v.ravel()], axis=-1))
     d = cam.to_world(d) @ inner[:3, :3].T        # camera -> world -> internal
     c = transform(inner, cam.centre)
     if not ok.any():
@@ -451,25 +494,33 @@ def prvm_of(cam: CameraModel, *, world_from_internal: np.ndarray | None = None, 
     d = np.where(ok[:, None], d, np.nan)
     with np.errstate(invalid="ignore", divide="ignore"):
         origin = c + ((reference_z_mm - c[2]) / d[:, 2])[:, None] * d
-    shape = (cam.height, cam.width)
+    shape = v.shape
     meta = {"camera": cam.name, "reference_z_mm": float(reference_z_mm), "dataset": dataset,
             "model": cam.to_dict(), "world_from_rig": wfi.tolist()}
+    if step > 1:
+        meta["step"] = int(step)
     return PRVM(origin.reshape(shape + (3,)), d.reshape(shape + (3,)), ok.reshape(shape), None, meta)
 
 
-def prvms_of(cams: list[CameraModel], *, where=None, dataset: str = "") -> list[PRVM]:
-    """The PRVMs of the cameras of one file in one internal frame (`internal_frame`), origins on the plane
-    through their working point (`convergence_z`). A single camera's plane is z = 0 of the internal frame
-    if that lies in front of its optical centre (a board's or a world's plane seen by the camera), else
-    the plane SINGLE_PLANE_MM in front of the centre (a camera at its file's origin: a plane through the
-    centre would hold no field)."""
+def rig_frame(cams: list[CameraModel], *, where=None) -> tuple[np.ndarray, float]:
+    """(world_from_internal (4, 4), reference z mm) of the cameras of one file: the internal frame
+    (`internal_frame`) and the plane of their rays' origins: through their working point
+    (`convergence_z`). A single camera's plane is z = 0 of the internal frame if that lies in front of its
+    optical centre (a board's or a world's plane seen by the camera), else the plane SINGLE_PLANE_MM in
+    front of the centre (a camera at its file's origin: a plane through the centre would hold no field)."""
     for cam in cams:
         if cam.width is None or cam.height is None:
             raise InputError(where, f"camera {cam.name!r} has no image size")
     wfi = internal_frame(cams)
     if len(cams) > 1:
-        z = convergence_z(cams, wfi)
-    else:
-        cz = transform(invert(wfi), cams[0].centre)[2]
-        z = 0.0 if cz < -SINGLE_PLANE_MM / 100 else cz + SINGLE_PLANE_MM
-    return [prvm_of(c, world_from_internal=wfi, reference_z_mm=z, where=where, dataset=dataset) for c in cams]
+        return wfi, convergence_z(cams, wfi)
+    cz = transform(invert(wfi), cams[0].centre)[2]
+    return wfi, (0.0 if cz < -SINGLE_PLANE_MM / 100 else cz + SINGLE_PLANE_MM)
+
+
+def prvms_of(cams: list[CameraModel], *, where=None, dataset: str = "", step: int = 1) -> list[PRVM]:
+    """The PRVMs (`prvm_of`, every `step`-th pixel) of the cameras of one file in their common internal
+    frame, origins on their reference plane (`rig_frame`)."""
+    wfi, z = rig_frame(cams, where=where)
+    return [prvm_of(c, world_from_internal=wfi, reference_z_mm=z, where=where, dataset=dataset, step=step)
+            for c in cams]

@@ -50,7 +50,7 @@ from calib.intensity import IntensityMatrix
 from calib.npzfile import read_npz
 from calib.prvm_file import FORMAT as PRVM_FORMAT
 from calib.prvm_file import PRVM, load_prvm
-from stereodic.imm import IMM, build_imm
+from stereodic.imm import BLANK, IMM, build_imm
 from stereodic.undistort import intensity_matrix
 from stereodic.virtual import VirtualCamera, VirtualSensor, fit_optical_centre, project_to_plane
 from stereodic.virtual_prvm import make_virtual
@@ -286,9 +286,40 @@ def common_field(prvms: list[PRVM], plane: VirtualSensor, width: int, height: in
 
 # --------------------------------------------------------------------------------------- building
 
+def exact_camera(camera, frame: np.ndarray, sensor: VirtualSensor, *, rows: int = 256
+                 ) -> tuple[np.ndarray, IMM, np.ndarray]:
+    """A parametric camera (`calib.camera_models.CameraModel`) on the common sensor, from its model
+    exactly: (its centre (3,) in the rig frame, its IMM, its (Hv, Wv, 3) unit directions). Each virtual
+    pixel centre is projected through the model (`calib.camera_models.image_of`): no ray is interpolated
+    between real pixels and nothing is inverted. `frame` is world_from_rig (4, 4): the rig frame -> the
+    model's world frame. Blank: outside the model's valid region or the real image [0, W-1] x [0, H-1].
+    Done `rows` virtual rows at a time (bounded memory)."""
+    from calib.camera_models import image_of, invert, transform
+    centre = transform(invert(frame), camera.centre)
+    hv, wv = sensor.height, sensor.width
+    map_x = np.full((hv, wv), BLANK, np.float32)
+    map_y = np.full((hv, wv), BLANK, np.float32)
+    valid = np.zeros((hv, wv), bool)
+    direction = np.full((hv, wv, 3), np.nan)
+    for r0 in range(0, hv, rows):
+        v, uu = np.mgrid[r0:min(r0 + rows, hv), 0:wv].astype(np.float64)
+        p = sensor.points(uu, v)
+        uv, ok = image_of(camera, transform(frame, p.reshape(-1, 3)))
+        ok &= (uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height - 1)
+        ok = ok.reshape(v.shape)
+        uv = uv.reshape(v.shape + (2,))
+        map_x[r0:r0 + len(v)] = np.where(ok, uv[..., 0], BLANK)
+        map_y[r0:r0 + len(v)] = np.where(ok, uv[..., 1], BLANK)
+        valid[r0:r0 + len(v)] = ok
+        d = p - centre
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        direction[r0:r0 + len(v)] = np.where(ok[..., None], d, np.nan)
+    return centre, IMM(map_x, map_y, valid, (camera.width, camera.height)), direction
+
+
 def build_rig(left: PRVM, right: PRVM, *, model: str = "pinhole", width: int | None = None,
               height: int | None = None, pitch_mm=None, plane_z_mm: float | None = None,
-              where: tuple = ("left", "right")) -> Rig:
+              where: tuple = ("left", "right"), cameras: tuple | None = None) -> Rig:
     """The rectified virtual stereo pair of two calibrated cameras in one WCS (module docstring).
 
     Parameters
@@ -306,6 +337,11 @@ def build_rig(left: PRVM, right: PRVM, *, model: str = "pinhole", width: int | N
         WCS z of the working point, mm; None: the left PRVM's reference_z_mm.
     where : (str, str)
         Names of the two inputs (file names) for messages and the cameras' ``info``.
+    cameras : (CameraModel, CameraModel), optional
+        The parametric models (`calib.camera_models`) whose rays the PRVMs sample, in the world frame
+        of the PRVMs' world_from_rig (`stereodic import`): the PRVMs (which may then sample every n-th
+        pixel) only place the plane and the common field; centres, IMMs and directions come from the
+        models exactly (`exact_camera`).
 
     Returns
     -------
@@ -329,18 +365,23 @@ def build_rig(left: PRVM, right: PRVM, *, model: str = "pinhole", width: int | N
         raise InputError(where[1], f"its rays are in another internal frame than {where[0]}'s (their "
                                    f"world_from_rig differ): import both cameras from one calibration file")
     plane = rectified_plane(left, right, centres[0], centres[1], plane_z_mm, where)
-    width = left.width if width is None else int(width)
-    height = left.height if height is None else int(height)
+    real = [(p.width, p.height) for p in (left, right)] if cameras is None else \
+        [(c.width, c.height) for c in cameras]
+    width = real[0][0] if width is None else int(width)
+    height = real[0][1] if height is None else int(height)
     sensor = common_field([left, right], plane, width, height, pitch_mm, where=where[1])
     cams = []
-    for prvm, centre, name in zip((left, right), centres, where):
-        setup = make_virtual(prvm, VirtualCamera(sensor, "pinhole", centre))
-        direction = setup.prvm.direction + setup.evm
-        direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
+    for i, (prvm, centre, name) in enumerate(zip((left, right), centres, where)):
+        if cameras is None:
+            setup = make_virtual(prvm, VirtualCamera(sensor, "pinhole", centre))
+            imm = setup.imm
+            direction = setup.prvm.direction + setup.evm
+            direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
+        else:
+            centre, imm, direction = exact_camera(cameras[i], frames[0], sensor)
         info = {"file": os.fspath(name), "dataset": prvm.meta.get("dataset", ""), "wcs": wcs_name(prvm),
-                "real_width": prvm.width, "real_height": prvm.height,
-                "blank_pixels": int((~setup.imm.valid).sum())}
-        cams.append(RigCamera(prvm.meta.get("camera", Path(os.fspath(name)).stem), centre, setup.imm, direction,
+                "real_width": real[i][0], "real_height": real[i][1], "blank_pixels": int((~imm.valid).sum())}
+        cams.append(RigCamera(prvm.meta.get("camera", Path(os.fspath(name)).stem), centre, imm, direction,
                               intensity_matrix(prvm), info))
     return Rig(sensor, cams[0], cams[1], model, frames[0])
 

@@ -10,8 +10,10 @@ the file has none.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+
+import numpy as np
 
 from calib.camera_models import CameraModel
 from calib.errors import InputError
@@ -88,15 +90,28 @@ def select(cams: list[CameraModel], names: list[str] | None, where) -> list[Came
     return out
 
 
+GEOMETRY_PIXELS = 250_000   # a rig's plane and common field are placed on PRVMs of about this many pixels
+
+
 @dataclass
 class Imported:
-    """What `import_calibration` made: the file's format, the cameras used, their PRVMs (internal frame)
-    and the result: the one camera's PRVM, or the rig (a `stereodic.rig.Rig`)."""
+    """What `import_calibration` made: the file's format, the cameras used, the result (the one camera's
+    PRVM, or the rig: a `stereodic.rig.Rig`) and, on demand, every used camera's full PRVM (`prvms`, in
+    the internal frame of `calib.camera_models.rig_frame`; a rig is built without them)."""
 
     format: str
     cameras: list[CameraModel]
-    prvms: list[PRVM]
     result: object
+    where: object = None
+    dataset: str = ""
+    _prvms: list[PRVM] | None = field(default=None, repr=False)
+
+    @property
+    def prvms(self) -> list[PRVM]:
+        if self._prvms is None:
+            from calib.camera_models import prvms_of
+            self._prvms = prvms_of(self.cameras, where=self.where, dataset=self.dataset)
+        return self._prvms
 
 
 def import_calibration(paths: list[str | os.PathLike], *, fmt: str = "auto", size=None, units=None,
@@ -141,11 +156,13 @@ def import_calibration(paths: list[str | os.PathLike], *, fmt: str = "auto", siz
         raise InputError(where, f"holds {len(cams)} cameras ({', '.join(repr(c.name) for c in cams)}): pick one "
                                 f"(its PRVM) or two (a rig) with --camera A[,B]")
     dataset = f"imported from {os.fspath(where)}"
-    prvms = prvms_of(cams, where=where, dataset=dataset)
-    if len(prvms) == 1:
-        return Imported(fmt, cams, prvms, prvms[0])
+    if len(cams) == 1:
+        prvms = prvms_of(cams, where=where, dataset=dataset)
+        return Imported(fmt, cams, prvms[0], where, dataset, prvms)
+    step = max(1, int(np.ceil(np.sqrt(max(c.width * c.height for c in cams) / GEOMETRY_PIXELS))))
+    coarse = prvms_of(cams, where=where, dataset=dataset, step=step)
     w, h = virtual_size if virtual_size else (None, None)
-    rig = build_rig(prvms[0], prvms[1], model=model, width=w, height=h, pitch_mm=pitch_mm,
-                    plane_z_mm=prvms[0].reference_z_mm if plane_z_mm is None else plane_z_mm,
-                    where=(f"{where}#{cams[0].name}", f"{where}#{cams[1].name}"))
-    return Imported(fmt, cams, prvms, rig)
+    rig = build_rig(coarse[0], coarse[1], model=model, width=w, height=h, pitch_mm=pitch_mm,
+                    plane_z_mm=coarse[0].reference_z_mm if plane_z_mm is None else plane_z_mm,
+                    where=(f"{where}#{cams[0].name}", f"{where}#{cams[1].name}"), cameras=(cams[0], cams[1]))
+    return Imported(fmt, cams, rig, where, dataset, coarse if step == 1 else None)

@@ -355,3 +355,25 @@ def test_vic3d_kappa_reading_fits_vic3d_own_matches_best():
         return max(np.linalg.norm(project(c, mid) - p, axis=1).max() for c, p in zip(cs, uv))
     ours, theirs = worst(cams), worst(dice)
     assert ours < 0.06 and theirs > 2 * ours
+
+
+def test_rig_maps_are_the_model_at_every_virtual_pixel(tmp_path):
+    """A strongly distorted OpenCV pair (k1 = -0.3): every virtual pixel's map position in the real image
+    is cv2.projectPoints of the point its rig ray passes through (the sensor point, taken to the file's
+    frame) within the maps' float32 rounding (1e-5 px here): the maps come from the model at their own
+    sub-pixel positions, not from rays interpolated between real pixels (1e-3 px off in the corners)."""
+    rvec, R, T = _stereo_pose()
+    rvec, T = rvec * 0.3, T * np.array([1.0, 0, 0])
+    R = cv2.Rodrigues(rvec)[0]
+    d = np.array([-0.3, 0.08, 0.001, -0.0005, 0.0])
+    path = _fs(tmp_path / "stereo.yml", [("M1", K), ("D1", d.reshape(1, -1)), ("M2", K), ("D2", d.reshape(1, -1)),
+                                         ("R", R), ("T", T.reshape(3, 1)), ("image_width", W), ("image_height", H)])
+    rig = import_calibration([path]).result
+    for side, (rv, tv) in (("left", (np.zeros(3), np.zeros(3))), ("right", (rvec, T))):
+        cam = rig.camera(side)
+        v, u = np.nonzero(cam.imm.valid)
+        assert len(v) > 0.9 * cam.imm.valid.size
+        p = rig.to_world(cam.centre + 300.0 * cam.direction[v, u])
+        px = _pinhole(d, rv, tv)(p)
+        assert np.abs(px[:, 0] - cam.imm.map_x[v, u]).max() < 1e-5
+        assert np.abs(px[:, 1] - cam.imm.map_y[v, u]).max() < 1e-5
