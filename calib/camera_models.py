@@ -119,6 +119,12 @@ class CameraModel:
             d["powers"] = list(self.powers)
         return d
 
+    @classmethod
+    def from_dict(cls, d: dict) -> "CameraModel":
+        """The model of `to_dict`'s JSON data (exact: JSON keeps every float's digits)."""
+        return cls(d["fx"], d["fy"], d["cx"], d["cy"], d["skew"], d["lens"], d["coefficients"], d["R"], d["t"],
+                   d["width"], d["height"], d["name"], tuple(d.get("powers", (2, 4, 6))))
+
 
 # ------------------------------------------------------------------------------------------- lenses
 

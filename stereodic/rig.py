@@ -30,7 +30,10 @@ width/height, dataset, wcs}, world_from_rig (4x4 rows, the rig frame -> the worl
 absent = identity; from the PRVMs' meta of the same name, which must agree), software) and per side S in (left, right): `S_map_x`, `S_map_y` (Hv, Wv)
 float32 (the IMM in cv2.remap form, -1 where blank), `S_valid` (Hv, Wv) bool, `S_direction`
 (Hv, Wv, 3) float64 (model-less unit directions through each virtual pixel centre, NaN where blank), and
-the camera's intensity matrix as `S_im_*` when its PRVM has one.
+the camera's intensity matrix as `S_im_*` when its PRVM has one. A camera of a parametric model (`stereodic
+import`) has instead its model in the meta (cameras.S.model: `calib.camera_models.CameraModel.to_dict`, in
+the world frame of world_from_rig) and no S_map_*, S_valid, S_direction arrays: they are computed exactly
+from the model when the file is read (`exact_camera`), so the file stays small (a few kB).
 """
 
 from __future__ import annotations
@@ -67,7 +70,9 @@ class RigCamera:
     name: the camera's name; centre: (3,) fitted optical centre, WCS mm; imm: its IMM on the common
     sensor; direction: (Hv, Wv, 3) float64 model-less unit directions (WCS) of the real rays through the
     virtual pixel centres, NaN where blank; im: its intensity matrix or None; info: JSON data of where it
-    came from (file, dataset, wcs, real width and height).
+    came from (file, dataset, wcs, real width and height); model: the parametric camera
+    (`calib.camera_models.CameraModel`, in the world frame of the rig's world_from_rig) its IMM and
+    directions were computed from (`exact_camera`), or None.
     """
 
     name: str
@@ -76,6 +81,7 @@ class RigCamera:
     direction: np.ndarray
     im: IntensityMatrix | None = None
     info: dict = field(default_factory=dict)
+    model: object = None
 
 
 @dataclass
@@ -163,7 +169,9 @@ class Rig:
         return {"format": FORMAT, "model": self.model, "sensor": self.sensor.to_dict(),
                 "baseline_mm": self.baseline.tolist(), "working_distance_mm": self.working_distance_mm,
                 "cameras": {s: {"name": self.camera(s).name, "centre": self.camera(s).centre.tolist(),
-                                **self.camera(s).info} for s in SIDES},
+                                **self.camera(s).info,
+                                **({"model": self.camera(s).model.to_dict()} if self.camera(s).model else {})}
+                            for s in SIDES},
                 "world_from_rig": np.asarray(self.world_from_rig, np.float64).tolist(),
                 "software": f"stereodic {__version__}"}
 
@@ -382,7 +390,7 @@ def build_rig(left: PRVM, right: PRVM, *, model: str = "pinhole", width: int | N
         info = {"file": os.fspath(name), "dataset": prvm.meta.get("dataset", ""), "wcs": wcs_name(prvm),
                 "real_width": real[i][0], "real_height": real[i][1], "blank_pixels": int((~imm.valid).sum())}
         cams.append(RigCamera(prvm.meta.get("camera", Path(os.fspath(name)).stem), centre, imm, direction,
-                              intensity_matrix(prvm), info))
+                              intensity_matrix(prvm), info, None if cameras is None else cameras[i]))
     return Rig(sensor, cams[0], cams[1], model, frames[0])
 
 
@@ -427,12 +435,14 @@ def save_rig(path: str | os.PathLike, rig: Rig) -> None:
     arrays = {"meta": np.array(json.dumps(rig.meta()))}
     for side in SIDES:
         cam = rig.camera(side)
+        if cam.im is not None:
+            arrays.update(cam.im.to_arrays(prefix=f"{side}_im_"))
+        if cam.model is not None:     # the model is in the meta: the maps and rays are computed on load
+            continue
         arrays.update({f"{side}_map_x": cam.imm.map_x.astype(np.float32),
                        f"{side}_map_y": cam.imm.map_y.astype(np.float32),
                        f"{side}_valid": cam.imm.valid.astype(bool),
                        f"{side}_direction": cam.direction.astype(np.float64)})
-        if cam.im is not None:
-            arrays.update(cam.im.to_arrays(prefix=f"{side}_im_"))
     write_npz(path, **arrays)
 
 
@@ -452,21 +462,33 @@ def load_rig(path: str | os.PathLike) -> Rig:
     meta, arrays = read_npz(path, FORMAT, "rig", advice={
         PRVM_FORMAT: "a camera file: build a rig with `stereodic rig LEFT.npz RIGHT.npz`"})
     sensor = VirtualSensor.from_dict(meta["sensor"])
+    frame = world_from_rig(meta, path)
     cams = []
     for side in SIDES:
+        info = dict(meta["cameras"][side])
+        im = IntensityMatrix.from_arrays(arrays, prefix=f"{side}_im_") if f"{side}_im_offset" in arrays else None
+        if "model" in info:      # a parametric camera: its maps and rays from the model (exact_camera)
+            from calib.camera_models import CameraModel
+            try:
+                model = CameraModel.from_dict(info.pop("model"))
+            except (KeyError, TypeError, ValueError) as exc:
+                raise InputError(path, f"the {side} camera's model is not readable ({exc})") from None
+            name = info.pop("name")
+            info.pop("centre")
+            centre, imm, direction = exact_camera(model, frame, sensor)
+            cams.append(RigCamera(name, centre, imm, direction, im, info, model))
+            continue
         need = [f"{side}_{k}" for k in ("map_x", "map_y", "valid", "direction")]
         if any(k not in arrays for k in need):
             raise InputError(path, f"not a rig file: lacks {', '.join(k for k in need if k not in arrays)}")
-        info = dict(meta["cameras"][side])
         name, centre = info.pop("name"), np.asarray(info.pop("centre"), np.float64)
         shape = (sensor.height, sensor.width)
         if arrays[f"{side}_map_x"].shape != shape or arrays[f"{side}_direction"].shape != shape + (3,):
             raise InputError(path, f"{side} arrays do not match the {sensor.width}x{sensor.height} sensor")
         imm = IMM(arrays[f"{side}_map_x"], arrays[f"{side}_map_y"], arrays[f"{side}_valid"].astype(bool),
                   (int(info["real_width"]), int(info["real_height"])))
-        im = IntensityMatrix.from_arrays(arrays, prefix=f"{side}_im_") if f"{side}_im_offset" in arrays else None
         cams.append(RigCamera(name, centre, imm, arrays[f"{side}_direction"].astype(np.float64), im, info))
-    return Rig(sensor, cams[0], cams[1], meta.get("model", "pinhole"), world_from_rig(meta, path))
+    return Rig(sensor, cams[0], cams[1], meta.get("model", "pinhole"), frame)
 
 
 def world_from_rig(meta: dict, path) -> np.ndarray:
