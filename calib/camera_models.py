@@ -186,7 +186,7 @@ def from_pixels(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
 def project(cam: CameraModel, points: np.ndarray) -> np.ndarray:
     """(N, 2) pixels of world points (N, 3) (the file's world frame, mm); NaN behind the camera (or, for the
     equidistant lens, at the camera's centre)."""
-    p = np.asarray(points, np.float64).reshape(-1, 3) @ cam.R.T + cam.t
+    p = affine(cam.R, cam.t, np.asarray(points, np.float64).reshape(-1, 3))
     if cam.lens == "equidistant":
         return to_pixels(cam, distort(cam, p))
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -199,7 +199,7 @@ def image_of(cam: CameraModel, points: np.ndarray) -> tuple[np.ndarray, np.ndarr
     whether each lies in the model's valid region (in front of the camera and inside the first fold,
     `fold_radius`; below the first fold of an equidistant lens): the exact forward model, for maps that
     need real positions at sub-pixel virtual positions without inverting anything."""
-    p = np.asarray(points, np.float64).reshape(-1, 3) @ cam.R.T + cam.t
+    p = affine(cam.R, cam.t, np.asarray(points, np.float64).reshape(-1, 3))
     if cam.lens == "equidistant":
         ok = np.arctan2(np.hypot(p[:, 0], p[:, 1]), p[:, 2]) < _equidistant_top(cam)
         uv = to_pixels(cam, distort(cam, p))
@@ -397,9 +397,16 @@ def pixel_grid(width: int, height: int) -> np.ndarray:
     return np.stack([u.ravel(), v.ravel()], axis=-1)
 
 
+def affine(a: np.ndarray, b: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(..., 3) a @ p + b for every point p of `points` (..., 3), a (3, 3), b (3,): column by column
+    (a matrix product of a long (N, 3) array by a 3x3 one is slow, and threads badly on a busy machine)."""
+    p = np.asarray(points, np.float64)
+    return p[..., 0:1] * a[:, 0] + p[..., 1:2] * a[:, 1] + p[..., 2:3] * a[:, 2] + b
+
+
 def transform(m: np.ndarray, points: np.ndarray) -> np.ndarray:
     """(..., 3) points moved by the 4x4 rigid transform m."""
-    return points @ m[:3, :3].T + m[:3, 3]
+    return affine(m[:3, :3], m[:3, 3], points)
 
 
 def invert(m: np.ndarray) -> np.ndarray:
