@@ -302,8 +302,12 @@ def exact_camera(camera, frame: np.ndarray, sensor: VirtualSensor, *, rows: int 
     between real pixels and nothing is inverted. `frame` is world_from_rig (4, 4): the rig frame -> the
     model's world frame. Blank: outside the model's valid region or the real image [0, W-1] x [0, H-1].
     Done `rows` virtual rows at a time (bounded memory)."""
+    import dataclasses
+
     from calib.camera_models import image_of, invert, transform
     centre = transform(invert(frame), camera.centre)
+    # the model's pose composed with the frame: one affine map from rig-frame points to its camera frame
+    in_rig = dataclasses.replace(camera, R=camera.R @ frame[:3, :3], t=camera.R @ frame[:3, 3] + camera.t)
     hv, wv = sensor.height, sensor.width
     map_x = np.full((hv, wv), BLANK, np.float32)
     map_y = np.full((hv, wv), BLANK, np.float32)
@@ -312,7 +316,7 @@ def exact_camera(camera, frame: np.ndarray, sensor: VirtualSensor, *, rows: int 
     for r0 in range(0, hv, rows):
         v, uu = np.mgrid[r0:min(r0 + rows, hv), 0:wv].astype(np.float64)
         p = sensor.points(uu, v)
-        uv, ok = image_of(camera, transform(frame, p.reshape(-1, 3)))
+        uv, ok = image_of(in_rig, p.reshape(-1, 3))
         ok &= (uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height - 1)
         ok = ok.reshape(v.shape)
         uv = uv.reshape(v.shape + (2,))
