@@ -62,8 +62,9 @@ def run(args) -> int:
     if isinstance(out, PRVM):
         out.save(args.output)
         c = cams[0]
+        beyond = "" if out.valid.all() else " (the others lie beyond the lens model's first fold: no ray there)"
         wrote(args.output, f"{fmt} camera {c.name!r}, {c.width}x{c.height}, {out.valid.mean():.1%} of pixels "
-                           f"with a ray{flipped}")
+                           f"with a ray{beyond}{flipped}")
         return 0
     save_rig(args.output, out)
     s = out.sensor
