@@ -212,10 +212,11 @@ def image_of(cam: CameraModel, points: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return uv, ok & np.isfinite(uv).all(axis=1)
 
 
-def _jacobian(cam: CameraModel, xy: np.ndarray, h: float = 1e-7) -> np.ndarray:
-    """(N, 2, 2) d distort / d xy by central differences."""
-    jx = (distort(cam, xy + [h, 0]) - distort(cam, xy - [h, 0])) / (2 * h)
-    jy = (distort(cam, xy + [0, h]) - distort(cam, xy - [0, h])) / (2 * h)
+def _jacobian(cam: CameraModel, xy: np.ndarray, at: np.ndarray, h: float = 1e-7) -> np.ndarray:
+    """(N, 2, 2) d distort / d xy by forward differences from `at` = distort(cam, xy) (Newton's steps
+    need only its direction: the residual, not the Jacobian, decides when an inverse is exact)."""
+    jx = (distort(cam, xy + [h, 0]) - at) / h
+    jy = (distort(cam, xy + [0, h]) - at) / h
     return np.stack([jx, jy], axis=-1)
 
 
@@ -314,21 +315,24 @@ def _solve_polynomial(cam: CameraModel, target: np.ndarray, iterations: int) -> 
         if not active.any():
             break
         a = np.nonzero(active)[0]
-        j = _jacobian(cam, xy[a])
-        r = distort(cam, xy[a]) - target[a]
+        at = distort(cam, xy[a])
+        j = _jacobian(cam, xy[a], at)
+        r = at - target[a]
         det = j[:, 0, 0] * j[:, 1, 1] - j[:, 0, 1] * j[:, 1, 0]
         with np.errstate(invalid="ignore", divide="ignore"):
             step = np.stack([j[:, 1, 1] * r[:, 0] - j[:, 0, 1] * r[:, 1],
                              j[:, 0, 0] * r[:, 1] - j[:, 1, 0] * r[:, 0]], axis=-1) / det[:, None]
-        lam = np.ones(len(a))
+        trial, e = xy[a] - step, np.full(len(a), np.inf)
+        good = np.zeros(len(a), bool)
+        pending, lam = np.arange(len(a)), 1.0
         for _halving in range(30):     # damping: accept a step only where it lowers the residual in the region
-            trial = xy[a] - lam[:, None] * step
-            e = np.linalg.norm(distort(cam, trial) - target[a], axis=1) * scale
-            better = np.isfinite(e) & (e < err[a]) & _inside(fold, trial)
-            if better.all():
+            t = xy[a[pending]] - lam * step[pending]
+            ep = np.linalg.norm(distort(cam, t) - target[a[pending]], axis=1) * scale
+            ok = np.isfinite(ep) & (ep < err[a[pending]]) & _inside(fold, t)
+            trial[pending[ok]], e[pending[ok]], good[pending[ok]] = t[ok], ep[ok], True
+            pending, lam = pending[~ok], lam / 2
+            if not len(pending):
                 break
-            lam = np.where(better, lam, lam / 2)
-        good = better
         xy[a[good]] = trial[good]
         err[a[good]] = e[good]
         active[a[~good]] = False   # no progress: converged to rounding, or no inverse here
