@@ -22,11 +22,14 @@ Lens models (`lens`, with `coefficients`):
   from the optical axis, theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8),
   (x_d, y_d) = theta_d (cos phi, sin phi); valid beyond 90 degrees from the axis.
 
-The inverse (`unproject`) is Newton's method on the model itself, to 1e-10 pixel; a pixel whose
-distortion has no inverse (beyond a fold of the polynomial, where the model's Jacobian changes sign) is
-reported invalid rather than given a wrong ray.
+The inverse (`unproject`) is Newton's method on the model itself, to 1e-10 pixel, kept inside the model's
+valid region: where the mapping is one-to-one and keeps orientation, traced outward from the principal
+point along each direction up to the first fold (`fold_radius`: the first zero or pole of the Jacobian
+determinant, whatever the sign of the radial factor; for the equidistant lens the first maximum of
+theta_d). A pixel whose inverse would lie beyond it is reported invalid rather than given a mirrored ray.
+`image_of` is the forward model with that region, for maps computed at any sub-pixel position.
 
-Rays and frames (`prvms_of`): DESIGN.md's ray convention needs every ray to travel towards +z. Files whose
+Rays and frames (`prvms_of`, `rig_frame`): DESIGN.md's ray convention needs every ray to travel towards +z. Files whose
 cameras look along -z (VIC-3D's usual world frame) are therefore turned into an internal frame, the file's
 frame rotated 180 degrees about x (or, where neither fits, rotated so that the cameras' mean optical axis
 is +z); `world_from_internal` (4, 4) is the rigid transform from the internal frame back to the file's
