@@ -33,7 +33,8 @@ float32 (the IMM in cv2.remap form, -1 where blank), `S_valid` (Hv, Wv) bool, `S
 the camera's intensity matrix as `S_im_*` when its PRVM has one. A camera of a parametric model (`stereodic
 import`) has instead its model in the meta (cameras.S.model: `calib.camera_models.CameraModel.to_dict`, in
 the world frame of world_from_rig) and no S_map_*, S_valid, S_direction arrays: they are computed exactly
-from the model when the file is read (`exact_camera`), so the file stays small (a few kB).
+from the model when first used after the file is read (`exact_camera`), so the file stays small (a few
+kB).
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ import numpy as np
 
 from calib import __version__
 from calib.atomic import write_npz
+from calib.camera_models import invert, transform
 from calib.errors import InputError
 from calib.intensity import IntensityMatrix
 from calib.npzfile import read_npz
@@ -71,17 +73,33 @@ class RigCamera:
     sensor; direction: (Hv, Wv, 3) float64 model-less unit directions (WCS) of the real rays through the
     virtual pixel centres, NaN where blank; im: its intensity matrix or None; info: JSON data of where it
     came from (file, dataset, wcs, real width and height); model: the parametric camera
-    (`calib.camera_models.CameraModel`, in the world frame of the rig's world_from_rig) its IMM and
-    directions were computed from (`exact_camera`), or None.
+    (`calib.camera_models.CameraModel`, in the world frame `frame` = the rig's world_from_rig) whose
+    IMM and directions are computed from it on the common `sensor` (`exact_camera`), or None. A model
+    camera may be made with imm and direction None: they are computed the first time they are read (an
+    import that only writes the rig file never needs them).
     """
 
     name: str
     centre: np.ndarray
-    imm: IMM
-    direction: np.ndarray
+    imm: IMM | None
+    direction: np.ndarray | None
     im: IntensityMatrix | None = None
     info: dict = field(default_factory=dict)
     model: object = None
+    frame: np.ndarray | None = None
+    sensor: VirtualSensor | None = None
+
+    def __post_init__(self):
+        if self.model is not None and (self.imm is None or self.direction is None):
+            if self.frame is None or self.sensor is None:
+                raise ValueError("a model camera without its IMM needs its frame and sensor")
+            del self.imm, self.direction        # __getattr__ computes them on first use
+
+    def __getattr__(self, key):
+        if key in ("imm", "direction") and self.__dict__.get("model") is not None:
+            _, self.imm, self.direction = exact_camera(self.model, self.frame, self.sensor)
+            return self.__dict__[key]
+        raise AttributeError(key)
 
 
 @dataclass
@@ -304,7 +322,7 @@ def exact_camera(camera, frame: np.ndarray, sensor: VirtualSensor, *, rows: int 
     Done `rows` virtual rows at a time (bounded memory)."""
     import dataclasses
 
-    from calib.camera_models import image_of, invert, transform
+    from calib.camera_models import image_of
     centre = transform(invert(frame), camera.centre)
     # the model's pose composed with the frame: one affine map from rig-frame points to its camera frame
     in_rig = dataclasses.replace(camera, R=camera.R @ frame[:3, :3], t=camera.R @ frame[:3, 3] + camera.t)
@@ -384,17 +402,19 @@ def build_rig(left: PRVM, right: PRVM, *, model: str = "pinhole", width: int | N
     sensor = common_field([left, right], plane, width, height, pitch_mm, where=where[1])
     cams = []
     for i, (prvm, centre, name) in enumerate(zip((left, right), centres, where)):
+        info = {"file": os.fspath(name), "dataset": prvm.meta.get("dataset", ""), "wcs": wcs_name(prvm),
+                "real_width": real[i][0], "real_height": real[i][1]}
+        camera_name = prvm.meta.get("camera", Path(os.fspath(name)).stem)
         if cameras is None:
             setup = make_virtual(prvm, VirtualCamera(sensor, "pinhole", centre))
-            imm = setup.imm
             direction = setup.prvm.direction + setup.evm
             direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
-        else:
-            centre, imm, direction = exact_camera(cameras[i], frames[0], sensor)
-        info = {"file": os.fspath(name), "dataset": prvm.meta.get("dataset", ""), "wcs": wcs_name(prvm),
-                "real_width": real[i][0], "real_height": real[i][1], "blank_pixels": int((~imm.valid).sum())}
-        cams.append(RigCamera(prvm.meta.get("camera", Path(os.fspath(name)).stem), centre, imm, direction,
-                              intensity_matrix(prvm), info, None if cameras is None else cameras[i]))
+            info["blank_pixels"] = int((~setup.imm.valid).sum())
+            cams.append(RigCamera(camera_name, centre, setup.imm, direction, intensity_matrix(prvm), info))
+        else:     # the model's centre; its IMM and rays when first used (RigCamera, exact_camera)
+            centre = transform(invert(frames[0]), cameras[i].centre)
+            cams.append(RigCamera(camera_name, centre, None, None, intensity_matrix(prvm), info, cameras[i],
+                                  frames[0], sensor))
     return Rig(sensor, cams[0], cams[1], model, frames[0])
 
 
@@ -477,10 +497,8 @@ def load_rig(path: str | os.PathLike) -> Rig:
                 model = CameraModel.from_dict(info.pop("model"))
             except (KeyError, TypeError, ValueError) as exc:
                 raise InputError(path, f"the {side} camera's model is not readable ({exc})") from None
-            name = info.pop("name")
-            info.pop("centre")
-            centre, imm, direction = exact_camera(model, frame, sensor)
-            cams.append(RigCamera(name, centre, imm, direction, im, info, model))
+            name, centre = info.pop("name"), np.asarray(info.pop("centre"), np.float64)
+            cams.append(RigCamera(name, centre, None, None, im, info, model, frame, sensor))
             continue
         need = [f"{side}_{k}" for k in ("map_x", "map_y", "valid", "direction")]
         if any(k not in arrays for k in need):
