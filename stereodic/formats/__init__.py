@@ -108,6 +108,7 @@ class Imported:
 
     @property
     def prvms(self) -> list[PRVM]:
+        """The used cameras' full PRVMs (every pixel's ray), computed on the first request."""
         if self._prvms is None:
             from calib.camera_models import prvms_of
             self._prvms = prvms_of(self.cameras, where=self.where, dataset=self.dataset)
@@ -154,7 +155,7 @@ def import_calibration(paths: list[str | os.PathLike], *, fmt: str = "auto", siz
     cams = select(cams, cameras, where)
     if len(cams) > 2:
         raise InputError(where, f"holds {len(cams)} cameras ({', '.join(repr(c.name) for c in cams)}): pick one "
-                                f"(its PRVM) or two (a rig) with --camera A[,B]")
+                                f"(its PRVM) or two (a rig) with --camera A[,B] (names, or #N by position)")
     dataset = f"imported from {os.fspath(where)}"
     if len(cams) == 1:
         prvms = prvms_of(cams, where=where, dataset=dataset)
