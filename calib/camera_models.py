@@ -110,8 +110,8 @@ class CameraModel:
     def to_world(self, directions: np.ndarray) -> np.ndarray:
         """(..., 3) camera-frame directions turned into the file's world frame: R^-1 d (as `centre`),
         normalised to unit length."""
-        d = directions @ np.linalg.inv(self.R).T
-        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+        d = affine(np.linalg.inv(self.R), np.zeros(3), directions)
+        return d / np.sqrt(np.sum(d * d, axis=-1, keepdims=True))
 
     def to_dict(self) -> dict:
         """The model as JSON data (recorded in the PRVM meta of an imported camera)."""
@@ -165,9 +165,17 @@ def distort(cam: CameraModel, xy: np.ndarray) -> np.ndarray:
         s = 1 + sum(k * r ** p for k, p in zip(c, cam.powers) if k != 0)
         return np.stack([x * s, y * s], axis=-1)
     k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4, tx, ty = c
-    radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
-    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x) + s1 * r2 + s2 * r2 * r2
-    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y + s3 * r2 + s4 * r2 * r2
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    if k4 != 0 or k5 != 0 or k6 != 0:      # (terms that are zero are skipped: the same values, faster)
+        radial = radial / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    xd, yd = x * radial, y * radial
+    if p1 != 0 or p2 != 0:
+        xy2 = 2 * x * y
+        xd = xd + p1 * xy2 + p2 * (r2 + 2 * x * x)
+        yd = yd + p1 * (r2 + 2 * y * y) + p2 * xy2
+    if s1 != 0 or s2 != 0 or s3 != 0 or s4 != 0:
+        xd = xd + s1 * r2 + s2 * r2 * r2
+        yd = yd + s3 * r2 + s4 * r2 * r2
     if tx != 0 or ty != 0:
         m = _tilt(tx, ty)
         w = m[2, 0] * xd + m[2, 1] * yd + m[2, 2]
