@@ -22,11 +22,14 @@ Lens models (`lens`, with `coefficients`):
   from the optical axis, theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8),
   (x_d, y_d) = theta_d (cos phi, sin phi); valid beyond 90 degrees from the axis.
 
-The inverse (`unproject`) is Newton's method on the model itself, to 1e-10 pixel; a pixel whose
-distortion has no inverse (beyond a fold of the polynomial, where the model's Jacobian changes sign) is
-reported invalid rather than given a wrong ray.
+The inverse (`unproject`) is Newton's method on the model itself, to 1e-10 pixel, kept inside the model's
+valid region: where the mapping is one-to-one and keeps orientation, traced outward from the principal
+point along each direction up to the first fold (`fold_radius`: the first zero or pole of the Jacobian
+determinant, whatever the sign of the radial factor; for the equidistant lens the first maximum of
+theta_d). A pixel whose inverse would lie beyond it is reported invalid rather than given a mirrored ray.
+`image_of` is the forward model with that region, for maps computed at any sub-pixel position.
 
-Rays and frames (`prvms_of`): DESIGN.md's ray convention needs every ray to travel towards +z. Files whose
+Rays and frames (`prvms_of`, `rig_frame`): DESIGN.md's ray convention needs every ray to travel towards +z. Files whose
 cameras look along -z (VIC-3D's usual world frame) are therefore turned into an internal frame, the file's
 frame rotated 180 degrees about x (or, where neither fits, rotated so that the cameras' mean optical axis
 is +z); `world_from_internal` (4, 4) is the rigid transform from the internal frame back to the file's
@@ -46,6 +49,7 @@ LENSES = ("opencv", "radial", "equidistant")
 OPENCV_LENGTHS = (0, 4, 5, 8, 12, 14)
 FLIP_X = np.diag([1.0, -1.0, -1.0, 1.0])   # the rotation of 180 degrees about x, as a 4x4 transform
 TOL_PX = 1e-10                              # Newton's target on the re-projection of an inverted pixel
+SINGLE_PLANE_MM = 1000.0                    # a lone camera's reference plane, in front of its centre (prvms_of)
 VALID_PX = 1e-7                             # an inverse that does not re-project this well is not one
 
 
@@ -98,8 +102,16 @@ class CameraModel:
 
     @property
     def centre(self) -> np.ndarray:
-        """(3,) the optical centre in the file's world frame, mm: -R^T t."""
-        return -self.R.T @ self.t
+        """(3,) the optical centre in the file's world frame, mm: -R^-1 t (R as the file writes it, which
+        may be orthonormal only to its printed digits: the program projects with that R, so its inverse is
+        the inverse of that matrix, not its transpose)."""
+        return -np.linalg.solve(self.R, self.t)
+
+    def to_world(self, directions: np.ndarray) -> np.ndarray:
+        """(..., 3) camera-frame directions turned into the file's world frame: R^-1 d (as `centre`),
+        normalised to unit length."""
+        d = affine(np.linalg.inv(self.R), np.zeros(3), directions)
+        return d / np.sqrt(np.sum(d * d, axis=-1, keepdims=True))
 
     def to_dict(self) -> dict:
         """The model as JSON data (recorded in the PRVM meta of an imported camera)."""
@@ -109,6 +121,12 @@ class CameraModel:
         if self.lens == "radial":
             d["powers"] = list(self.powers)
         return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "CameraModel":
+        """The model of `to_dict`'s JSON data (exact: JSON keeps every float's digits)."""
+        return cls(d["fx"], d["fy"], d["cx"], d["cy"], d["skew"], d["lens"], d["coefficients"], d["R"], d["t"],
+                   d["width"], d["height"], d["name"], tuple(d.get("powers", (2, 4, 6))))
 
 
 # ------------------------------------------------------------------------------------------- lenses
@@ -147,9 +165,17 @@ def distort(cam: CameraModel, xy: np.ndarray) -> np.ndarray:
         s = 1 + sum(k * r ** p for k, p in zip(c, cam.powers) if k != 0)
         return np.stack([x * s, y * s], axis=-1)
     k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4, tx, ty = c
-    radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
-    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x) + s1 * r2 + s2 * r2 * r2
-    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y + s3 * r2 + s4 * r2 * r2
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    if k4 != 0 or k5 != 0 or k6 != 0:      # (terms that are zero are skipped: the same values, faster)
+        radial = radial / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    xd, yd = x * radial, y * radial
+    if p1 != 0 or p2 != 0:
+        xy2 = 2 * x * y
+        xd = xd + p1 * xy2 + p2 * (r2 + 2 * x * x)
+        yd = yd + p1 * (r2 + 2 * y * y) + p2 * xy2
+    if s1 != 0 or s2 != 0 or s3 != 0 or s4 != 0:
+        xd = xd + s1 * r2 + s2 * r2 * r2
+        yd = yd + s3 * r2 + s4 * r2 * r2
     if tx != 0 or ty != 0:
         m = _tilt(tx, ty)
         w = m[2, 0] * xd + m[2, 1] * yd + m[2, 2]
@@ -171,7 +197,7 @@ def from_pixels(cam: CameraModel, uv: np.ndarray) -> np.ndarray:
 def project(cam: CameraModel, points: np.ndarray) -> np.ndarray:
     """(N, 2) pixels of world points (N, 3) (the file's world frame, mm); NaN behind the camera (or, for the
     equidistant lens, at the camera's centre)."""
-    p = np.asarray(points, np.float64).reshape(-1, 3) @ cam.R.T + cam.t
+    p = affine(cam.R, cam.t, np.asarray(points, np.float64).reshape(-1, 3))
     if cam.lens == "equidistant":
         return to_pixels(cam, distort(cam, p))
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -179,51 +205,167 @@ def project(cam: CameraModel, points: np.ndarray) -> np.ndarray:
     return to_pixels(cam, distort(cam, xy))
 
 
-def _jacobian(cam: CameraModel, xy: np.ndarray, h: float = 1e-7) -> np.ndarray:
-    """(N, 2, 2) d distort / d xy by central differences."""
-    jx = (distort(cam, xy + [h, 0]) - distort(cam, xy - [h, 0])) / (2 * h)
-    jy = (distort(cam, xy + [0, h]) - distort(cam, xy - [0, h])) / (2 * h)
+def image_of(cam: CameraModel, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2) pixels of world points (N, 3) (the file's world frame, mm) through the model, and (N,)
+    whether each lies in the model's valid region (in front of the camera and inside the first fold,
+    `fold_radius`; below the first fold of an equidistant lens): the exact forward model, for maps that
+    need real positions at sub-pixel virtual positions without inverting anything."""
+    p = affine(cam.R, cam.t, np.asarray(points, np.float64).reshape(-1, 3))
+    if cam.lens == "equidistant":
+        ok = np.arctan2(np.hypot(p[:, 0], p[:, 1]), p[:, 2]) < _equidistant_top(cam)
+        uv = to_pixels(cam, distort(cam, p))
+    else:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            xy = p[:, :2] / np.where(p[:, 2:] > 0, p[:, 2:], np.nan)
+        ok = np.isfinite(xy).all(axis=1)
+        ok[ok] = _inside(_region(cam), xy[ok])
+        uv = to_pixels(cam, distort(cam, np.where(ok[:, None], xy, 0.0)))
+    return uv, ok & np.isfinite(uv).all(axis=1)
+
+
+def _jacobian(cam: CameraModel, xy: np.ndarray, at: np.ndarray, h: float = 1e-7) -> np.ndarray:
+    """(N, 2, 2) d distort / d xy by forward differences from `at` = distort(cam, xy) (Newton's steps
+    need only its direction: the residual, not the Jacobian, decides when an inverse is exact)."""
+    jx = (distort(cam, xy + [h, 0]) - at) / h
+    jy = (distort(cam, xy + [0, h]) - at) / h
     return np.stack([jx, jy], axis=-1)
 
 
+def _image_radius(cam: CameraModel) -> float:
+    """The largest distorted normalised radius of the image's corners (the part of the model that matters)."""
+    w, h = (cam.width or 2 * cam.cx + 1), (cam.height or 2 * cam.cy + 1)
+    corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]])
+    return float(np.linalg.norm(from_pixels(cam, corners), axis=1).max())
+
+
+def fold_radius(cam: CameraModel, *, directions: int = 720) -> tuple[np.ndarray, np.ndarray]:
+    """The valid region of a polynomial lens (module docstring): for `directions` angles phi of the
+    undistorted normalised plane, the radius where the model first stops being one-to-one and keeping
+    orientation, tracing outward from the principal point: the first zero (or pole) of the Jacobian
+    determinant of `distort`, whatever the sign of the radial factor; or where the distorted point leaves
+    twice the image's radius (no pixel lies beyond). Returns (phi (M,), r (M,)), phi in [-pi, pi)."""
+    phi = np.linspace(-np.pi, np.pi, directions, endpoint=False)
+    r = np.geomspace(1e-4, 1e4, 1500)
+    reach = 2 * _image_radius(cam)
+    out = np.full(directions, r[-1])
+    u = np.stack([np.cos(phi), np.sin(phi)], -1)
+    lo = np.zeros(directions)
+    hi = np.full(directions, np.nan)
+    for k0 in range(0, len(r), 100):      # in blocks, so that far radii are evaluated only where needed
+        todo = np.isnan(hi)
+        if not todo.any():
+            break
+        rk = r[k0:k0 + 100]
+        xy = (u[todo, None, :] * rk[None, :, None]).reshape(-1, 2)
+        det = _det(cam, xy).reshape(todo.sum(), len(rk))
+        far = (np.linalg.norm(distort(cam, xy), axis=1) > reach).reshape(det.shape)
+        stop = ~np.isfinite(det) | (det <= 0) | far
+        first = np.where(stop.any(1), stop.argmax(1), -1)
+        idx = np.nonzero(todo)[0]
+        hit = first >= 0
+        hi[idx[hit]] = rk[first[hit]]
+        lo[idx[hit]] = np.where(first[hit] > 0, rk[np.maximum(first[hit] - 1, 0)], r[k0 - 1] if k0 else 0.0)
+    found = np.isfinite(hi)
+    for _ in range(40):     # bisection between the last good and the first stopping radius
+        mid = (lo + np.where(found, hi, lo)) / 2
+        xy = u * mid[:, None]
+        det = _det(cam, xy)
+        far = np.linalg.norm(distort(cam, xy), axis=1) > reach
+        stop = ~np.isfinite(det) | (det <= 0) | far
+        hi = np.where(found & stop, mid, hi)
+        lo = np.where(found & ~stop, mid, lo)
+    out[found] = lo[found]
+    return phi, out
+
+
+def _det(cam: CameraModel, xy: np.ndarray) -> np.ndarray:
+    """(N,) the Jacobian determinant of `distort` at xy (N, 2), by central differences scaled to |xy|."""
+    h = 1e-7 * np.maximum(1.0, np.linalg.norm(xy, axis=1))[:, None]
+    jx = (distort(cam, xy + h * [1, 0]) - distort(cam, xy - h * [1, 0])) / (2 * h)
+    jy = (distort(cam, xy + h * [0, 1]) - distort(cam, xy - h * [0, 1])) / (2 * h)
+    with np.errstate(invalid="ignore", over="ignore"):
+        return jx[:, 0] * jy[:, 1] - jy[:, 0] * jx[:, 1]
+
+
+def _inside(fold: tuple[np.ndarray, np.ndarray], xy: np.ndarray) -> np.ndarray:
+    """(N,) whether normalised points xy (N, 2) lie inside the traced valid region `fold` (fold_radius)."""
+    phi, r = fold
+    a = np.arctan2(xy[:, 1], xy[:, 0])
+    limit = np.interp(a, np.append(phi, np.pi), np.append(r, r[0]))
+    return np.hypot(xy[:, 0], xy[:, 1]) < limit
+
+
+_REGIONS: dict = {}
+
+
+def _region(cam: CameraModel) -> tuple[np.ndarray, np.ndarray]:
+    """`fold_radius` of the camera, computed once per lens, intrinsics and image size."""
+    key = (cam.lens, cam.fx, cam.fy, cam.cx, cam.cy, cam.skew, cam.width, cam.height, tuple(cam.powers),
+           cam.coefficients.tobytes())
+    if key not in _REGIONS:
+        if len(_REGIONS) > 64:
+            _REGIONS.clear()
+        _REGIONS[key] = fold_radius(cam)
+    return _REGIONS[key]
+
+
 def _solve_polynomial(cam: CameraModel, target: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
-    """Normalised (x, y) with distort(x, y) = target (N, 2), by damped Newton steps; and whether each
-    converged (to TOL_PX in pixels) on the model's first sheet (Jacobian determinant > 0)."""
+    """Normalised (x, y) with distort(x, y) = target (N, 2), by damped Newton steps kept inside the valid
+    region (`fold_radius`); and whether each converged (to TOL_PX in pixels) inside it."""
     scale = max(abs(cam.fx), abs(cam.fy))
+    fold = _region(cam)
     xy = target.copy()
+    start_out = ~_inside(fold, xy)
+    if start_out.any():       # start inside the region, on the same direction
+        phi, r = fold
+        lim = np.interp(np.arctan2(xy[start_out, 1], xy[start_out, 0]), np.append(phi, np.pi), np.append(r, r[0]))
+        xy[start_out] *= (0.5 * lim / np.maximum(np.hypot(xy[start_out, 0], xy[start_out, 1]), 1e-300))[:, None]
     err = np.linalg.norm(distort(cam, xy) - target, axis=1) * scale
     active = np.isfinite(err) & (err > TOL_PX)
     for _ in range(iterations):
         if not active.any():
             break
         a = np.nonzero(active)[0]
-        j = _jacobian(cam, xy[a])
-        r = distort(cam, xy[a]) - target[a]
+        at = distort(cam, xy[a])
+        j = _jacobian(cam, xy[a], at)
+        r = at - target[a]
         det = j[:, 0, 0] * j[:, 1, 1] - j[:, 0, 1] * j[:, 1, 0]
         with np.errstate(invalid="ignore", divide="ignore"):
             step = np.stack([j[:, 1, 1] * r[:, 0] - j[:, 0, 1] * r[:, 1],
                              j[:, 0, 0] * r[:, 1] - j[:, 1, 0] * r[:, 0]], axis=-1) / det[:, None]
-        lam = np.ones(len(a))
-        for _halving in range(12):     # damping: accept a step only where it lowers the residual
-            trial = xy[a] - lam[:, None] * step
-            e = np.linalg.norm(distort(cam, trial) - target[a], axis=1) * scale
-            better = np.isfinite(e) & (e < err[a])
-            if better.all():
+        trial, e = xy[a] - step, np.full(len(a), np.inf)
+        good = np.zeros(len(a), bool)
+        pending, lam = np.arange(len(a)), 1.0
+        for _halving in range(30):     # damping: accept a step only where it lowers the residual in the region
+            t = xy[a[pending]] - lam * step[pending]
+            ep = np.linalg.norm(distort(cam, t) - target[a[pending]], axis=1) * scale
+            ok = np.isfinite(ep) & (ep < err[a[pending]]) & _inside(fold, t)
+            trial[pending[ok]], e[pending[ok]], good[pending[ok]] = t[ok], ep[ok], True
+            pending, lam = pending[~ok], lam / 2
+            if not len(pending):
                 break
-            lam = np.where(better, lam, lam / 2)
-        good = np.isfinite(e) & (e < err[a])
         xy[a[good]] = trial[good]
         err[a[good]] = e[good]
         active[a[~good]] = False   # no progress: converged to rounding, or no inverse here
         active[a[good]] = e[good] > TOL_PX
-    j = _jacobian(cam, xy)
-    det = j[:, 0, 0] * j[:, 1, 1] - j[:, 0, 1] * j[:, 1, 0]
-    return xy, (err < VALID_PX) & (det > 0)
+    return xy, (err < VALID_PX) & _inside(fold, xy)
+
+
+def _equidistant_top(cam: CameraModel) -> float:
+    """The angle (radians) of the equidistant lens's first fold, where theta_d(theta) stops rising (or 180
+    degrees): its valid region is theta below it."""
+    k = cam.coefficients
+    t = np.linspace(0.0, np.pi, 20001)
+    t2 = t * t
+    der = 1 + t2 * (3 * k[0] + t2 * (5 * k[1] + t2 * (7 * k[2] + t2 * 9 * k[3])))
+    falling = np.nonzero(der <= 0)[0]
+    return float(t[falling[0]]) if len(falling) else float(np.pi)
 
 
 def _solve_equidistant(cam: CameraModel, target: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
-    """Camera-frame unit directions whose equidistant image is `target` (N, 2) (Newton on theta), and
-    whether each converged on the rising branch of theta_d(theta) below 180 degrees."""
+    """Camera-frame unit directions whose equidistant image is `target` (N, 2), and whether each lies on
+    the first rising branch of theta_d(theta) (below its first fold, and below 180 degrees): Newton's
+    method on theta kept inside the bracket where theta_d is monotonic (bisection where a step leaves it)."""
     k = cam.coefficients
     theta_d = np.hypot(target[:, 0], target[:, 1])
     phi = np.arctan2(target[:, 1], target[:, 0])
@@ -233,13 +375,20 @@ def _solve_equidistant(cam: CameraModel, target: np.ndarray, iterations: int) ->
         return t * (1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3])))), \
             1 + t2 * (3 * k[0] + t2 * (5 * k[1] + t2 * (7 * k[2] + t2 * 9 * k[3])))
 
-    theta = theta_d.copy()
+    top = _equidistant_top(cam)
+    lo, hi = np.zeros_like(theta_d), np.full_like(theta_d, top)
+    reach = theta_d < f(np.array([top]))[0][0]
+    theta = np.clip(theta_d, 0.0, top / 2)
     for _ in range(iterations):
         val, der = f(theta)
-        theta = theta - (val - theta_d) / der
+        below = val < theta_d
+        lo, hi = np.where(below, theta, lo), np.where(below, hi, theta)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            step = theta - (val - theta_d) / der
+        theta = np.where((step > lo) & (step < hi), step, (lo + hi) / 2)
     val, der = f(theta)
     scale = max(abs(cam.fx), abs(cam.fy))
-    ok = (np.abs(val - theta_d) * scale < VALID_PX) & (der > 0) & (theta >= 0) & (theta < np.pi)
+    ok = reach & (np.abs(val - theta_d) * scale < VALID_PX) & (der > 0) & (theta < top)
     d = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], axis=-1)
     return d, ok
 
@@ -263,9 +412,16 @@ def pixel_grid(width: int, height: int) -> np.ndarray:
     return np.stack([u.ravel(), v.ravel()], axis=-1)
 
 
+def affine(a: np.ndarray, b: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(..., 3) a @ p + b for every point p of `points` (..., 3), a (3, 3), b (3,): column by column
+    (a matrix product of a long (N, 3) array by a 3x3 one is slow, and threads badly on a busy machine)."""
+    p = np.asarray(points, np.float64)
+    return p[..., 0:1] * a[:, 0] + p[..., 1:2] * a[:, 1] + p[..., 2:3] * a[:, 2] + b
+
+
 def transform(m: np.ndarray, points: np.ndarray) -> np.ndarray:
     """(..., 3) points moved by the 4x4 rigid transform m."""
-    return points @ m[:3, :3].T + m[:3, 3]
+    return affine(m[:3, :3], m[:3, 3], points)
 
 
 def invert(m: np.ndarray) -> np.ndarray:
@@ -281,7 +437,7 @@ def world_rays(cam: CameraModel, *, step: int = 1) -> tuple[np.ndarray, np.ndarr
     column, their validity (H', W') and the camera centre (3,)."""
     v, u = np.mgrid[0:cam.height:step, 0:cam.width:step].astype(np.float64)
     d, ok = unproject(cam, np.stack([u.ravel(), v.ravel()], axis=-1))
-    return (d @ cam.R).reshape(v.shape + (3,)), ok.reshape(v.shape), cam.centre
+    return cam.to_world(d).reshape(v.shape + (3,)), ok.reshape(v.shape), cam.centre
 
 
 def internal_frame(cams: list[CameraModel]) -> np.ndarray:
@@ -312,16 +468,28 @@ def internal_frame(cams: list[CameraModel]) -> np.ndarray:
     return out
 
 
+def central_ray(cam: CameraModel) -> tuple[np.ndarray, np.ndarray]:
+    """The ray of the image's centre pixel ((W - 1) / 2, (H - 1) / 2): (centre (3,), unit direction (3,)) in
+    the file's world frame (the optical axis where the principal point is the image's centre)."""
+    d, ok = unproject(cam, np.array([[(cam.width - 1) / 2, (cam.height - 1) / 2]]))
+    if not ok[0]:
+        return cam.centre, cam.to_world(np.array([0.0, 0.0, 1.0]))
+    return cam.centre, cam.to_world(d[0])
+
+
 def convergence_z(cams: list[CameraModel], world_from_internal: np.ndarray) -> float:
-    """z (internal frame, mm) of the point where the first two cameras' optical axes pass closest (the
-    working point of a stereo rig), if it lies in front of both; else ten baselines in front of them."""
+    """z (internal frame, mm) of the point where the first two cameras' central rays (`central_ray`) pass
+    closest: the working point of a stereo rig, also of an exported rectified pair, whose off-centre
+    principal points make the central rays meet on the pair's common plane although the optical axes are
+    parallel. If they do not meet in front of both cameras: ten baselines in front of them."""
     inner = invert(world_from_internal)
-    c = [transform(inner, cam.centre) for cam in cams[:2]]
-    a = [inner[:3, :3] @ cam.R[2] for cam in cams[:2]]
+    rays = [central_ray(cam) for cam in cams[:2]]
+    c = [transform(inner, r[0]) for r in rays]
+    a = [inner[:3, :3] @ r[1] for r in rays]
     w = c[0] - c[1]
     b = a[0] @ a[1]
     den = 1 - b * b
-    if den > 1e-9:
+    if den > 1e-12:
         s = (b * (a[1] @ w) - a[0] @ w) / den
         t = ((a[1] @ w) - b * (a[0] @ w)) / den
         if s > 0 and t > 0:
@@ -331,17 +499,19 @@ def convergence_z(cams: list[CameraModel], world_from_internal: np.ndarray) -> f
 
 
 def prvm_of(cam: CameraModel, *, world_from_internal: np.ndarray | None = None, reference_z_mm: float = 0.0,
-            where=None, dataset: str = "") -> PRVM:
+            where=None, dataset: str = "", step: int = 1) -> PRVM:
     """The PRVM of `cam` (every pixel's ray through its optical centre) in the internal frame given by
     `world_from_internal` (identity: the file's world frame), origins on z = reference_z_mm. Pixels where
-    the model has no inverse are not valid. InputError naming `where` if no pixel is valid or a ray does
-    not travel towards +z (it would not meet the display side)."""
+    the model has no inverse are not valid. `step` > 1 samples every step-th row and column only (a
+    coarse PRVM, for the geometry of a rig whose maps come from the model itself). InputError naming
+    `where` if no pixel is valid or a ray does not travel towards +z (it would not meet the display side)."""
     if cam.width is None or cam.height is None:
         raise InputError(where, f"camera {cam.name!r} has no image size")
     wfi = np.eye(4) if world_from_internal is None else np.asarray(world_from_internal, np.float64)
     inner = invert(wfi)
-    d, ok = unproject(cam, pixel_grid(cam.width, cam.height))
-    d = d @ cam.R @ inner[:3, :3].T        # camera -> world -> internal
+    v, u = np.mgrid[0:cam.height:step, 0:cam.width:step].astype(np.float64)
+    d, ok = unproject(cam, np.stack([u.ravel(), v.ravel()], axis=-1))
+    d = cam.to_world(d) @ inner[:3, :3].T        # camera -> world -> internal
     c = transform(inner, cam.centre)
     if not ok.any():
         raise InputError(where, f"camera {cam.name!r}: its lens model has no ray for any pixel")
@@ -352,18 +522,33 @@ def prvm_of(cam: CameraModel, *, world_from_internal: np.ndarray | None = None, 
     d = np.where(ok[:, None], d, np.nan)
     with np.errstate(invalid="ignore", divide="ignore"):
         origin = c + ((reference_z_mm - c[2]) / d[:, 2])[:, None] * d
-    shape = (cam.height, cam.width)
+    shape = v.shape
     meta = {"camera": cam.name, "reference_z_mm": float(reference_z_mm), "dataset": dataset,
             "model": cam.to_dict(), "world_from_rig": wfi.tolist()}
+    if step > 1:
+        meta["step"] = int(step)
     return PRVM(origin.reshape(shape + (3,)), d.reshape(shape + (3,)), ok.reshape(shape), None, meta)
 
 
-def prvms_of(cams: list[CameraModel], *, where=None, dataset: str = "") -> list[PRVM]:
-    """The PRVMs of the cameras of one file in one internal frame (`internal_frame`), origins on the plane
-    through their working point (`convergence_z`; z = 0 of the internal frame for a single camera)."""
+def rig_frame(cams: list[CameraModel], *, where=None) -> tuple[np.ndarray, float]:
+    """(world_from_internal (4, 4), reference z mm) of the cameras of one file: the internal frame
+    (`internal_frame`) and the plane of their rays' origins: through their working point
+    (`convergence_z`). A single camera's plane is z = 0 of the internal frame if that lies in front of its
+    optical centre (a board's or a world's plane seen by the camera), else the plane SINGLE_PLANE_MM in
+    front of the centre (a camera at its file's origin: a plane through the centre would hold no field)."""
     for cam in cams:
         if cam.width is None or cam.height is None:
             raise InputError(where, f"camera {cam.name!r} has no image size")
     wfi = internal_frame(cams)
-    z = convergence_z(cams, wfi) if len(cams) > 1 else 0.0
-    return [prvm_of(c, world_from_internal=wfi, reference_z_mm=z, where=where, dataset=dataset) for c in cams]
+    if len(cams) > 1:
+        return wfi, convergence_z(cams, wfi)
+    cz = transform(invert(wfi), cams[0].centre)[2]
+    return wfi, (0.0 if cz < -SINGLE_PLANE_MM / 100 else cz + SINGLE_PLANE_MM)
+
+
+def prvms_of(cams: list[CameraModel], *, where=None, dataset: str = "", step: int = 1) -> list[PRVM]:
+    """The PRVMs (`prvm_of`, every `step`-th pixel) of the cameras of one file in their common internal
+    frame, origins on their reference plane (`rig_frame`)."""
+    wfi, z = rig_frame(cams, where=where)
+    return [prvm_of(c, world_from_internal=wfi, reference_z_mm=z, where=where, dataset=dataset, step=step)
+            for c in cams]

@@ -131,8 +131,11 @@ def read_filestorage(path: str | os.PathLike) -> dict:
             vals = [node.at(i) for i in range(node.size())]
             if all(v.isReal() or v.isInt() for v in vals):
                 out[name] = np.array([v.real() for v in vals], np.float64)
-        elif node.isMap():
-            m = node.mat()
+        elif node.isMap() and not node.getNode("dt").empty() and not node.getNode("data").empty():
+            try:     # an !!opencv-matrix; other maps (no dt, or not a matrix) are skipped
+                m = node.mat()
+            except cv2.error:
+                m = None
             if m is not None:
                 out[name] = np.asarray(m, np.float64)
     fs.release()

@@ -134,6 +134,59 @@ def rectify_speed(quick: bool) -> list[Figure]:
             Figure(GROUP, f"rectify a {mp:.1f} MP 8-bit pair", pair_time * 1e3, "ms")]
 
 
+def _import_pair(path: str, out: str) -> tuple[float, int]:
+    """What `stereodic import PATH -o OUT` does, in this process: (CPU seconds, the rig file's bytes)."""
+    from stereodic.formats import import_calibration
+    from stereodic.stereo.rig import save_rig
+    t0 = time.process_time()
+    save_rig(out, import_calibration([path]).result)
+    return time.process_time() - t0, Path(out).stat().st_size
+
+
+def _use_rig(out: str) -> float:
+    """`load_rig(OUT)` and both cameras' maps and rays (what rectify, dic and scan read): CPU seconds."""
+    from stereodic.stereo.rig import SIDES, load_rig
+    t0 = time.process_time()
+    rig = load_rig(out)
+    for side in SIDES:
+        rig.camera(side).imm, rig.camera(side).direction
+    return time.process_time() - t0
+
+
+def import_speed(quick: bool) -> list[Figure]:
+    """`stereodic import` of an OpenCV stereo calibration of a 6016 x 4016 (24 MP) pair (1504 x 1004 with
+    --quick): 5 coefficients, cameras 300 mm apart converging by 15 degrees; time, CPU and peak memory of
+    the fresh process that imports it, the rig file against the two 8-bit images it describes, and the
+    first use of the rig (its maps and rays computed from the models) in another fresh process."""
+    from stereodic.bench import run_isolated
+    w, h = (1504, 1004) if quick else (6016, 4016)
+    f = 12000.0 * w / 6016
+    K = np.array([[f, 0, (w - 1) / 2 + 0.5], [0, f, (h - 1) / 2 + 0.5], [0, 0, 1]])
+    R = cv2.Rodrigues(np.array([0.0, -0.26, 0.0]))[0]
+    with tempfile.TemporaryDirectory() as tmp:
+        path = str(Path(tmp) / "stereo.yml")
+        fs = cv2.FileStorage(path, cv2.FILE_STORAGE_WRITE)
+        for key, value in (("M1", K), ("D1", np.array([[-0.12, 0.3, 5e-4, -3e-4, -0.5]])), ("M2", K),
+                           ("D2", np.array([[-0.11, 0.25, -2e-4, 4e-4, -0.4]])), ("R", R),
+                           ("T", (-R @ [300.0, 0, 0]).reshape(3, 1)), ("image_width", w), ("image_height", h)):
+            fs.write(key, value)
+        fs.release()
+        wall, peak, (cpu, size) = run_isolated(_import_pair, path, str(Path(tmp) / "rig.npz"))
+        use_wall, use_peak, use_cpu = run_isolated(_use_rig, str(Path(tmp) / "rig.npz"))
+    mp = w * h / 1e6
+    return [Figure(GROUP, f"import a {mp:.0f} MP OpenCV pair, wall (fresh process)", wall, "s", goal="<= 60 s",
+                   ok=wall <= 60 or quick),
+            Figure(GROUP, f"import a {mp:.0f} MP OpenCV pair, CPU", cpu, "s"),
+            Figure(GROUP, f"import a {mp:.0f} MP OpenCV pair, peak memory", peak / 2 ** 30, "GiB", goal="<= 4 GiB",
+                   ok=peak <= 4 * 2 ** 30),
+            Figure(GROUP, f"import a {mp:.0f} MP OpenCV pair, rig file", size / 1e6, "MB",
+                   "the two 8-bit images", 2 * w * h / 1e6, "<= the images", size <= 2 * w * h),
+            Figure(GROUP, "its rig's first use (maps and rays of both cameras), wall", use_wall, "s"),
+            Figure(GROUP, "its rig's first use, CPU", use_cpu, "s"),
+            Figure(GROUP, "its rig's first use, peak memory", use_peak / 2 ** 30, "GiB", goal="<= 4 GiB",
+                   ok=use_peak <= 4 * 2 ** 30)]
+
+
 # ------------------------------------------------------------------------------- OpenCV comparison
 
 def _boards(lenses, capture, seed: int, supersample: int, squares=(9, 7)):
@@ -233,5 +286,5 @@ def opencv_comparison(quick: bool) -> list[Figure]:
     return figs
 
 
-SECTIONS = [row_error, evm_triangulation, export_exactness, rectify_speed, opencv_comparison]
+SECTIONS = [row_error, evm_triangulation, export_exactness, rectify_speed, import_speed, opencv_comparison]
 

@@ -3,7 +3,7 @@
 CALIBRATION is a calibration file of OpenCV (FileStorage YAML/XML/JSON: one camera, or a stereo pair
 M1 D1 M2 D2 R T; the stereo_calib sample's intrinsics.yml and extrinsics.yml may be given together),
 VIC-3D (project/calibration XML), DICe (camera system XML or legacy cal.txt), mrcal (.cameramodel; two
-files for a pair) or Kalibr (camchain.yaml), recognised from its content (--format to insist). Each
+files for a pair), Kalibr (camchain.yaml) or ROS (camera_info YAML; two files for a pair), recognised from its content (--format to insist). Each
 camera's own model is kept exactly (skew included) and turned into its per-pixel rays; two cameras give
 the rectified virtual stereo pair (RIG.npz) exactly as `stereodic rig` builds it from two PRVMs, one camera
 its PRVM file (CAM.npz). Where the cameras look along -z of the file's world frame (VIC-3D's usual frame)
@@ -22,15 +22,17 @@ def register(sub):
     p = sub.add_parser("import", help="another program's calibration as a rig (RIG.npz) or camera (CAM.npz)",
                        description=__doc__)
     add_input(p, "calibration", what="calibration", nargs="+", metavar="CALIBRATION",
-                   help="calibration file (two for a pair of mrcal models or OpenCV's intrinsics + extrinsics)")
-    p.add_argument("--format", default="auto", choices=["auto", "opencv", "vic3d", "dice", "mrcal", "kalibr"],
+                   help="calibration file (two for a pair of mrcal models or ROS camera_info files, or OpenCV's "
+                        "intrinsics + extrinsics)")
+    p.add_argument("--format", default="auto", choices=["auto", "opencv", "vic3d", "dice", "mrcal", "kalibr", "ros"],
                    help="the file's format (default: recognised from its content)")
     p.add_argument("--size", type=parse_size, metavar="WxH",
                    help="image size, for a calibration file that does not give it")
     p.add_argument("--camera", metavar="NAME[,NAME]",
-                   help="one camera (its PRVM) or two (a rig), by name or 0-based index (default: all; one or two)")
+                   help="one camera (its PRVM) or two (a rig), by exact name or by 0-based position as #N "
+                        "(default: all; one or two)")
     p.add_argument("--units", choices=["mm", "m"],
-                   help="unit of the file's translations (default: mm; Kalibr: m)")
+                   help="unit of the file's translations (default: mm; Kalibr, ROS: m)")
     p.add_argument("--model", choices=["pinhole", "modelless"], default="pinhole",
                    help="as `stereodic rig --model`: rays of the Virtual PRVMs (the images are the same)")
     p.add_argument("--virtual-size", type=parse_size, metavar="WxH",
@@ -52,7 +54,7 @@ def run(args) -> int:
     from stereodic.formats import import_calibration
     from stereodic.stereo.rig import save_rig
 
-    names = [n.strip() for n in args.camera.split(",")] if args.camera else None
+    names = [n.strip() for n in args.camera.split(",")] if args.camera is not None else None
     imp = import_calibration(args.calibration, fmt=args.format, size=args.size, units=args.units, cameras=names,
                              model=args.model, virtual_size=args.virtual_size, pitch_mm=args.virtual_pitch_mm,
                              plane_z_mm=args.plane_z_mm)
@@ -62,8 +64,9 @@ def run(args) -> int:
     if isinstance(out, PRVM):
         out.save(args.output)
         c = cams[0]
+        beyond = "" if out.valid.all() else " (the others lie beyond the lens model's first fold: no ray there)"
         wrote(args.output, f"{fmt} camera {c.name!r}, {c.width}x{c.height}, {out.valid.mean():.1%} of pixels "
-                           f"with a ray{flipped}")
+                           f"with a ray{beyond}{flipped}")
         return 0
     save_rig(args.output, out)
     s = out.sensor

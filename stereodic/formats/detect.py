@@ -2,7 +2,8 @@
 ties): OpenCV FileStorage (%YAML:1.0 header, <opencv_storage> root, or JSON with opencv-matrix nodes),
 VIC-3D (XML with <calibration><camera id=...>), DICe (XML ParameterList with xml_file_format
 DICe_xml_camera_system_file, or the legacy cal.txt of 24 or 30 numbers), mrcal (.cameramodel: a Python
-dict literal with 'lensmodel'), Kalibr (camchain YAML: cam0 with camera_model and intrinsics)."""
+dict literal with 'lensmodel'), Kalibr (camchain YAML: cam0 with camera_model and intrinsics, also
+after OpenCV's %YAML:1.0 line), ROS camera_info YAML (camera_matrix and distortion_model)."""
 
 from __future__ import annotations
 
@@ -50,6 +51,11 @@ def detect_format(path: str | os.PathLike) -> str:
     path = Path(path)
     text = read_head(path)
     head = text.lstrip("\ufeff \t\r\n")
+    if re.search(r"^cam\d+\s*:", text, re.M) and "intrinsics" in text and "camera_model" in text:
+        return "kalibr"
+    if re.search(r"^distortion_model\s*:", text, re.M) and re.search(r"^camera_matrix\s*:", text, re.M) \
+            and not head.startswith("%YAML"):
+        return "ros"
     if head.startswith("%YAML") or "<opencv_storage>" in head[:2000] or '"opencv-matrix"' in head:
         return "opencv"
     if "<ParameterList" in head[:2000] and "DICe_xml_camera_system_file" in text:
@@ -58,9 +64,7 @@ def detect_format(path: str | os.PathLike) -> str:
         return "vic3d"
     if "lensmodel" in text and (path.suffix == ".cameramodel" or re.search(r"^\s*\{", text, re.M)):
         return "mrcal"
-    if re.search(r"^cam\d+\s*:", text, re.M) and "intrinsics" in text and "camera_model" in text:
-        return "kalibr"
     if legacy_dice_values(text) is not None:
         return "dice"
     raise InputError(path, "not a calibration file of a known format (OpenCV FileStorage YAML/XML, VIC-3D XML, "
-                           "DICe XML or cal.txt, mrcal .cameramodel, Kalibr camchain.yaml)")
+                           "DICe XML or cal.txt, mrcal .cameramodel, Kalibr camchain.yaml, ROS camera_info YAML)")

@@ -30,7 +30,11 @@ width/height, dataset, wcs}, world_from_rig (4x4 rows, the rig frame -> the worl
 absent = identity; from the PRVMs' meta of the same name, which must agree), software) and per side S in (left, right): `S_map_x`, `S_map_y` (Hv, Wv)
 float32 (the IMM in cv2.remap form, -1 where blank), `S_valid` (Hv, Wv) bool, `S_direction`
 (Hv, Wv, 3) float64 (model-less unit directions through each virtual pixel centre, NaN where blank), and
-the camera's intensity matrix as `S_im_*` when its PRVM has one.
+the camera's intensity matrix as `S_im_*` when its PRVM has one. A camera of a parametric model (`stereodic
+import`) has instead its model in the meta (cameras.S.model: `calib.camera_models.CameraModel.to_dict`, in
+the world frame of world_from_rig) and no S_map_*, S_valid, S_direction arrays: they are computed exactly
+from the model when first used after the file is read (`exact_camera`), so the file stays small (a few
+kB).
 """
 
 from __future__ import annotations
@@ -45,12 +49,13 @@ import numpy as np
 
 from calib import __version__
 from calib.atomic import write_npz
+from calib.camera_models import invert, transform
 from calib.errors import InputError
 from calib.intensity import IntensityMatrix
 from calib.npzfile import read_npz
 from calib.prvm_file import FORMAT as PRVM_FORMAT
 from calib.prvm_file import PRVM, load_prvm
-from stereodic.virtual.imm import IMM, build_imm
+from stereodic.virtual.imm import BLANK, IMM, build_imm
 from stereodic.virtual.undistort import intensity_matrix
 from stereodic.virtual.camera import VirtualCamera, VirtualSensor, fit_optical_centre, project_to_plane
 from stereodic.virtual.prvm import make_virtual
@@ -67,15 +72,34 @@ class RigCamera:
     name: the camera's name; centre: (3,) fitted optical centre, WCS mm; imm: its IMM on the common
     sensor; direction: (Hv, Wv, 3) float64 model-less unit directions (WCS) of the real rays through the
     virtual pixel centres, NaN where blank; im: its intensity matrix or None; info: JSON data of where it
-    came from (file, dataset, wcs, real width and height).
+    came from (file, dataset, wcs, real width and height); model: the parametric camera
+    (`calib.camera_models.CameraModel`, in the world frame `frame` = the rig's world_from_rig) whose
+    IMM and directions are computed from it on the common `sensor` (`exact_camera`), or None. A model
+    camera may be made with imm and direction None: they are computed the first time they are read (an
+    import that only writes the rig file never needs them).
     """
 
     name: str
     centre: np.ndarray
-    imm: IMM
-    direction: np.ndarray
+    imm: IMM | None
+    direction: np.ndarray | None
     im: IntensityMatrix | None = None
     info: dict = field(default_factory=dict)
+    model: object = None
+    frame: np.ndarray | None = None
+    sensor: VirtualSensor | None = None
+
+    def __post_init__(self):
+        if self.model is not None and (self.imm is None or self.direction is None):
+            if self.frame is None or self.sensor is None:
+                raise ValueError("a model camera without its IMM needs its frame and sensor")
+            del self.imm, self.direction        # __getattr__ computes them on first use
+
+    def __getattr__(self, key):
+        if key in ("imm", "direction") and self.__dict__.get("model") is not None:
+            _, self.imm, self.direction = exact_camera(self.model, self.frame, self.sensor)
+            return self.__dict__[key]
+        raise AttributeError(key)
 
 
 @dataclass
@@ -163,7 +187,9 @@ class Rig:
         return {"format": FORMAT, "model": self.model, "sensor": self.sensor.to_dict(),
                 "baseline_mm": self.baseline.tolist(), "working_distance_mm": self.working_distance_mm,
                 "cameras": {s: {"name": self.camera(s).name, "centre": self.camera(s).centre.tolist(),
-                                **self.camera(s).info} for s in SIDES},
+                                **self.camera(s).info,
+                                **({"model": self.camera(s).model.to_dict()} if self.camera(s).model else {})}
+                            for s in SIDES},
                 "world_from_rig": np.asarray(self.world_from_rig, np.float64).tolist(),
                 "software": f"stereodic {__version__}"}
 
@@ -286,9 +312,44 @@ def common_field(prvms: list[PRVM], plane: VirtualSensor, width: int, height: in
 
 # --------------------------------------------------------------------------------------- building
 
+def exact_camera(camera, frame: np.ndarray, sensor: VirtualSensor, *, rows: int = 256
+                 ) -> tuple[np.ndarray, IMM, np.ndarray]:
+    """A parametric camera (`calib.camera_models.CameraModel`) on the common sensor, from its model
+    exactly: (its centre (3,) in the rig frame, its IMM, its (Hv, Wv, 3) unit directions). Each virtual
+    pixel centre is projected through the model (`calib.camera_models.image_of`): no ray is interpolated
+    between real pixels and nothing is inverted. `frame` is world_from_rig (4, 4): the rig frame -> the
+    model's world frame. Blank: outside the model's valid region or the real image [0, W-1] x [0, H-1].
+    Done `rows` virtual rows at a time (bounded memory)."""
+    import dataclasses
+
+    from calib.camera_models import image_of
+    centre = transform(invert(frame), camera.centre)
+    # the model's pose composed with the frame: one affine map from rig-frame points to its camera frame
+    in_rig = dataclasses.replace(camera, R=camera.R @ frame[:3, :3], t=camera.R @ frame[:3, 3] + camera.t)
+    hv, wv = sensor.height, sensor.width
+    map_x = np.full((hv, wv), BLANK, np.float32)
+    map_y = np.full((hv, wv), BLANK, np.float32)
+    valid = np.zeros((hv, wv), bool)
+    direction = np.full((hv, wv, 3), np.nan)
+    for r0 in range(0, hv, rows):
+        v, uu = np.mgrid[r0:min(r0 + rows, hv), 0:wv].astype(np.float64)
+        p = sensor.points(uu, v)
+        uv, ok = image_of(in_rig, p.reshape(-1, 3))
+        ok &= (uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height - 1)
+        ok = ok.reshape(v.shape)
+        uv = uv.reshape(v.shape + (2,))
+        map_x[r0:r0 + len(v)] = np.where(ok, uv[..., 0], BLANK)
+        map_y[r0:r0 + len(v)] = np.where(ok, uv[..., 1], BLANK)
+        valid[r0:r0 + len(v)] = ok
+        d = p - centre
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        direction[r0:r0 + len(v)] = np.where(ok[..., None], d, np.nan)
+    return centre, IMM(map_x, map_y, valid, (camera.width, camera.height)), direction
+
+
 def build_rig(left: PRVM, right: PRVM, *, model: str = "pinhole", width: int | None = None,
               height: int | None = None, pitch_mm=None, plane_z_mm: float | None = None,
-              where: tuple = ("left", "right")) -> Rig:
+              where: tuple = ("left", "right"), cameras: tuple | None = None) -> Rig:
     """The rectified virtual stereo pair of two calibrated cameras in one WCS (module docstring).
 
     Parameters
@@ -306,6 +367,11 @@ def build_rig(left: PRVM, right: PRVM, *, model: str = "pinhole", width: int | N
         WCS z of the working point, mm; None: the left PRVM's reference_z_mm.
     where : (str, str)
         Names of the two inputs (file names) for messages and the cameras' ``info``.
+    cameras : (CameraModel, CameraModel), optional
+        The parametric models (`calib.camera_models`) whose rays the PRVMs sample, in the world frame
+        of the PRVMs' world_from_rig (`stereodic import`): the PRVMs (which may then sample every n-th
+        pixel) only place the plane and the common field; centres, IMMs and directions come from the
+        models exactly (`exact_camera`).
 
     Returns
     -------
@@ -329,19 +395,26 @@ def build_rig(left: PRVM, right: PRVM, *, model: str = "pinhole", width: int | N
         raise InputError(where[1], f"its rays are in another internal frame than {where[0]}'s (their "
                                    f"world_from_rig differ): import both cameras from one calibration file")
     plane = rectified_plane(left, right, centres[0], centres[1], plane_z_mm, where)
-    width = left.width if width is None else int(width)
-    height = left.height if height is None else int(height)
+    real = [(p.width, p.height) for p in (left, right)] if cameras is None else \
+        [(c.width, c.height) for c in cameras]
+    width = real[0][0] if width is None else int(width)
+    height = real[0][1] if height is None else int(height)
     sensor = common_field([left, right], plane, width, height, pitch_mm, where=where[1])
     cams = []
-    for prvm, centre, name in zip((left, right), centres, where):
-        setup = make_virtual(prvm, VirtualCamera(sensor, "pinhole", centre))
-        direction = setup.prvm.direction + setup.evm
-        direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
+    for i, (prvm, centre, name) in enumerate(zip((left, right), centres, where)):
         info = {"file": os.fspath(name), "dataset": prvm.meta.get("dataset", ""), "wcs": wcs_name(prvm),
-                "real_width": prvm.width, "real_height": prvm.height,
-                "blank_pixels": int((~setup.imm.valid).sum())}
-        cams.append(RigCamera(prvm.meta.get("camera", Path(os.fspath(name)).stem), centre, setup.imm, direction,
-                              intensity_matrix(prvm), info))
+                "real_width": real[i][0], "real_height": real[i][1]}
+        camera_name = prvm.meta.get("camera", Path(os.fspath(name)).stem)
+        if cameras is None:
+            setup = make_virtual(prvm, VirtualCamera(sensor, "pinhole", centre))
+            direction = setup.prvm.direction + setup.evm
+            direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
+            info["blank_pixels"] = int((~setup.imm.valid).sum())
+            cams.append(RigCamera(camera_name, centre, setup.imm, direction, intensity_matrix(prvm), info))
+        else:     # the model's centre; its IMM and rays when first used (RigCamera, exact_camera)
+            centre = transform(invert(frames[0]), cameras[i].centre)
+            cams.append(RigCamera(camera_name, centre, None, None, intensity_matrix(prvm), info, cameras[i],
+                                  frames[0], sensor))
     return Rig(sensor, cams[0], cams[1], model, frames[0])
 
 
@@ -386,12 +459,14 @@ def save_rig(path: str | os.PathLike, rig: Rig) -> None:
     arrays = {"meta": np.array(json.dumps(rig.meta()))}
     for side in SIDES:
         cam = rig.camera(side)
+        if cam.im is not None:
+            arrays.update(cam.im.to_arrays(prefix=f"{side}_im_"))
+        if cam.model is not None:     # the model is in the meta: the maps and rays are computed on load
+            continue
         arrays.update({f"{side}_map_x": cam.imm.map_x.astype(np.float32),
                        f"{side}_map_y": cam.imm.map_y.astype(np.float32),
                        f"{side}_valid": cam.imm.valid.astype(bool),
                        f"{side}_direction": cam.direction.astype(np.float64)})
-        if cam.im is not None:
-            arrays.update(cam.im.to_arrays(prefix=f"{side}_im_"))
     write_npz(path, **arrays)
 
 
@@ -411,21 +486,31 @@ def load_rig(path: str | os.PathLike) -> Rig:
     meta, arrays = read_npz(path, FORMAT, "rig", advice={
         PRVM_FORMAT: "a camera file: build a rig with `stereodic rig LEFT.npz RIGHT.npz`"})
     sensor = VirtualSensor.from_dict(meta["sensor"])
+    frame = world_from_rig(meta, path)
     cams = []
     for side in SIDES:
+        info = dict(meta["cameras"][side])
+        im = IntensityMatrix.from_arrays(arrays, prefix=f"{side}_im_") if f"{side}_im_offset" in arrays else None
+        if "model" in info:      # a parametric camera: its maps and rays from the model (exact_camera)
+            from calib.camera_models import CameraModel
+            try:
+                model = CameraModel.from_dict(info.pop("model"))
+            except (KeyError, TypeError, ValueError) as exc:
+                raise InputError(path, f"the {side} camera's model is not readable ({exc})") from None
+            name, centre = info.pop("name"), np.asarray(info.pop("centre"), np.float64)
+            cams.append(RigCamera(name, centre, None, None, im, info, model, frame, sensor))
+            continue
         need = [f"{side}_{k}" for k in ("map_x", "map_y", "valid", "direction")]
         if any(k not in arrays for k in need):
             raise InputError(path, f"not a rig file: lacks {', '.join(k for k in need if k not in arrays)}")
-        info = dict(meta["cameras"][side])
         name, centre = info.pop("name"), np.asarray(info.pop("centre"), np.float64)
         shape = (sensor.height, sensor.width)
         if arrays[f"{side}_map_x"].shape != shape or arrays[f"{side}_direction"].shape != shape + (3,):
             raise InputError(path, f"{side} arrays do not match the {sensor.width}x{sensor.height} sensor")
         imm = IMM(arrays[f"{side}_map_x"], arrays[f"{side}_map_y"], arrays[f"{side}_valid"].astype(bool),
                   (int(info["real_width"]), int(info["real_height"])))
-        im = IntensityMatrix.from_arrays(arrays, prefix=f"{side}_im_") if f"{side}_im_offset" in arrays else None
         cams.append(RigCamera(name, centre, imm, arrays[f"{side}_direction"].astype(np.float64), im, info))
-    return Rig(sensor, cams[0], cams[1], meta.get("model", "pinhole"), world_from_rig(meta, path))
+    return Rig(sensor, cams[0], cams[1], meta.get("model", "pinhole"), frame)
 
 
 def world_from_rig(meta: dict, path) -> np.ndarray:

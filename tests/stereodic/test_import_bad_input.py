@@ -81,7 +81,7 @@ def test_unknown_models_and_cameras(tmp_path, capsys):
     _one_line(*_run(["import", str(tmp_path / "c.yaml"), "-o", str(tmp_path / "o.npz")], capsys), "c.yaml", "omni")
     path = _stereo_yaml(tmp_path / "stereo.yml")
     _one_line(*_run(["import", path, "--camera", "7", "-o", str(tmp_path / "o.npz")], capsys), "stereo.yml",
-              "no camera '7'")
+              "no camera named '7'")
 
 
 def test_output_checked_before_the_work(tmp_path, capsys):
@@ -89,3 +89,26 @@ def test_output_checked_before_the_work(tmp_path, capsys):
     (tmp_path / "out").mkdir()
     (tmp_path / "notes.txt").write_text("nothing")
     _one_line(*_run(["import", str(tmp_path / "notes.txt"), "-o", str(tmp_path / "out")], capsys), "out", "is a directory")
+
+
+def test_unread_model_flags_and_chains_are_refused(tmp_path, capsys):
+    """A ROS distortion model we do not read, an OpenCV fisheye_model other than 0/1, a Kalibr chain whose
+    cam1 has neither T_cn_cnm1 nor (with every camera) T_cam_imu: one line each, exit 2."""
+    (tmp_path / "ros.yaml").write_text("image_width: 320\nimage_height: 240\ncamera_matrix:\n  rows: 3\n  cols: 3\n"
+                                       "  data: [300, 0, 160, 0, 300, 120, 0, 0, 1]\ndistortion_model: fov\n"
+                                       "distortion_coefficients:\n  rows: 1\n  cols: 1\n  data: [0.9]\n")
+    _one_line(*_run(["import", str(tmp_path / "ros.yaml"), "-o", str(tmp_path / "o.npz")], capsys), "ros.yaml",
+              "'fov' is not supported")
+    fs = cv2.FileStorage(str(tmp_path / "cam.yml"), cv2.FILE_STORAGE_WRITE)
+    for k, v in (("image_width", 320), ("image_height", 240), ("fisheye_model", 2), ("camera_matrix", np.eye(3)),
+                 ("distortion_coefficients", np.zeros((4, 1)))):
+        fs.write(k, v)
+    fs.release()
+    _one_line(*_run(["import", str(tmp_path / "cam.yml"), "-o", str(tmp_path / "o.npz")], capsys), "cam.yml",
+              "fisheye_model")
+    cam = ("  camera_model: pinhole\n  intrinsics: [300, 300, 160, 120]\n  distortion_model: radtan\n"
+           "  distortion_coeffs: [0, 0, 0, 0]\n  resolution: [320, 240]\n")
+    (tmp_path / "chain.yaml").write_text("%YAML:1.0\ncam0:\n  T_cam_imu:\n  - [1, 0, 0, 0]\n  - [0, 1, 0, 0]\n"
+                                         "  - [0, 0, 1, 0]\n  - [0, 0, 0, 1]\n" + cam + "cam1:\n" + cam)
+    _one_line(*_run(["import", str(tmp_path / "chain.yaml"), "-o", str(tmp_path / "o.npz")], capsys), "chain.yaml",
+              "T_cam_imu")
