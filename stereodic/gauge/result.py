@@ -180,7 +180,7 @@ def open_gauge_result(path: str | os.PathLike, *, frame: str = "rig", origin_px:
         image_px = np.where(g.active[..., None], np.stack([x, y], -1), np.nan)
         labels = ["reference image"] + state_labels(res)
         units = {"u": "px", "v": "px"} | ({"dX": "mm", "dY": "mm"} if scale_mm_per_px else {}) | strain_units
-        return GaugeResult(res.path, "dic2d", g, res.count + 1, labels, "mm" if scale_mm_per_px else "px",
+        return GaugeResult(res.path, "dic2d", g, res.states + 1, labels, "mm" if scale_mm_per_px else "px",
                            image_px, None, units, window, measure, False, scale_mm_per_px, meta)
     if scale_mm_per_px is not None:
         raise InputError("--scale", f"{res.path} is a stereo result, already in mm")
@@ -194,5 +194,5 @@ def open_gauge_result(path: str | os.PathLike, *, frame: str = "rig", origin_px:
     units = {q: "mm" for q in ("X", "Y", "Z", "dX", "dY", "dZ")}
     if remove_rigid:
         units |= {q: "mm" for q in ("dX_def", "dY_def", "dZ_def")}
-    return GaugeResult(res.path, "dic", g, res.count, state_labels(res), "mm", image_px, spec, units | strain_units,
+    return GaugeResult(res.path, "dic", g, res.states, state_labels(res), "mm", image_px, spec, units | strain_units,
                        window, measure, remove_rigid, None, meta)
