@@ -127,6 +127,9 @@ def _a(noun: str) -> str:
 
 def _check_input(path: Path, option: PathOption) -> None:
     from calib.errors import InputError
+    from calib.sequences import parse_frame_ref
+    ref = parse_frame_ref(path)
+    path = path if ref is None else ref[0]     # a frame of a sequence file (FILE::K): the file
     what = f"{option.what} " if option.what else ""
     if option.kind == "dataset":
         if not path.exists():
@@ -179,7 +182,9 @@ def check_paths(args: argparse.Namespace) -> None:
             values = [Path(v) for v in _values(args, option)]
             if option.kind == "pattern":
                 from calib.image_files import expand
-                values = [p for v in values for p in expand(v)]
+                from calib.sequences import parse_frame_ref
+                values = [p for v in values for p in expand(v)]    # a sequence file's frames: the file
+                values = list(dict.fromkeys(ref[0] if (ref := parse_frame_ref(p)) else p for p in values))
                 option = PathOption(option.dest, option.name, False, "file", option.what)
             elif option.kind == "dataset":
                 from calib.image_files import expand_datasets
