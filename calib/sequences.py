@@ -100,7 +100,7 @@ class _Tiff:
         except Exception:
             raise InputError(path, "not a readable TIFF stack") from None
         self.path = path
-        self.size = (first.shape[1], first.shape[0])
+        self.size = (first.imagewidth, first.imagelength)
         self.times_s = None
 
     def frame(self, k: int) -> np.ndarray:
@@ -108,8 +108,9 @@ class _Tiff:
             img = self.tif.pages[k].asarray()
         except Exception:
             raise InputError(frame_ref(self.path, k), "cannot be read (the TIFF page is damaged)") from None
-        if img.ndim == 3:
-            img = img[..., :3].mean(-1).round().astype(img.dtype)
+        if img.ndim == 3:                               # colour: contiguous (h, w, c) or planar (c, h, w)
+            planar = img.shape[1:] == (self.size[1], self.size[0])
+            img = (img[:3].mean(0) if planar else img[..., :3].mean(-1)).round().astype(img.dtype)
         if img.shape != (self.size[1], self.size[0]):
             raise InputError(frame_ref(self.path, k), f"page is {img.shape[1]}x{img.shape[0]}, the stack's first "
                                                       f"{self.size[0]}x{self.size[1]}")

@@ -25,7 +25,9 @@ def register(sub):
     add_input(p, "dataset", kind="dataset", metavar="DATASET", nargs="?",
               help="folder (or capture.json) of a kind 'dic' dataset")
     add_input(p, "--left", kind="pattern", what="image", metavar="PATTERN",
-              help="the left camera's images: a shell-style pattern (quote it), natural order")
+              help="the left camera's images: a shell-style pattern (quote it), natural order; or a video, TIFF "
+                   "stack, .cine or .mraw (every frame a state; VIDEO:left for the left half of a side-by-side "
+                   "stream)")
     add_input(p, "--right", kind="pattern", what="image", metavar="PATTERN", help="the right camera's images, likewise")
     add_input(p, "--images", kind="dir", what="image", metavar="DIR",
               help="a folder of image pairs NAME<left suffix>.tif / NAME<right suffix>.tif (DICe's and VIC-3D's "
@@ -159,6 +161,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from calib.progress import note
+    from calib.sequences import frame_times
     from stereodic.cli.common import wrote
     from stereodic.dic3d import epipolar
     from stereodic.dic3d.run import run_states, write_outputs
@@ -208,6 +211,9 @@ def run(args) -> int:
                   f"has a camera moved since the calibration?", file=sys.stderr)
     info = {"rig": str(args.rig), "dataset": data.source, "world_from_rig": rig.world_from_rig.tolist(),
             "state_labels": labels}
+    times = frame_times(data.left)            # the frames' own timestamps (a video, .cine, .mraw): for loads
+    if times is not None:
+        info["state_times_s"] = times
     dice = None
     if args.columns == "dice":
         from stereodic.dice_columns import StereoDiceWriter

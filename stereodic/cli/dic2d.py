@@ -23,7 +23,8 @@ def register(sub):
                                    "reference, on a grid of points.")
     add_input(p, "ref", what="image", metavar="REF_IMG", help="reference image (8/16-bit PNG or TIFF)")
     add_input(p, "defs", kind="pattern", what="image", metavar="DEF_IMG_OR_PATTERN", nargs="+",
-              help="deformed images in order, or shell-style patterns (quote them; natural order)")
+              help="deformed images in order, or shell-style patterns (quote them; natural order), or a video, "
+                   "TIFF stack, .cine or .mraw (every frame; FILE::K is frame K, also as REF_IMG)")
     add_output(p, metavar="OUT.csv", help="CSV of the results")
     add_grid_options(p, "reference image")
     p.add_argument("--shape", choices=["affine", "quadratic"], default="affine",

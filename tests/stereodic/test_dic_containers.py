@@ -1,0 +1,81 @@
+"""DIC of the same frames from a PNG folder, a multi-page TIFF, a lossless video (FFV1) and a lossy MP4:
+the same results (the lossy one within its own noise); bad sequence files refused in one line."""
+
+from __future__ import annotations
+
+import csv
+
+import cv2
+import numpy as np
+import pytest
+import tifffile
+
+from calib.imageio import write_gray
+from stereodic.cli import main
+
+SHIFTS = [(0.0, 0.0), (0.4, -0.3), (1.2, 0.5), (2.1, 1.4)]
+
+
+def _speckle_frames(w=96, h=72):
+    """A speckle shifted by SHIFTS (px, along x and y), quintic spline shifts of a band-limited pattern."""
+    from scipy import ndimage
+    rng = np.random.default_rng(3)
+    base = ndimage.gaussian_filter(rng.random((h, w)), 2.0, mode="wrap")
+    base = 20 + 215 * (base - base.min()) / np.ptp(base)
+    return [ndimage.shift(base, (dy, dx), order=5, mode="wrap").round().clip(0, 255).astype(np.uint8)
+            for dx, dy in SHIFTS]
+
+
+def _video(path, frames, fourcc):
+    h, w = frames[0].shape
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), 10, (w, h), isColor=False)
+    assert writer.isOpened()
+    for f in frames:
+        writer.write(f)
+    writer.release()
+
+
+def _uv(path):
+    with open(path) as f:
+        rows = list(csv.DictReader(f))
+    return np.array([[float(r["u"]), float(r["v"])] for r in rows])
+
+
+def test_png_tiff_and_videos_give_the_same_results(tmp_path):
+    frames = _speckle_frames()
+    for k, f in enumerate(frames):
+        write_gray(tmp_path / f"f{k}.png", f)
+    tifffile.imwrite(tmp_path / "stack.tif", np.stack(frames), photometric="minisblack")
+    _video(tmp_path / "lossless.avi", frames, "FFV1")
+    _video(tmp_path / "lossy.mp4", frames, "mp4v")
+    opts = ["--subset", "21", "--step", "12"]
+    assert main(["dic2d", str(tmp_path / "f0.png"), str(tmp_path / "f*.png"), *opts, "-o", str(tmp_path / "png.csv")]) == 0
+    for name in ("stack.tif", "lossless.avi", "lossy.mp4"):
+        assert main(["dic2d", f"{tmp_path / name}::0", str(tmp_path / name), *opts, "-o",
+                     str(tmp_path / f"{name}.csv")]) == 0
+    png = (tmp_path / "png.csv").read_text()
+    assert (tmp_path / "stack.tif.csv").read_text() == png
+    assert (tmp_path / "lossless.avi.csv").read_text() == png
+    truth = np.repeat(np.array(SHIFTS), len(_uv(tmp_path / "png.csv")) // len(SHIFTS), axis=0)
+    assert np.abs(_uv(tmp_path / "png.csv") - truth).max() < 0.05
+    lossy = np.abs(_uv(tmp_path / "lossy.mp4.csv") - truth)
+    assert np.nanmedian(lossy) < 0.1                     # within the codec's own noise
+
+
+@pytest.mark.parametrize("case", ["undecodable video", "pages of different sizes"])
+def test_bad_sequence_files_are_one_line(tmp_path, capsys, case):
+    write_gray(tmp_path / "ref.png", _speckle_frames()[0])
+    if case == "undecodable video":
+        bad = tmp_path / "broken.avi"
+        bad.write_bytes(np.random.default_rng(2).bytes(20000))
+        name = "broken.avi"
+    else:
+        bad = tmp_path / "mixed.tif"
+        with tifffile.TiffWriter(bad) as tw:
+            tw.write(np.zeros((72, 96), np.uint8))
+            tw.write(np.zeros((60, 80), np.uint8))
+        name = "mixed.tif::1"
+    assert main(["dic2d", str(tmp_path / "ref.png"), str(bad), "-o", str(tmp_path / "out.csv")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and name in err[0] and "Traceback" not in err[0]
+    assert not (tmp_path / "out.csv").exists()
