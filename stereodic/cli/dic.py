@@ -66,6 +66,7 @@ def register(sub):
                         "DIR/DICe_solution_stereo_<k>.txt, right camera) instead of dic.csv")
     p.add_argument("--restart", action="store_true",
                    help="discard a run already in the output folder (default: resume it)")
+    p.add_argument("--mat", action="store_true", help="also write DIR/dic.mat: dic.npz's arrays as a MATLAB file")
     p.add_argument("--no-vtk", action="store_true", help="skip the VTK files")
     p.add_argument("--no-plot", action="store_true", help="skip the PNG maps")
     p.add_argument("--plot-every", type=int, default=1, metavar="N",
@@ -178,7 +179,8 @@ def run(args) -> int:
     store = RunStore(out)
     n = len(data)
     done = store.open(record, inputs, n, restart=args.restart)
-    outputs = {"columns": args.columns, "vtk": not args.no_vtk, "plot_every": 0 if args.no_plot else args.plot_every}
+    outputs = {"columns": args.columns, "vtk": not args.no_vtk, "plot_every": 0 if args.no_plot else args.plot_every,
+               "mat": args.mat}
     if done == n and store.outputs_written(outputs):
         print(f"{out}: all {n} states are done and written; nothing to do (--restart to run again)")
         return 0
@@ -227,6 +229,10 @@ def run(args) -> int:
     else:
         wrote(out / "dic.csv", f"one row per point and state ({states})")
     wrote(out / "dic.npz", "the same as arrays")
+    if args.mat:
+        from stereodic.dic.matfile import write_mat
+        write_mat(out / "dic.npz", out / "dic.mat")
+        wrote(out / "dic.mat", "dic.npz's arrays as a MATLAB file")
     if not args.no_vtk:
         wrote(out / "vtk" / "states.pvd", f"ParaView collection of {n} states (state*.vtp)")
     if not args.no_plot:

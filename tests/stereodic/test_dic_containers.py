@@ -79,3 +79,19 @@ def test_bad_sequence_files_are_one_line(tmp_path, capsys, case):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and name in err[0] and "Traceback" not in err[0]
     assert not (tmp_path / "out.csv").exists()
+
+
+def test_dic2d_mat_holds_the_npz_arrays(tmp_path):
+    from scipy.io import loadmat
+    frames = _speckle_frames()
+    tifffile.imwrite(tmp_path / "stack.tif", np.stack(frames), photometric="minisblack")
+    assert main(["dic2d", f"{tmp_path / 'stack.tif'}::0", str(tmp_path / "stack.tif"), "--subset", "21", "--step",
+                 "12", "--strain-window", "3", "-o", str(tmp_path / "r.csv"), "--npz", str(tmp_path / "r.npz"),
+                 "--mat", str(tmp_path / "r.mat")]) == 0
+    mat, npz = loadmat(tmp_path / "r.mat"), np.load(tmp_path / "r.npz")
+    for key in npz.files:
+        if key != "meta":
+            a, b = mat[key], npz[key]
+            assert np.array_equal(a.reshape(b.shape), b, equal_nan=b.dtype.kind == "f"), key
+    assert "stereodic.dic2d/1" in str(mat["meta"][0])
+    assert np.allclose(np.nanmedian(mat["u"], axis=(1, 2)), [s[0] for s in SHIFTS], atol=0.05)
