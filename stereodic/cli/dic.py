@@ -11,7 +11,7 @@ Z, displacements and strains per state).
 from __future__ import annotations
 
 from stereodic.cli.common import (add_grid_options, add_input, add_output, add_prefilter_option, add_scheduler_option,
-                                  check_prefilter, dic_grid, parse_ints)
+                                  check_prefilter, dic_grid, parse_floats, parse_ints)
 
 
 def register(sub):
@@ -66,6 +66,14 @@ def register(sub):
                         "DIR/DICe_solution_stereo_<k>.txt, right camera) instead of dic.csv")
     p.add_argument("--restart", action="store_true",
                    help="discard a run already in the output folder (default: resume it)")
+    p.add_argument("--frame", choices=["rig", "specimen"], default="rig",
+                   help="the frame of X, Y, Z, displacements and strains: rig (the rig's world frame, default) or "
+                        "specimen (the best-fit plane of the reference shape, x along the left image's columns or "
+                        "--x-axis, z towards the cameras; recorded in dic.npz's meta)")
+    p.add_argument("--origin", type=parse_floats, metavar="X,Y",
+                   help="with --frame specimen: the origin's pixel in the left reference image (default: centroid)")
+    p.add_argument("--x-axis", type=parse_floats, metavar="X0,Y0,X1,Y1",
+                   help="with --frame specimen: the x axis's direction, two pixels of the left reference image")
     p.add_argument("--mat", action="store_true", help="also write DIR/dic.mat: dic.npz's arrays as a MATLAB file")
     p.add_argument("--no-vtk", action="store_true", help="skip the VTK files")
     p.add_argument("--no-plot", action="store_true", help="skip the PNG maps")
@@ -92,6 +100,12 @@ def _settings(args):
     if not args.max_gap > 0:
         raise InputError("--max-gap", f"must be > 0 pixel pitches, got {args.max_gap}")
     check_prefilter(args)
+    if (args.origin or args.x_axis) and args.frame != "specimen":
+        raise InputError("--origin/--x-axis", "go with --frame specimen")
+    if args.origin is not None and len(args.origin) != 2:
+        raise InputError("--origin", f"needs X,Y pixels, got {args.origin}")
+    if args.x_axis is not None and len(args.x_axis) != 4:
+        raise InputError("--x-axis", f"needs X0,Y0,X1,Y1 pixels, got {args.x_axis}")
     disparity = None
     if args.disparity:
         disparity = tuple(parse_ints(args.disparity, 2, "--disparity"))
@@ -180,7 +194,7 @@ def run(args) -> int:
     n = len(data)
     done = store.open(record, inputs, n, restart=args.restart)
     outputs = {"columns": args.columns, "vtk": not args.no_vtk, "plot_every": 0 if args.no_plot else args.plot_every,
-               "mat": args.mat}
+               "mat": args.mat, "frame": [args.frame, args.origin, args.x_axis]}
     if done == n and store.outputs_written(outputs):
         print(f"{out}: all {n} states are done and written; nothing to do (--restart to run again)")
         return 0
@@ -213,6 +227,15 @@ def run(args) -> int:
                   f"has a camera moved since the calibration?", file=sys.stderr)
     info = {"rig": str(args.rig), "dataset": data.source, "world_from_rig": rig.world_from_rig.tolist(),
             "state_labels": labels}
+    frame = None
+    if args.frame == "specimen":
+        from stereodic.dic3d.frame import SpecimenStates
+        x = args.x_axis
+        frame = SpecimenStates(state0, settings, origin_px=args.origin,
+                               x_direction_px=(x[2] - x[0], x[3] - x[1]) if x else (1.0, 0.0))
+        info["frame"] = frame.frame.record()
+    else:
+        info["frame"] = {"frame": "rig"}
     times = frame_times(data.left)            # the frames' own timestamps (a video, .cine, .mraw): for loads
     if times is not None:
         info["state_times_s"] = times
@@ -221,7 +244,7 @@ def run(args) -> int:
         from stereodic.dice_columns import StereoDiceWriter
         dice = StereoDiceWriter(out, grid, data, settings, args.step)
     write_outputs(store, grid, out, settings, info, vtk=not args.no_vtk, plot_every=plot_every,
-                  dice=dice, csv=args.columns != "dice", state_files=not args.scheduler, labels=labels)
+                  dice=dice, csv=args.columns != "dice", state_files=not args.scheduler, labels=labels, frame=frame)
     store.record_outputs(outputs)
     states = f"{active} points x {n} states"
     if args.columns == "dice":

@@ -11,15 +11,17 @@ whatever the length of the sequence.
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 from typing import Callable
 
+from calib.atomic import write_npz as save_npz
 from calib.progress import progress
 from stereodic.dic.grid import Grid
 from stereodic.dic.maps import MapAxes, surface_axes
 from stereodic.dic.sequence import prefetch
 from stereodic.dic3d.dataset import DicStates
-from stereodic.dic3d.output import csv_rows, plot_state, write_csv, write_npz
+from stereodic.dic3d.output import csv_rows, plot_state, state_arrays, write_csv, write_npz
 from stereodic.dic3d.stereo import PreparedPair, StereoRun, StereoSettings, StereoState, solve_state
 from stereodic.dic3d.store import RunStore
 from stereodic.dic3d.vtk import write_collection, write_state
@@ -71,15 +73,43 @@ def write_state_files(folder: str | Path, st: StereoState, *, vtk: bool, plot_ev
         plot_state(folder / "maps", st, axes, label)
 
 
+def _framed_store(store: RunStore, folder: Path, frame: Callable[[StereoState], StereoState]) -> RunStore:
+    """A store over folder/.frame/ holding every state of `store` turned by `frame` (the specimen's
+    frame: `stereodic.dic3d.frame.SpecimenStates`), written one state at a time."""
+    n = store.manifest["states"]
+    view = RunStore(folder / ".frame")
+    view.states_dir.mkdir(parents=True, exist_ok=True)
+    view.manifest = {"states": n, "settings": store.manifest["settings"]}
+    for st in progress(store.states(), "frame", total=n, unit="state"):
+        save_npz(view.state_path(st.state), **state_arrays(frame(st)))
+    return view
+
+
 def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: StereoSettings, info: dict, *,
                   vtk: bool = True, plot_every: int = 0, dice: Callable[[StereoState], None] | None = None,
-                  csv: bool = True, state_files: bool = True, labels: list[str] | None = None) -> None:
+                  csv: bool = True, state_files: bool = True, labels: list[str] | None = None,
+                  frame: Callable[[StereoState], StereoState] | None = None) -> None:
     """The combined outputs from the store's state files (module docstring): folder/dic.csv (unless
     `dice` writes DICe's files instead, or not `csv`), folder/dic.npz, folder/vtk/ (with `vtk`),
     folder/maps/ (every `plot_every`-th state, 0 = none; titled by `labels`, one per state, default
     "state k"). Not `state_files`: each state's VTK file and maps were written already
-    (`write_state_files`, by a cluster's tasks); the rest is written here."""
+    (`write_state_files`, by a cluster's tasks); the rest is written here. `frame`: every state turned
+    into another reporting frame first (the specimen's), its VTK files and maps written here."""
     folder = Path(folder)
+    if frame is None:
+        _write_outputs(store, grid, folder, settings, info, vtk=vtk, plot_every=plot_every, dice=dice, csv=csv,
+                       state_files=state_files, labels=labels)
+        return
+    view = _framed_store(store, folder, frame)
+    try:
+        _write_outputs(view, grid, folder, settings, info, vtk=vtk, plot_every=plot_every, dice=dice, csv=csv,
+                       state_files=True, labels=labels)
+    finally:
+        shutil.rmtree(folder / ".frame", ignore_errors=True)
+
+
+def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSettings, info: dict, *,
+                   vtk: bool, plot_every: int, dice, csv: bool, state_files: bool, labels) -> None:
     n = store.manifest["states"]
     has_strain = bool(settings.strain_window)
     write_npz(folder / "dic.npz", grid, store.values, n, has_strain, settings, info)

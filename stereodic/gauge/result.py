@@ -80,7 +80,8 @@ class GaugeResult:
             return {**self.frame.record(), "rigid_motion_removed": self.remove_rigid}
         if self.kind == "dic2d":
             return {"frame": "image", "scale_mm_per_px": self.scale_mm_per_px}
-        return {"frame": "rig", "world_from_rig": self.meta.get("world_from_rig")}
+        saved = self.meta.get("frame", {"frame": "rig"})      # the frame the result was saved in
+        return {**saved, "world_from_rig": self.meta.get("world_from_rig"), "rigid_motion_removed": self.remove_rigid}
 
     def states(self) -> Iterator[GaugeState]:
         """Every state, from state 0, one in memory at a time (module docstring)."""
@@ -137,7 +138,8 @@ def open_gauge_result(path: str | os.PathLike, *, frame: str = "rig", origin_px:
     path : path
         A `stereodic dic` output folder or its dic.npz, or a `stereodic dic2d --npz` file.
     frame : {"rig", "specimen"}
-        "rig": the rig's world frame (a dic2d result: the image); "specimen": the best-fit plane of the
+        "rig": the frame the result was saved in (the rig's world frame, or the specimen's for a
+        `dic --frame specimen` run; a dic2d result: the image); "specimen": the best-fit plane of the
         reference shape (`frame.specimen_frame`; stereo results only).
     origin_px, x_direction_px
         With "specimen": the origin's position and the x axis's direction in the original left
