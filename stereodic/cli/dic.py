@@ -77,6 +77,11 @@ def register(sub):
     p.add_argument("--mat", action="store_true", help="also write DIR/dic.mat: dic.npz's arrays as a MATLAB file")
     p.add_argument("--no-vtk", action="store_true", help="skip the VTK files")
     p.add_argument("--no-plot", action="store_true", help="skip the PNG maps")
+    p.add_argument("--no-overlay", action="store_true",
+                   help="maps without their copy over the state's left image")
+    p.add_argument("--animate", metavar="Q[,Q...]", default="",
+                   help="also write DIR/maps/<Q>.mp4, the maps of these quantities over the test (Z, dX, dY, dZ, "
+                        "exx, eyy, exy)")
     p.add_argument("--plot-every", type=int, default=1, metavar="N",
                    help="PNG maps of every N-th state only (default 1: all)")
     add_scheduler_option(p, "states (a chain: one state after the other) and their maps")
@@ -100,6 +105,9 @@ def _settings(args):
     if not args.max_gap > 0:
         raise InputError("--max-gap", f"must be > 0 pixel pitches, got {args.max_gap}")
     check_prefilter(args)
+    unknown = set(filter(None, args.animate.split(","))) - {"Z", "dX", "dY", "dZ", "exx", "eyy", "exy"}
+    if unknown:
+        raise InputError("--animate", f"no map of {', '.join(sorted(unknown))} (Z, dX, dY, dZ, exx, eyy, exy)")
     if (args.origin or args.x_axis) and args.frame != "specimen":
         raise InputError("--origin/--x-axis", "go with --frame specimen")
     if args.origin is not None and len(args.origin) != 2:
@@ -176,6 +184,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from calib.progress import note
+    from calib.imageio import read_gray
     from calib.sequences import frame_times
     from stereodic.cli.common import wrote
     from stereodic.dic3d import epipolar
@@ -194,7 +203,8 @@ def run(args) -> int:
     n = len(data)
     done = store.open(record, inputs, n, restart=args.restart)
     outputs = {"columns": args.columns, "vtk": not args.no_vtk, "plot_every": 0 if args.no_plot else args.plot_every,
-               "mat": args.mat, "frame": [args.frame, args.origin, args.x_axis]}
+               "mat": args.mat, "frame": [args.frame, args.origin, args.x_axis], "overlay": not args.no_overlay,
+               "animate": args.animate}
     if done == n and store.outputs_written(outputs):
         print(f"{out}: all {n} states are done and written; nothing to do (--restart to run again)")
         return 0
@@ -244,7 +254,9 @@ def run(args) -> int:
         from stereodic.dice_columns import StereoDiceWriter
         dice = StereoDiceWriter(out, grid, data, settings, args.step)
     write_outputs(store, grid, out, settings, info, vtk=not args.no_vtk, plot_every=plot_every,
-                  dice=dice, csv=args.columns != "dice", state_files=not args.scheduler, labels=labels, frame=frame)
+                  dice=dice, csv=args.columns != "dice", state_files=not args.scheduler, labels=labels, frame=frame,
+                  image_of=None if args.no_overlay else (lambda k: read_gray(data.left[k])),
+                  frame_name=f"{args.frame}'s frame", animate=tuple(filter(None, args.animate.split(","))))
     store.record_outputs(outputs)
     states = f"{active} points x {n} states"
     if args.columns == "dice":
@@ -259,6 +271,10 @@ def run(args) -> int:
     if not args.no_vtk:
         wrote(out / "vtk" / "states.pvd", f"ParaView collection of {n} states (state*.vtp)")
     if not args.no_plot:
-        wrote(out / "maps", "PNG maps of Z, displacements and strains per state")
+        wrote(out / "maps", f"PNG maps of Z, displacements and strains per state, in the {args.frame}'s frame, "
+                            f"one colour scale per quantity over the run"
+                            + ("" if args.no_overlay else ", beside their copy over the left image"))
+        for q in filter(None, args.animate.split(",")):
+            wrote(out / "maps" / f"{q}.mp4", f"{q} over the test")
     return 0
 

@@ -212,8 +212,9 @@ def _draw_over_image(ax, backdrop: Backdrop, values: np.ndarray, lo: float, hi: 
     if ok.any():
         step = np.nanmedian(np.hypot(*np.diff(np.stack([backdrop.x, backdrop.y], -1), axis=1).reshape(-1, 2).T)) \
             if values.shape[1] > 1 else 4.0
+        ax.figure.draw_without_rendering()                 # the constrained layout: the axes' final size
         width_pt = ax.get_window_extent().width * 72 / ax.figure.dpi
-        size = (max(step, 1.0) * width_pt / img.shape[1]) ** 2
+        size = (1.15 * max(step, 1.0) * width_pt / img.shape[1]) ** 2   # squares that touch
         ax.scatter(backdrop.x[ok], backdrop.y[ok], c=values[ok], s=size, marker="s", cmap=cmap, vmin=lo, vmax=hi,
                    alpha=0.55, linewidths=0)
     ax.set_xlim(-0.5, img.shape[1] - 0.5)

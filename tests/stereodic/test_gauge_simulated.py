@@ -62,6 +62,6 @@ def test_tilted_plate_in_the_specimen_frame(tmp_path):
     dz = np.array([float(r["dZ"]) for r in rows])
     px = np.array([[float(r["x_px"]), float(r["y_px"])] for r in rows])
     true_dz = frame.rotate(truth_at_pixels(truth, px)["displacement"][3])[:, 2]
-    assert true_dz.max() > 0.25 and np.sqrt(np.nanmean((dz - true_dz) ** 2)) < 0.01
+    assert true_dz.max() > 0.25 and np.sqrt(np.nanmean((dz - true_dz) ** 2)) < fov / 10000   # the bulge
     mat = loadmat(run / "dic.mat")
     assert np.allclose(mat["points"], np.load(run / "dic.npz")["points"], equal_nan=True)
