@@ -285,6 +285,32 @@ def check_prefilter(args) -> None:
         raise InputError("--prefilter", f"must be >= 0, got {args.prefilter}")
 
 
+def add_frame_options(p: argparse.ArgumentParser, rig: str) -> None:
+    """--frame rig|specimen, --origin X,Y and --x-axis X0,Y0,X1,Y1 (the specimen's frame: the best-fit
+    plane of the reference shape, `stereodic.gauge.frame`); `rig` says what "rig" means for the command."""
+    p.add_argument("--frame", choices=["rig", "specimen"], default="rig",
+                   help=f"rig: {rig} (default); specimen: the best-fit plane of the reference shape, x along the "
+                        f"left image's columns (or --x-axis), z towards the cameras (recorded in the outputs)")
+    p.add_argument("--origin", type=parse_floats, metavar="X,Y",
+                   help="with --frame specimen: the origin's pixel in the left reference image (default: centroid)")
+    p.add_argument("--x-axis", type=parse_floats, metavar="X0,Y0,X1,Y1",
+                   help="with --frame specimen: the x axis's direction, two pixels of the left reference image")
+
+
+def frame_options(args) -> tuple[tuple[float, float] | None, tuple[float, float]]:
+    """(origin pixel or None, x direction in pixels) of `add_frame_options`' options; InputError naming
+    the option when they do not fit."""
+    from calib.errors import InputError
+    if (args.origin or args.x_axis) and args.frame != "specimen":
+        raise InputError("--origin/--x-axis", "go with --frame specimen")
+    if args.origin is not None and len(args.origin) != 2:
+        raise InputError("--origin", f"needs X,Y pixels, got {args.origin}")
+    if args.x_axis is not None and len(args.x_axis) != 4:
+        raise InputError("--x-axis", f"needs X0,Y0,X1,Y1 pixels, got {args.x_axis}")
+    x = args.x_axis
+    return (tuple(args.origin) if args.origin else None), ((x[2] - x[0], x[3] - x[1]) if x else (1.0, 0.0))
+
+
 def add_scheduler_option(p: argparse.ArgumentParser, tasks: str) -> None:
     """--scheduler ADDRESS|local[:N]: run the `tasks` (what they are: "states", "scans") on a Dask
     cluster (stereodic.cluster; docs/cluster.md)."""

@@ -11,7 +11,7 @@ Z, displacements and strains per state).
 from __future__ import annotations
 
 from stereodic.cli.common import (add_grid_options, add_input, add_output, add_prefilter_option, add_scheduler_option,
-                                  check_prefilter, dic_grid, parse_floats, parse_ints)
+                                  add_frame_options, check_prefilter, dic_grid, frame_options, parse_ints)
 
 
 def register(sub):
@@ -66,14 +66,7 @@ def register(sub):
                         "DIR/DICe_solution_stereo_<k>.txt, right camera) instead of dic.csv")
     p.add_argument("--restart", action="store_true",
                    help="discard a run already in the output folder (default: resume it)")
-    p.add_argument("--frame", choices=["rig", "specimen"], default="rig",
-                   help="the frame of X, Y, Z, displacements and strains: rig (the rig's world frame, default) or "
-                        "specimen (the best-fit plane of the reference shape, x along the left image's columns or "
-                        "--x-axis, z towards the cameras; recorded in dic.npz's meta)")
-    p.add_argument("--origin", type=parse_floats, metavar="X,Y",
-                   help="with --frame specimen: the origin's pixel in the left reference image (default: centroid)")
-    p.add_argument("--x-axis", type=parse_floats, metavar="X0,Y0,X1,Y1",
-                   help="with --frame specimen: the x axis's direction, two pixels of the left reference image")
+    add_frame_options(p, "the frame of X, Y, Z, displacements and strains is the rig's world frame")
     p.add_argument("--mat", action="store_true", help="also write DIR/dic.mat: dic.npz's arrays as a MATLAB file")
     p.add_argument("--no-vtk", action="store_true", help="skip the VTK files")
     p.add_argument("--no-plot", action="store_true", help="skip the PNG maps")
@@ -108,12 +101,7 @@ def _settings(args):
     unknown = set(filter(None, args.animate.split(","))) - {"Z", "dX", "dY", "dZ", "exx", "eyy", "exy"}
     if unknown:
         raise InputError("--animate", f"no map of {', '.join(sorted(unknown))} (Z, dX, dY, dZ, exx, eyy, exy)")
-    if (args.origin or args.x_axis) and args.frame != "specimen":
-        raise InputError("--origin/--x-axis", "go with --frame specimen")
-    if args.origin is not None and len(args.origin) != 2:
-        raise InputError("--origin", f"needs X,Y pixels, got {args.origin}")
-    if args.x_axis is not None and len(args.x_axis) != 4:
-        raise InputError("--x-axis", f"needs X0,Y0,X1,Y1 pixels, got {args.x_axis}")
+    frame_options(args)
     disparity = None
     if args.disparity:
         disparity = tuple(parse_ints(args.disparity, 2, "--disparity"))
@@ -240,9 +228,8 @@ def run(args) -> int:
     frame = None
     if args.frame == "specimen":
         from stereodic.dic3d.frame import SpecimenStates
-        x = args.x_axis
-        frame = SpecimenStates(state0, settings, origin_px=args.origin,
-                               x_direction_px=(x[2] - x[0], x[3] - x[1]) if x else (1.0, 0.0))
+        origin, x_dir = frame_options(args)
+        frame = SpecimenStates(state0, settings, origin_px=origin, x_direction_px=x_dir)
         info["frame"] = frame.frame.record()
     else:
         info["frame"] = {"frame": "rig"}

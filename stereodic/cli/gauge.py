@@ -11,7 +11,7 @@ and stress_strain.png.
 
 from __future__ import annotations
 
-from stereodic.cli.common import add_input, add_output, parse_floats
+from stereodic.cli.common import add_frame_options, add_input, add_output, parse_floats
 
 
 def register(sub):
@@ -35,12 +35,7 @@ def register(sub):
               help="gauges from a JSON file (format stereodic.gauges/1, as DIR/gauge.json's `gauges`)")
     p.add_argument("--line-states", type=parse_floats, metavar="K,K,...",
                    help="the states the lines are profiled at (default: all, or 11 spread over a longer test)")
-    p.add_argument("--frame", choices=["rig", "specimen"], default="rig",
-                   help="rig: the rig's world frame (default); specimen: the best-fit plane of the reference "
-                        "shape, x along the image's columns (or --x-axis), z towards the cameras")
-    p.add_argument("--origin", type=parse_floats, metavar="X,Y", help="with --frame specimen: the origin's pixel (default: centroid)")
-    p.add_argument("--x-axis", type=parse_floats, metavar="X0,Y0,X1,Y1",
-                   help="with --frame specimen: the x axis's direction, two pixels of the left reference image")
+    add_frame_options(p, "the frame the result was saved in (the rig's world frame, or the specimen's)")
     p.add_argument("--remove-rigid", action="store_true",
                    help="also give each state's deformation-only displacement dX_def, dY_def, dZ_def (stereo)")
     p.add_argument("--scale", type=float, metavar="MM_PER_PX",
@@ -198,29 +193,18 @@ def run(args) -> int:
     from pathlib import Path
 
     from calib.errors import InputError
-    from stereodic.cli.common import wrote
+    from stereodic.cli.common import frame_options, wrote
     from stereodic.gauge import files, load as ld, plots
     from stereodic.gauge.gauges import measure_gauges
     from stereodic.gauge.result import open_gauge_result
 
-    origin = x_dir = None
-    if args.origin:
-        origin = tuple(args.origin)
-        if len(origin) != 2:
-            raise InputError("--origin", f"needs X,Y pixels, got {args.origin!r}")
-    if args.x_axis:
-        v = args.x_axis
-        if len(v) != 4:
-            raise InputError("--x-axis", f"needs X0,Y0,X1,Y1 pixels, got {args.x_axis!r}")
-        x_dir = (v[2] - v[0], v[3] - v[1])
-    if (origin or x_dir) and args.frame != "specimen":
-        raise InputError("--origin/--x-axis", "go with --frame specimen")
+    origin, x_dir = frame_options(args)
     if args.section is not None and not args.load:
         raise InputError("--section", "needs --load (the force)")
     line_states = None
     if args.line_states:
         line_states = [int(v) for v in args.line_states]
-    result = open_gauge_result(args.result, frame=args.frame, origin_px=origin, x_direction_px=x_dir or (1.0, 0.0),
+    result = open_gauge_result(args.result, frame=args.frame, origin_px=origin, x_direction_px=x_dir,
                                remove_rigid=args.remove_rigid, scale_mm_per_px=args.scale, window=args.window,
                                measure=args.measure)
     gauges = _gauges(args)

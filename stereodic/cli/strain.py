@@ -10,7 +10,7 @@ memory at a time (stereodic.strain_results).
 from __future__ import annotations
 
 
-from stereodic.cli.common import add_input, add_output
+from stereodic.cli.common import add_frame_options, add_input, add_output
 
 
 def register(sub):
@@ -24,9 +24,7 @@ def register(sub):
                    help="strain fitted over N x N grid points, odd (default: the run's own, else 5)")
     p.add_argument("--measure", choices=MEASURES, default="green-lagrange",
                    help="strain measure (default green-lagrange)")
-    p.add_argument("--frame", choices=["rig", "specimen"], default="rig",
-                   help="the axes of a stereo result's strains: rig (as the result was saved, default) or specimen "
-                        "(the best-fit plane of the reference shape, x along the left image's columns)")
+    add_frame_options(p, "a stereo result's strains in the axes it was saved in")
     add_output(p, kind="dir", metavar="DIR", help="output folder")
     p.add_argument("--no-plot", action="store_true", help="skip the PNG maps")
     p.set_defaults(func=run)
@@ -42,13 +40,14 @@ def run(args) -> int:
     from calib.errors import InputError
     from calib.npz_stream import write_stacked_npz
     from calib.progress import progress
-    from stereodic.cli.common import wrote
+    from stereodic.cli.common import frame_options, wrote
     from stereodic.dic.maps import save_map
     from stereodic.dic.output import STRAIN_COLUMNS, fmt
     from stereodic.strain_results import map_axes, open_result, specimen_frame_of, state_labels, strains
 
     result = open_result(args.result)
-    frame = specimen_frame_of(result) if args.frame == "specimen" else None
+    origin, x_dir = frame_options(args)
+    frame = specimen_frame_of(result, origin_px=origin, x_direction_px=x_dir) if args.frame == "specimen" else None
     own = (result.meta.get("settings", {}).get("strain_window") if result.kind == "dic" else None)
     window = args.window or own or 5
     if window < 3 or window % 2 == 0:
