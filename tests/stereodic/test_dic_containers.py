@@ -95,3 +95,29 @@ def test_dic2d_mat_holds_the_npz_arrays(tmp_path):
             assert np.array_equal(a.reshape(b.shape), b, equal_nan=b.dtype.kind == "f"), key
     assert "stereodic.dic2d/1" in str(mat["meta"][0])
     assert np.allclose(np.nanmedian(mat["u"], axis=(1, 2)), [s[0] for s in SHIFTS], atol=0.05)
+
+
+@pytest.mark.slow
+def test_stereo_dic_from_two_videos_and_a_side_by_side_stream(dic_sim, tmp_path):
+    """The simulated stereo states as two lossless videos, and as one side-by-side stream: the same
+    results as the dataset's PNG files, and the frames' timestamps recorded for the load."""
+    import json
+
+    from calib.imageio import read_gray
+    states = sorted(dic_sim.glob("s0*"))
+    pairs = [(read_gray(s / "cam0.png"), read_gray(s / "cam1.png")) for s in states]
+    _video(tmp_path / "left.avi", [p[0] for p in pairs], "FFV1")
+    _video(tmp_path / "right.avi", [p[1] for p in pairs], "FFV1")
+    _video(tmp_path / "both.avi", [np.hstack(p) for p in pairs], "FFV1")
+    rig, opts = str(dic_sim / "rig.npz"), ["--no-vtk", "--no-plot", "--subset", "21", "--step", "10"]
+    assert main(["dic", rig, str(dic_sim), *opts, "-o", str(tmp_path / "png")]) == 0
+    assert main(["dic", rig, "--left", str(tmp_path / "left.avi"), "--right", str(tmp_path / "right.avi"), *opts,
+                 "-o", str(tmp_path / "two")]) == 0
+    assert main(["dic", rig, "--left", f"{tmp_path / 'both.avi'}:left", "--right", f"{tmp_path / 'both.avi'}:right",
+                 *opts, "-o", str(tmp_path / "sbs")]) == 0
+    with np.load(tmp_path / "png" / "dic.npz") as ref:
+        for run in ("two", "sbs"):
+            with np.load(tmp_path / run / "dic.npz") as z:
+                assert np.array_equal(z["points"], ref["points"], equal_nan=True), run
+                meta = json.loads(str(z["meta"]))
+                assert np.allclose(meta["state_times_s"], np.arange(len(states)) / 10)

@@ -70,3 +70,22 @@ def test_gauge_command_joins_the_load_and_fits_the_modulus(tmp_path, capsys):
     assert abs(record["load"]["modulus_mpa"] / E_MPA - 1) < 0.01
     assert (tmp_path / "g" / "stress_strain.png").is_file() and (tmp_path / "g" / "stress_strain.csv").is_file()
     assert "modulus" in capsys.readouterr().out
+
+
+def test_bad_gauges_and_loads_are_one_line_and_write_nothing(tmp_path, capsys):
+    gc.write_tension_result(tmp_path / "dic.npz", nx=21, ny=11)
+    (tmp_path / "machine.csv").write_text("t,F\n0,1\n1,2\n")
+    inside = _px(-5, 0)
+    cases = [(["--extensometer", f"E1={inside},5,5"], "--extensometer E1: (5, 5) px lies outside the measured area"),
+             (["--area", "A=0,0;3,0;3,3"], "--area A: the polygon holds no measured grid point"),
+             (["--point", inside, "--load", str(tmp_path / "machine.csv")], "machine.csv: has no force column"),
+             (["--point", inside, "--load", str(tmp_path / "machine.csv"), "--load-force", "Kraft"],
+              "machine.csv: has no column 'Kraft'"),
+             (["--point", "1,2,3"], "--point: '1,2,3': needs X,Y"),
+             ([], "give at least one gauge")]
+    for k, (extra, message) in enumerate(cases):
+        out = tmp_path / f"out{k}"
+        assert main(["gauge", str(tmp_path / "dic.npz"), *extra, "-o", str(out)]) == 2, extra
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0], (err, message)
+        assert not out.exists() or not any(out.iterdir())
