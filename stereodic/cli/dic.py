@@ -215,7 +215,7 @@ def run(args) -> int:
                             functools.partial(_summary, n=active))
         with connect(args.scheduler) as client:
             state0 = run_states_on(client, store, data, spec, csv=args.columns != "dice", vtk=not args.no_vtk,
-                                   plot_every=plot_every, labels=labels)
+                                   plot_every=0, labels=labels)    # the maps need the run's scales: drawn after
     else:
         state0 = run_states(store, data, rig, grid, seeds, settings, report=lambda st: note(_summary(st, active)))
     c0 = state0.left.ok & state0.right.ok         # matched, whether or not the rays meet
