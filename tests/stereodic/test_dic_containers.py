@@ -139,3 +139,30 @@ def test_dic2d_of_a_cine_keeps_its_timestamps_for_the_load(tmp_path):
     with open(tmp_path / "g" / "load.csv") as f:
         force = [float(r["force_n"]) for r in csv.DictReader(f)]
     assert np.allclose(force, [0, 0, 50, 100, 150], atol=1e-3)     # the reference, then frames 0..3
+
+
+@pytest.mark.slow
+def test_2000_frames_from_a_video_and_a_tiff_stack_equal_the_png_folder(tmp_path):
+    """The issue's case: 2,000 frames (the speckle shifted a little more each frame) as PNG files, a
+    multi-page TIFF and a lossless video: the same dic2d CSV, byte for byte."""
+    from scipy import ndimage
+    rng = np.random.default_rng(5)
+    base = ndimage.gaussian_filter(rng.random((48, 64)), 2.0, mode="wrap")
+    base = 20 + 215 * (base - base.min()) / np.ptp(base)
+    frames = [ndimage.shift(base, (0, 0.001 * k), order=3, mode="wrap").round().astype(np.uint8) for k in range(2000)]
+    (tmp_path / "png").mkdir()
+    for k, f in enumerate(frames):
+        write_gray(tmp_path / "png" / f"f{k:04d}.png", f)
+    with tifffile.TiffWriter(tmp_path / "stack.tif") as tw:
+        for f in frames:
+            tw.write(f, photometric="minisblack", contiguous=False)
+    _video(tmp_path / "lossless.avi", frames, "FFV1")
+    opts = ["--subset", "21", "--step", "16"]
+    assert main(["dic2d", str(tmp_path / "png" / "f0000.png"), str(tmp_path / "png" / "f*.png"), *opts,
+                 "-o", str(tmp_path / "png.csv")]) == 0
+    for name in ("stack.tif", "lossless.avi"):
+        assert main(["dic2d", f"{tmp_path / name}::0", str(tmp_path / name), *opts,
+                     "-o", str(tmp_path / f"{name}.csv")]) == 0
+        assert (tmp_path / f"{name}.csv").read_bytes() == (tmp_path / "png.csv").read_bytes(), name
+    u = _uv(tmp_path / "png.csv")[:, 0].reshape(2000, -1)
+    assert abs(np.nanmedian(u[-1]) - 1.999) < 0.05
