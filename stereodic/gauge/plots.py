@@ -32,6 +32,13 @@ def _x(tables: GaugeTables, times_s):
     return (np.arange(S), "state") if times_s is None else (np.asarray(times_s), "time (s)")
 
 
+def _state_ticks(ax, times_s) -> None:
+    """Whole states on a state axis."""
+    if times_s is None:
+        from matplotlib.ticker import MaxNLocator
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+
+
 def _displacements(tables: GaugeTables) -> list[str]:
     return [q for q in ("dX", "dY", "dZ", "dX_def", "dY_def", "dZ_def", "u", "v") if q in tables.units
             and not (q in ("u", "v") and "dX" in tables.units)]
@@ -47,6 +54,7 @@ def plot_extensometers(path: str | os.PathLike, tables: GaugeTables, times_s=Non
         L0 = e.length[0]
         ax.plot(x, e.strain * 1e6, ".-", label=f"{e.gauge.name} (L0 {L0:.4g} {tables.unit})")
     ax.set_xlabel(xl)
+    _state_ticks(ax, times_s)
     ax.set_ylabel("engineering strain dL/L0 (microstrain)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
@@ -74,6 +82,7 @@ def _history(path: Path, tables: GaugeTables, series, title: str, times_s, band:
     ax_d.set_ylabel(f"displacement ({unit})")
     ax_e.set_ylabel("strain (microstrain)")
     ax_e.set_xlabel(xl)
+    _state_ticks(ax_e, times_s)
     for ax in (ax_d, ax_e):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, ncol=3)
