@@ -97,7 +97,8 @@ def run(args) -> int:
     from calib.sequences import frame_times
     from stereodic.cli.common import dic_grid, wrote
     from stereodic.dic import DicSettings, correlate_sequence
-    from stereodic.dic.output import CsvWriter, image_arrays, plot_field, write_npz
+    from stereodic.dic.maps import RunScales
+    from stereodic.dic.output import CsvWriter, image_arrays, image_maps, plot_image, write_npz
     if args.strain_window:  # strain (and its scipy) only when asked for
         from stereodic.strain import strain_2d
         from stereodic.strain_measures import measure_strain
@@ -122,6 +123,7 @@ def run(args) -> int:
 
     has_strain = bool(args.strain_window)
     act = grid.active.ravel()
+    scales = RunScales(floor={c: 100.0 for c in ("exx", "eyy", "exy")})
     cluster = contextlib.nullcontext()
     if args.scheduler:
         from stereodic.cluster import connect
@@ -154,14 +156,21 @@ def run(args) -> int:
                                header(args.ref, str(defs[k]), args.subset, args.step, args.shape,
                                       "true" if args.incremental else "false",
                                       gauge_px(args.strain_window, args.step, args.subset)), cols)
-            if args.npz or args.mat:
-                save_npz(Path(tmp) / f"{k}.npz", **image_arrays(f, m))
-            if args.plot:
-                plot_field(args.plot, k, f, m, Path(defs[k]).name)
+            if args.npz or args.mat or args.plot:
+                arrays = image_arrays(f, m)
+                save_npz(Path(tmp) / f"{k}.npz", **arrays)
+                if args.plot:
+                    for q, (values, _, _) in image_maps(arrays).items():
+                        scales.add(q, values, signed=q != "zncc", active=grid.active)
             n_ok = int(f.ok.sum())
             note(f"image {k} ({defs[k]}): {n_ok}/{int(grid.active.sum())} points converged, "
                  f"mean u {fixed(np.nanmean(f.u) if n_ok else np.nan, 4)} px, "
                  f"mean v {fixed(np.nanmean(f.v) if n_ok else np.nan, 4)} px")
+        if args.plot:      # after every image: the maps share the run's colour scale per quantity
+            for k in progress(range(len(defs)), "maps", total=len(defs), unit="image"):
+                with np.load(Path(tmp) / f"{k}.npz") as z:
+                    plot_image(args.plot, k, dict(z), grid, Path(defs[k]).name, args.measure if has_strain else None,
+                               scales=scales, image=read(defs[k]))
         if args.npz or args.mat:
             def values(key):
                 for k in range(len(defs)):
@@ -185,5 +194,6 @@ def run(args) -> int:
     if args.mat:
         wrote(args.mat, "the same arrays as a MATLAB file")
     if args.plot:
-        wrote(args.plot, f"PNG maps of u, v, zncc{' and strains' if has_strain else ''} per deformed image")
+        wrote(args.plot, f"PNG maps of u, v, zncc{' and strains' if has_strain else ''} per deformed image, one "
+                         f"colour scale per quantity, beside their copy over the image")
     return 0

@@ -145,11 +145,12 @@ class RunScales:
 @dataclass(frozen=True)
 class Backdrop:
     """The state's original left image (H, W) and where each grid point is in it, x, y (ny, nx) pixels
-    (NaN where not seen), for the map over the image."""
+    (NaN where not seen), for the map over the image; `label` names the image in the panel's title."""
 
     image: np.ndarray
     x: np.ndarray
     y: np.ndarray
+    label: str = "the left camera's image of the state"
     _cache: dict = field(default_factory=dict, compare=False, repr=False)
 
     def raster(self, values: np.ndarray) -> tuple[np.ndarray, tuple[float, float, float, float]]:
@@ -176,9 +177,10 @@ class Backdrop:
             v0, v1, v2 = b - a, e - a, cells - a
             d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
             d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
-            den = np.where(found >= 0, d00 * d11 - d01 * d01, 1.0)
-            wb, we = (d11 * d20 - d01 * d21) / den, (d00 * d21 - d01 * d20) / den
-            inside = (found >= 0) & (tree.query(cells)[0] <= 1.5 * spacing)
+            den = d00 * d11 - d01 * d01
+            inside = (found >= 0) & (np.abs(den) > 1e-12 * d00 * d11) & (tree.query(cells)[0] <= 1.5 * spacing)
+            den = np.where(inside, den, 1.0)                              # a flat triangle: outside
+            wb, we = np.where(inside, (d11 * d20 - d01 * d21) / den, 0), np.where(inside, (d00 * d21 - d01 * d20) / den, 0)
             c.update(ok=ok, shape=gx.shape, vertices=vertices, weights=np.column_stack([1 - wb - we, wb, we]),
                      inside=inside, extent=(-r / 2, gx[0, -1] + r / 2, gy[-1, 0] + r / 2, -r / 2))
         v = values[ok]
@@ -250,9 +252,9 @@ def _draw_over_image(ax, backdrop: Backdrop, values: np.ndarray, lo: float, hi: 
                   extent=extent)
     ax.set_xlim(-0.5, img.shape[1] - 0.5)
     ax.set_ylim(img.shape[0] - 0.5, -0.5)
-    ax.set_xlabel("x (px, left image)")
+    ax.set_xlabel("x (px)")
     ax.set_ylabel("y (px)")
-    ax.set_title("over the left camera's image of the state", fontsize=9)
+    ax.set_title(f"over {backdrop.label}", fontsize=9)
 
 
 def save_map(path: str | os.PathLike, values: np.ndarray, axes: MapAxes, *, title: str, quantity: str,
