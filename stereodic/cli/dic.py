@@ -11,7 +11,7 @@ Z, displacements and strains per state).
 from __future__ import annotations
 
 from stereodic.cli.common import (add_grid_options, add_input, add_output, add_prefilter_option, add_scheduler_option,
-                                  check_prefilter, dic_grid, parse_ints)
+                                  add_frame_options, check_prefilter, dic_grid, frame_options, parse_ints)
 
 
 def register(sub):
@@ -25,7 +25,9 @@ def register(sub):
     add_input(p, "dataset", kind="dataset", metavar="DATASET", nargs="?",
               help="folder (or capture.json) of a kind 'dic' dataset")
     add_input(p, "--left", kind="pattern", what="image", metavar="PATTERN",
-              help="the left camera's images: a shell-style pattern (quote it), natural order")
+              help="the left camera's images: a shell-style pattern (quote it), natural order; or a video, TIFF "
+                   "stack, .cine or .mraw (every frame a state; VIDEO:left for the left half of a side-by-side "
+                   "stream)")
     add_input(p, "--right", kind="pattern", what="image", metavar="PATTERN", help="the right camera's images, likewise")
     add_input(p, "--images", kind="dir", what="image", metavar="DIR",
               help="a folder of image pairs NAME<left suffix>.tif / NAME<right suffix>.tif (DICe's and VIC-3D's "
@@ -77,8 +79,21 @@ def register(sub):
                         "DIR/DICe_solution_stereo_<k>.txt, right camera) instead of dic.csv")
     p.add_argument("--restart", action="store_true",
                    help="discard a run already in the output folder (default: resume it)")
+    add_frame_options(p, "the frame of X, Y, Z, displacements and strains is the rig's world frame")
+    p.add_argument("--remove-rigid", action="store_true",
+                   help="also write each state's displacement less its rigid motion (dX_def, dY_def, dZ_def; "
+                        "dic.npz's deformation), in the reporting frame")
+    p.add_argument("--mat", action="store_true", help="also write DIR/dic.mat: dic.npz's arrays as a MATLAB file")
     p.add_argument("--no-vtk", action="store_true", help="skip the VTK files")
     p.add_argument("--no-plot", action="store_true", help="skip the PNG maps")
+    p.add_argument("--no-overlay", action="store_true",
+                   help="maps without their copy over the state's left image")
+    p.add_argument("--animate", metavar="Q[,Q...]", default="",
+                   help="also write DIR/maps/<Q>.mp4, the maps of these quantities over the test (Z, dX, dY, dZ, "
+                        "exx, eyy, exy)")
+    p.add_argument("--limits", action="append", default=[], metavar="Q=LO,HI",
+                   help="fix a map's colour limits (e.g. exx=-5000,5000 in microstrain, dZ=-0.1,0.1 in mm) instead "
+                        "of the run's 1st-99th percentiles; repeat for more quantities")
     p.add_argument("--plot-every", type=int, default=1, metavar="N",
                    help="PNG maps of every N-th state only (default 1: all)")
     add_scheduler_option(p, "states (a chain: one state after the other) and their maps")
@@ -102,6 +117,12 @@ def _settings(args):
     if not args.max_gap > 0:
         raise InputError("--max-gap", f"must be > 0 rows, got {args.max_gap}")
     check_prefilter(args)
+    maps = {"Z", "dX", "dY", "dZ", "exx", "eyy", "exy"} | ({"dX_def", "dY_def", "dZ_def"} if args.remove_rigid else set())
+    unknown = set(filter(None, args.animate.split(","))) - maps
+    if unknown:
+        raise InputError("--animate", f"no map of {', '.join(sorted(unknown))} ({', '.join(sorted(maps))})")
+    frame_options(args)
+    _limits(args, maps)
     disparity = None
     if args.disparity:
         disparity = tuple(parse_ints(args.disparity, 2, "--disparity"))
@@ -111,6 +132,22 @@ def _settings(args):
                       prefilter_sigma=args.prefilter)
     return StereoSettings(dic, disparity, args.strain_window or None, args.incremental, max_gap_px=args.max_gap,
                           switch_zncc=args.switch_zncc, strain_measure=args.measure)
+
+
+def _limits(args, maps: set[str]) -> dict[str, tuple[float, float]]:
+    """--limits Q=LO,HI as {quantity: (lo, hi)}; InputError naming the option when one does not fit."""
+    from calib.errors import InputError
+    out = {}
+    for text in args.limits:
+        name, _, values = text.partition("=")
+        try:
+            lo, hi = (float(v) for v in values.split(","))
+        except ValueError:
+            raise InputError("--limits", f"{text!r}: needs Q=LO,HI (two numbers)") from None
+        if name not in maps or not lo < hi:
+            raise InputError("--limits", f"{text!r}: needs a map's quantity ({', '.join(sorted(maps))}) and LO < HI")
+        out[name] = (lo, hi)
+    return out
 
 
 def _states(args, rig):
@@ -183,6 +220,8 @@ def run(args) -> int:
     import numpy as np
 
     from calib.progress import note
+    from calib.imageio import read_gray
+    from calib.sequences import frame_times
     from stereodic.cli.common import wrote
     from stereodic.dic3d import epipolar
     from stereodic.dic3d.refit import reference_geometry
@@ -219,7 +258,10 @@ def run(args) -> int:
         save_rig(rig_path, rig)
         rig_sha = file_sha256(rig_path)
         wrote(rig_path, "the rig with its right camera re-oriented from the reference pair")
-    outputs = {"columns": args.columns, "vtk": not args.no_vtk, "plot_every": 0 if args.no_plot else args.plot_every}
+    outputs = {"columns": args.columns, "vtk": not args.no_vtk, "plot_every": 0 if args.no_plot else args.plot_every,
+               "mat": args.mat, "frame": [args.frame, args.origin, args.x_axis, args.remove_rigid],
+               "overlay": not args.no_overlay,
+               "animate": args.animate, "limits": args.limits}
     if done == n and store.outputs_written(outputs):
         print(f"{out}: all {n} states are done and written; nothing to do (--restart to run again)")
         return 0
@@ -244,7 +286,7 @@ def run(args) -> int:
         spec = RunSpec.make(str(rig_path), rig_sha, out, data, grid, seeds, settings, summary)
         with connect(args.scheduler) as client:
             state0 = run_states_on(client, store, data, spec, csv=args.columns != "dice", vtk=not args.no_vtk,
-                                   plot_every=plot_every, labels=labels)
+                                   plot_every=0, labels=labels)    # the maps need the run's scales: drawn after
         nothing_measured(state0)
     else:
         def report(st):
@@ -268,12 +310,26 @@ def run(args) -> int:
                   f"has a camera moved since the calibration?", file=sys.stderr)
     info = {"rig": str(rig_path), "dataset": data.source, "world_from_rig": rig.world_from_rig.tolist(),
             "state_labels": labels, "rig_notes": geometry.notes}
+    frame = None
+    info["frame"] = {"frame": "rig", "rigid_motion_removed": False}
+    if args.frame == "specimen" or args.remove_rigid:
+        from stereodic.dic3d.frame import ReportingFrame
+        origin, x_dir = frame_options(args)
+        frame = ReportingFrame(state0, settings, specimen=args.frame == "specimen", remove_rigid=args.remove_rigid,
+                               origin_px=origin, x_direction_px=x_dir)
+        info["frame"] = frame.record()
+    times = frame_times(data.left)            # the frames' own timestamps (a video, .cine, .mraw): for loads
+    if times is not None:
+        info["state_times_s"] = times
     dice = None
     if args.columns == "dice":
         from stereodic.formats.dice_columns import StereoDiceWriter
         dice = StereoDiceWriter(out, grid, data, settings, args.step)
     write_outputs(store, grid, out, settings, info, vtk=not args.no_vtk, plot_every=plot_every,
-                  dice=dice, csv=args.columns != "dice", state_files=not args.scheduler, labels=labels)
+                  dice=dice, csv=args.columns != "dice", state_files=not args.scheduler, labels=labels, frame=frame,
+                  image_of=None if args.no_overlay else (lambda k: read_gray(data.left[k])),
+                  frame_name=f"{args.frame}'s frame", animate=tuple(filter(None, args.animate.split(","))),
+                  limits=_limits(args, {*"Z dX dY dZ exx eyy exy dX_def dY_def dZ_def".split()}))
     store.record_outputs(outputs)
     states = f"{active} points x {n} states"
     if args.columns == "dice":
@@ -281,9 +337,17 @@ def run(args) -> int:
     else:
         wrote(out / "dic.csv", f"one row per point and state ({states})")
     wrote(out / "dic.npz", "the same as arrays")
+    if args.mat:
+        from stereodic.dic.matfile import write_mat
+        write_mat(out / "dic.npz", out / "dic.mat")
+        wrote(out / "dic.mat", "dic.npz's arrays as a MATLAB file")
     if not args.no_vtk:
         wrote(out / "vtk" / "states.pvd", f"ParaView collection of {n} states (state*.vtp)")
     if not args.no_plot:
-        wrote(out / "maps", "PNG maps of Z, displacements and strains per state")
+        wrote(out / "maps", f"PNG maps of Z, displacements and strains per state, in the {args.frame}'s frame, "
+                            f"one colour scale per quantity over the run"
+                            + ("" if args.no_overlay else ", beside their copy over the left image"))
+        for q in filter(None, args.animate.split(",")):
+            wrote(out / "maps" / f"{q}.mp4", f"{q} over the test")
     return 0
 

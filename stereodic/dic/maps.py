@@ -8,12 +8,19 @@ carry, never "-0"). The title adds the median, the range of the middle 90 % (5th
 how many of the grid's active points (its ROI and mask) were measured; the map shows the active points'
 extent. The colour range spans the 1st-99th percentile (arrows on the bar where values go beyond);
 a range across zero is centred on zero with a diverging colour map.
+
+Over a run (`RunScales`), each quantity keeps one colour map and one range for every state, so that
+states compare by eye: a change (displacement, strain) a diverging map centred on zero, spanning the
+largest 1st-99th percentile magnitude of any state; a position or score viridis over the run's range.
+With a `Backdrop` the map is drawn twice, plain and over the state's original left image
+(semi-transparent, each point where the camera saw it). `MapMovie` writes a quantity's maps over the
+run as an MP4 video.
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -88,13 +95,102 @@ def _decimals(step: float) -> int:
     return 6
 
 
-def save_map(path: str | os.PathLike, values: np.ndarray, axes: MapAxes, *, title: str, quantity: str,
-             unit: str, decimals: int, signed: bool = True) -> None:
-    """One map (matplotlib PNG, atomic) of `values` (ny, nx; NaN where not measured, left blank) on
-    `axes`; `title` names the load case, `quantity` and `unit` label the colour bar ("exx",
-    "microstrain"; unit "" for a pure number), `decimals` is the precision of the title's figures;
-    `signed`: a change (displacement, strain) whose range across zero is centred on zero, not a
-    position or a score."""
+@dataclass(frozen=True)
+class ColourScale:
+    """A quantity's colour limits and map, fixed over a run."""
+
+    lo: float
+    hi: float
+    cmap: str
+
+
+class RunScales:
+    """The colour scales of a run's quantities (module docstring), gathered state by state: `add(name,
+    values, signed=...)` for every state's map, then `scale(name)`. `given` fixes a quantity's limits
+    (name -> (lo, hi), used as they are) instead of the run's percentiles; `floor` (name -> half-width) is the least range
+    (a quantity that stays at zero, such as the reference state's strain, still gets readable ticks)."""
+
+    def __init__(self, given: dict[str, tuple[float, float]] | None = None, floor: dict[str, float] | None = None):
+        self.given, self.floor = dict(given or {}), dict(floor or {})
+        self._range: dict[str, list[float]] = {}
+        self._signed: dict[str, bool] = {}
+
+    def add(self, name: str, values: np.ndarray, *, signed: bool, active: np.ndarray | None = None) -> None:
+        v = np.asarray(values, float)
+        v = v[np.isfinite(v) & (True if active is None else active)]
+        self._signed[name] = signed
+        if v.size:
+            lo, hi = np.percentile(v, [1, 99])
+            r = self._range.setdefault(name, [lo, hi])
+            r[0], r[1] = min(r[0], lo), max(r[1], hi)
+
+    def scale(self, name: str) -> ColourScale | None:
+        """The quantity's scale, or None if no state measured it."""
+        signed = self._signed.get(name, True)
+        if name in self.given:
+            lo, hi = self.given[name]
+            return ColourScale(lo, hi, "RdBu_r" if signed and lo < 0 < hi else "viridis")
+        elif name in self._range:
+            lo, hi = self._range[name]
+        else:
+            return None
+        if signed:
+            half = max(abs(lo), abs(hi), self.floor.get(name, 0.0))
+            return ColourScale(-half, half, "RdBu_r")
+        if hi <= lo:
+            lo, hi = lo - 1.0, hi + 1.0
+        return ColourScale(lo, hi, "viridis")
+
+
+@dataclass(frozen=True)
+class Backdrop:
+    """The state's original left image (H, W) and where each grid point is in it, x, y (ny, nx) pixels
+    (NaN where not seen), for the map over the image; `label` names the image in the panel's title."""
+
+    image: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    label: str = "the left camera's image of the state"
+    _cache: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def raster(self, values: np.ndarray) -> tuple[np.ndarray, tuple[float, float, float, float]]:
+        """(field, extent): `values` (ny, nx) interpolated linearly between the points where the camera
+        saw them (their Delaunay triangles) onto a raster of the image (cells half the grid's spacing;
+        NaN outside the triangles and farther than 1.5 spacings from any point), and the raster's extent
+        in image pixels (for imshow). The cells' triangles and weights are kept for the next quantity
+        measured at the same points."""
+        from matplotlib.tri import Triangulation
+        from scipy.spatial import cKDTree
+        ok = np.isfinite(values) & np.isfinite(self.x) & np.isfinite(self.y)
+        c = self._cache
+        if "ok" not in c or not np.array_equal(c["ok"], ok):
+            pts = np.column_stack([self.x[ok], self.y[ok]])
+            tree = cKDTree(pts)
+            spacing = float(np.median(tree.query(pts, k=2)[0][:, 1]))
+            r = max(1, int(spacing // 2))
+            gy, gx = np.mgrid[0:self.image.shape[0]:r, 0:self.image.shape[1]:r].astype(float)
+            cells = np.column_stack([gx.ravel(), gy.ravel()])
+            tri = Triangulation(pts[:, 0], pts[:, 1])
+            found = tri.get_trifinder()(cells[:, 0], cells[:, 1])       # matplotlib's trapezoid map: fast
+            vertices = tri.triangles[np.maximum(found, 0)]
+            a, b, e = (pts[vertices[:, i]] for i in range(3))
+            v0, v1, v2 = b - a, e - a, cells - a
+            d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
+            d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
+            den = d00 * d11 - d01 * d01
+            inside = (found >= 0) & (np.abs(den) > 1e-12 * d00 * d11) & (tree.query(cells)[0] <= 1.5 * spacing)
+            den = np.where(inside, den, 1.0)                              # a flat triangle: outside
+            wb, we = np.where(inside, (d11 * d20 - d01 * d21) / den, 0), np.where(inside, (d00 * d21 - d01 * d20) / den, 0)
+            c.update(ok=ok, shape=gx.shape, vertices=vertices, weights=np.column_stack([1 - wb - we, wb, we]),
+                     inside=inside, extent=(-r / 2, gx[0, -1] + r / 2, gy[-1, 0] + r / 2, -r / 2))
+        v = values[ok]
+        out = np.where(c["inside"], (v[c["vertices"]] * c["weights"]).sum(1), np.nan)
+        return out.reshape(c["shape"]), c["extent"]
+
+
+def map_figure(values: np.ndarray, axes: MapAxes, *, title: str, quantity: str, unit: str, decimals: int,
+               signed: bool = True, scale: ColourScale | None = None, backdrop: Backdrop | None = None):
+    """The matplotlib Figure of one map (`save_map`)."""
     from matplotlib.figure import Figure   # not pyplot: the caller's backend (a notebook's) stays as it is
     from matplotlib.ticker import FuncFormatter, MaxNLocator
 
@@ -115,9 +211,11 @@ def save_map(path: str | os.PathLike, values: np.ndarray, axes: MapAxes, *, titl
                    f"{fixed(p95, decimals)}; {finite.size} of {active.sum()} points measured")
     else:
         lo, hi, cmap, summary = -1.0, 1.0, "viridis", f"no point measured of {active.sum()}"
+    if scale is not None:
+        lo, hi, cmap = scale.lo, scale.hi, scale.cmap
     box = active_box(active)
-    fig = Figure(figsize=(7.2, 5.6), layout="constrained")
-    ax = fig.subplots()
+    fig = Figure(figsize=(7.2 if backdrop is None else 13.0, 5.6), layout="constrained")
+    ax, over = (fig.subplots(), None) if backdrop is None else fig.subplots(1, 2)
     im = ax.pcolormesh(axes.x[box], axes.y[box], np.ma.masked_invalid(np.where(active, values, np.nan)[box]),
                        shading="nearest", cmap=cmap, vmin=lo, vmax=hi)
     extend = {(False, False): "neither", (True, False): "min", (False, True): "max", (True, True): "both"}[
@@ -135,6 +233,73 @@ def save_map(path: str | os.PathLike, values: np.ndarray, axes: MapAxes, *, titl
         ax.invert_xaxis()
     if axes.flip_y:
         ax.invert_yaxis()
-    ax.set_title(f"{title}\n{summary}", fontsize=9.5)
+    if over is None:
+        ax.set_title(f"{title}\n{summary}", fontsize=9.5)
+    else:
+        _draw_over_image(over, backdrop, np.where(active, values, np.nan), lo, hi, cmap)
+        fig.suptitle(f"{title}\n{summary}", fontsize=9.5)
+    return fig
+
+
+def _draw_over_image(ax, backdrop: Backdrop, values: np.ndarray, lo: float, hi: float, cmap: str) -> None:
+    """The field over its image (`Backdrop.raster`), semi-transparent."""
+    img = np.asarray(backdrop.image, float)
+    ax.imshow(img, cmap="gray", vmin=np.percentile(img, 0.5), vmax=np.percentile(img, 99.5), interpolation="nearest")
+    ok = np.isfinite(values) & np.isfinite(backdrop.x) & np.isfinite(backdrop.y)
+    if ok.sum() >= 3:
+        field, extent = backdrop.raster(values)
+        ax.imshow(np.ma.masked_invalid(field), cmap=cmap, vmin=lo, vmax=hi, alpha=0.55, interpolation="nearest",
+                  extent=extent)
+    ax.set_xlim(-0.5, img.shape[1] - 0.5)
+    ax.set_ylim(img.shape[0] - 0.5, -0.5)
+    ax.set_xlabel("x (px)")
+    ax.set_ylabel("y (px)")
+    ax.set_title(f"over {backdrop.label}", fontsize=9)
+
+
+def save_map(path: str | os.PathLike, values: np.ndarray, axes: MapAxes, *, title: str, quantity: str,
+             unit: str, decimals: int, signed: bool = True, scale: ColourScale | None = None,
+             backdrop: Backdrop | None = None) -> None:
+    """One map (matplotlib PNG, atomic) of `values` (ny, nx; NaN where not measured, left blank) on
+    `axes`; `title` names the load case, `quantity` and `unit` label the colour bar ("exx",
+    "microstrain"; unit "" for a pure number), `decimals` is the precision of the title's figures;
+    `signed`: a change (displacement, strain) whose range across zero is centred on zero, not a
+    position or a score; `scale`: the run's colour limits and map (`RunScales`), else the map's own;
+    `backdrop`: also drawn over the state's original left image, beside the plain map."""
+    fig = map_figure(values, axes, title=title, quantity=quantity, unit=unit, decimals=decimals, signed=signed,
+                     scale=scale, backdrop=backdrop)
     with atomic_output(path) as tmp:
         fig.savefig(tmp, dpi=100)
+
+
+class MapMovie:
+    """A quantity's maps over a run as an MP4 video (OpenCV's mp4v codec), one frame per state written as
+    it comes (`add(figure)`), so that memory holds one frame; `close()` finishes the file (atomic)."""
+
+    def __init__(self, path: str | os.PathLike, *, fps: float = 4.0):
+        self.path, self.fps = path, fps
+        self._ctx = None
+        self._writer = None
+        self._size = None
+
+    def add(self, fig) -> None:
+        import cv2
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        canvas = FigureCanvasAgg(fig)
+        canvas.draw()
+        rgb = np.asarray(canvas.buffer_rgba())[..., :3]
+        if self._writer is None:
+            self._ctx = atomic_output(self.path, suffix=".mp4")
+            tmp = self._ctx.__enter__()
+            self._size = (rgb.shape[1] // 2 * 2, rgb.shape[0] // 2 * 2)
+            self._writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, self._size)
+        frame = np.zeros((self._size[1], self._size[0], 3), np.uint8)
+        h, w = min(rgb.shape[0], self._size[1]), min(rgb.shape[1], self._size[0])
+        frame[:h, :w] = rgb[:h, :w]
+        self._writer.write(np.ascontiguousarray(frame[..., ::-1]))
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.release()
+            self._ctx.__exit__(None, None, None)
+            self._writer = None

@@ -92,27 +92,45 @@ def image_arrays(f: DicField, m: StrainMeasure | None) -> dict[str, np.ndarray]:
 
 
 def write_npz(path: str | os.PathLike, grid, values: Callable[[str], Iterable[np.ndarray]], count: int,
-              has_strain: bool, settings: DicSettings, images: list[str], measure: str | None) -> None:
+              has_strain: bool, settings: DicSettings, images: list[str], measure: str | None,
+              times_s: list[float] | None = None) -> None:
     """Arrays x (nx,), y (ny,), active (ny, nx) and u, v, zncc, status, noise_px (n_images, ny, nx)
     [+ exx, eyy, exy, strain_valid, e_major, e_minor, e_angle, e_vm]; meta: JSON with the settings, image
-    names, strain measure and status names. `values(key)` iterates one array's per-image values."""
+    names, strain measure and status names [, state_times_s: the reference's and each deformed image's
+    timestamp, seconds, where the files record them (`calib.sequences`)]. `values(key)` iterates one
+    array's per-image values."""
     meta = dict(format="stereodic.dic2d/1", images=list(images), status_names=list(STATUS_NAMES),
                 settings=settings.__dict__, strain_measure=measure)
+    if times_s is not None:
+        meta["state_times_s"] = list(times_s)
     keys = NPZ_KEYS + (NPZ_STRAIN_KEYS if has_strain else ())
     write_stacked_npz(path, dict(meta=np.array(json.dumps(meta)), x=grid.xs, y=grid.ys, active=grid.active),
                       {key: (lambda key=key: values(key)) for key in keys}, count)
 
 
-def plot_field(folder: str | os.PathLike, k: int, f: DicField, m: StrainMeasure | None, name: str) -> None:
-    """PNG maps of deformed image k, whose file is `name`: image{k}_u.png, _v, _zncc [, _exx, _eyy, _exy]
-    (stereodic.dic.maps: axes in reference-image pixels, strains in microstrain)."""
-    from stereodic.dic.maps import pixel_axes, save_map
+def image_maps(arrays: dict[str, np.ndarray]) -> dict[str, tuple[np.ndarray, str, int]]:
+    """The quantities of a deformed image's maps from its arrays (`image_arrays`): name -> (values
+    (ny, nx), unit, decimals): u, v (px), zncc (where converged) [, exx, eyy, exy (microstrain)]."""
+    ok = arrays["status"] == 0
+    maps = {"u": (arrays["u"], "px", 3), "v": (arrays["v"], "px", 3),
+            "zncc": (np.where(ok, arrays["zncc"], np.nan), "", 4)}
+    maps.update({c: (arrays[c] * 1e6, "microstrain", 0) for c in ("exx", "eyy", "exy") if c in arrays})
+    return maps
+
+
+def plot_image(folder: str | os.PathLike, k: int, arrays: dict[str, np.ndarray], grid, name: str,
+               measure: str | None, *, scales=None, image: np.ndarray | None = None) -> None:
+    """PNG maps of deformed image k, whose file is `name`, from its arrays (`image_arrays`):
+    image{k}_u.png, _v, _zncc [, _exx, _eyy, _exy] (stereodic.dic.maps: axes in reference-image pixels,
+    strains in microstrain); `scales`: the run's colour scales (`maps.RunScales`); `image`: the deformed
+    image, each map also drawn over it (each point at x + u, y + v)."""
+    from stereodic.dic.maps import Backdrop, pixel_axes, save_map
     folder = Path(folder)
-    axes = pixel_axes(f.grid.xs, f.grid.ys, f.grid.active)
-    maps = {"u": (f.u, "px", 3), "v": (f.v, "px", 3), "zncc": (np.where(f.ok, f.zncc, np.nan), "", 4)}
-    if m is not None:
-        maps.update({c: (getattr(m, c) * 1e6, "microstrain", 0) for c in ("exx", "eyy", "exy")})
-    for q, (arr, unit, decimals) in maps.items():
-        what = f"{q}, {m.measure} strain" if q.startswith("e") and m is not None else q
+    axes = pixel_axes(grid.xs, grid.ys, grid.active)
+    x, y = np.meshgrid(grid.xs, grid.ys)
+    backdrop = None if image is None else Backdrop(image, x + arrays["u"], y + arrays["v"], "the deformed image")
+    for q, (arr, unit, decimals) in image_maps(arrays).items():
+        what = f"{q}, {measure} strain" if q.startswith("e") and measure else q
         save_map(folder / f"image{k}_{q}.png", arr, axes, title=f"deformed image {k} ({name}) - {what}", quantity=q,
-                 unit=unit, decimals=decimals, signed=q != "zncc")
+                 unit=unit, decimals=decimals, signed=q != "zncc", scale=None if scales is None else scales.scale(q),
+                 backdrop=backdrop)

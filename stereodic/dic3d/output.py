@@ -10,7 +10,8 @@ cameras and the rays agree, and state 0 is measured), status (ok, left:<status>,
 ray_gap, no_reference), incremental (1: the point is tracked state to state) and, with a strain window,
 the strain measure's exx, eyy, exy on the tangent plane, its principal strains e_major, e_minor, the
 major direction e_angle (degrees from e1) and the von Mises equivalent e_vm (`strain_measures`), and
-strain_valid). Camera columns are NaN exactly where that camera's converged is 0; X..gap_mm exactly where
+strain_valid) and, with the rigid motion removed (`dic --remove-rigid`), dX_def, dY_def, dZ_def (mm: the
+displacement less the state's best-fit rigid motion). Camera columns are NaN exactly where that camera's converged is 0; X..gap_mm exactly where
 converged is 0; strains exactly where strain_valid is 0.
 
 The writers take the states as an iterable (each state is formatted and written, then dropped), so a
@@ -30,12 +31,12 @@ from calib.atomic import atomic_output
 from calib.npz_stream import write_stacked_npz
 from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import STATUS_NAMES
-from stereodic.dic.maps import MapAxes, save_map
+from stereodic.dic.maps import Backdrop, MapAxes, MapMovie, RunScales, map_figure
 from stereodic.dic.output import STRAIN_COLUMNS, fmt
 from stereodic.dic3d.stereo import NO_REFERENCE, RAY_GAP, CameraMatch, StereoSettings, StereoState
 from stereodic.strain.measures import StrainMeasure
 
-def csv_columns(has_strain: bool) -> list[str]:
+def csv_columns(has_strain: bool, has_deformation: bool = False) -> list[str]:
     cols = ["state", "x", "y"]
     for cam in ("left", "right"):
         cols += [f"{cam}_{c}" for c in ("u", "v", "zncc", "converged", "status")]
@@ -43,6 +44,8 @@ def csv_columns(has_strain: bool) -> list[str]:
     cols += ["X", "Y", "Z", "dX", "dY", "dZ", "gap_mm", "converged", "status", "incremental"]
     if has_strain:
         cols += [c for c, _, _ in STRAIN_COLUMNS] + ["strain_valid"]
+    if has_deformation:
+        cols += ["dX_def", "dY_def", "dZ_def"]
     return cols
 
 
@@ -67,18 +70,21 @@ def csv_rows(grid: Grid, st: StereoState) -> str:
     if st.measure is not None:
         cols += [fmt(f, flat(getattr(st.measure, field))) for _, field, f in STRAIN_COLUMNS]
         cols += [ints(st.measure.valid)]
+    if st.deformation is not None:
+        deformation = flat(st.deformation)
+        cols += [fmt("%.6f", deformation[:, i]) for i in range(3)]
     return "".join(",".join(row) + "\n" for row in zip(*cols))
 
 
-def write_csv(path: str | os.PathLike, rows: Iterable[str], *, has_strain: bool) -> None:
+def write_csv(path: str | os.PathLike, rows: Iterable[str], *, has_strain: bool, has_deformation: bool = False) -> None:
     """The CSV of the module docstring from its rows, state by state (`csv_rows` of each state)."""
     with atomic_output(path) as tmp, open(tmp, "w") as out:
-        out.write(",".join(csv_columns(has_strain)) + "\n")
+        out.write(",".join(csv_columns(has_strain, has_deformation)) + "\n")
         for text in rows:
             out.write(text)
 
 
-def npz_keys(has_strain: bool) -> list[str]:
+def npz_keys(has_strain: bool, has_deformation: bool = False) -> list[str]:
     """The per-state arrays of dic.npz (and of the run folder's state files), in the file's order."""
     keys = ["state"] + [f"{c}_{k}" for c in ("left", "right") for k in ("u", "v", "zncc", "status")]
     keys += ["points", "displacement", "gap_mm", "converged"]
@@ -87,6 +93,8 @@ def npz_keys(has_strain: bool) -> list[str]:
     keys += [f"{c}_{k}" for c in ("left", "right") for k in ("x0", "y0", "noise_px")] + ["incremental"]
     if has_strain:
         keys += ["e_major", "e_minor", "e_angle", "e_vm"]
+    if has_deformation:
+        keys += ["deformation"]
     return keys
 
 
@@ -122,6 +130,8 @@ def state_arrays(st: StereoState) -> dict[str, np.ndarray]:
                incremental=st.incremental, status_code=_status_code(st))
     if st.measure is not None:
         out.update({key: getattr(st.measure, f) for key, f in _MEASURE.items()})
+    if st.deformation is not None:
+        out["deformation"] = st.deformation
     return out
 
 
@@ -137,35 +147,63 @@ def state_from_arrays(a, measure: str | None) -> StereoState:
     return StereoState(int(a["state"]), cam("left"), cam("right"), np.array(a["points"]),
                        np.array(a["displacement"]), np.array(a["gap_mm"]), np.array(a["converged"]),
                        _status_strings(np.array(a["status_code"]), np.array(a["left_status"]),
-                                       np.array(a["right_status"])), None, np.array(a["incremental"]), m)
+                                       np.array(a["right_status"])), None, np.array(a["incremental"]), m,
+                       np.array(a["deformation"]) if "deformation" in a else None)
 
 
 def write_npz(path: str | os.PathLike, grid: Grid, values: Callable[[str], Iterable[np.ndarray]], count: int,
-              has_strain: bool, settings: StereoSettings, info: dict) -> None:
+              has_strain: bool, settings: StereoSettings, info: dict, has_deformation: bool = False) -> None:
     """Arrays x (nx,), y (ny,), active (ny, nx); per state (S, ny, nx): left_u, left_v, left_zncc,
     left_status, right_* the same, gap_mm, converged [, exx, eyy, exy, strain_valid], left_x0, left_y0,
     left_noise_px, right_* the same, incremental [, e_major, e_minor, e_angle, e_vm]; points and
-    displacement (S, ny, nx, 3) mm; state (S,); meta: JSON with the settings, status names and `info`
-    (rig, dataset, world_from_rig, ...). `values(key)` iterates one array's per-state values."""
+    displacement (S, ny, nx, 3) mm [, deformation (S, ny, nx, 3) mm: the displacement less each state's
+    rigid motion]; state (S,); meta: JSON with the settings, status names and `info` (rig, dataset,
+    world_from_rig, frame, ...). `values(key)` iterates one array's per-state values."""
     meta = dict(format="stereodic.dic/1", status_names=list(STATUS_NAMES), units="pixels (rectified), mm",
                 settings={"dic": settings.dic.__dict__, **{k: v for k, v in settings.__dict__.items() if k != "dic"}},
                 **info)
     arrays = dict(meta=np.array(json.dumps(meta)), x=grid.xs, y=grid.ys, active=grid.active)
-    write_stacked_npz(path, arrays, {key: (lambda key=key: values(key)) for key in npz_keys(has_strain)}, count)
+    write_stacked_npz(path, arrays, {key: (lambda key=key: values(key)) for key in npz_keys(has_strain, has_deformation)},
+                      count)
 
 
-def plot_state(folder: str | os.PathLike, st: StereoState, axes: MapAxes, label: str) -> None:
+def state_maps(st: StereoState) -> dict[str, tuple[np.ndarray, str, int]]:
+    """The quantities of a state's maps: name -> (values (ny, nx), unit, decimals): Z, dX, dY, dZ (mm)
+    [, dX_def, dY_def, dZ_def (mm, rigid motion removed)] [, exx, eyy, exy (microstrain)]."""
+    maps = {"Z": (st.points[..., 2], "mm", 3), "dX": (st.displacement[..., 0], "mm", 4),
+            "dY": (st.displacement[..., 1], "mm", 4), "dZ": (st.displacement[..., 2], "mm", 4)}
+    if st.deformation is not None:
+        maps.update({f"{c}_def": (st.deformation[..., i], "mm", 4) for i, c in enumerate(("dX", "dY", "dZ"))})
+    if st.measure is not None:
+        maps.update({c: (getattr(st.measure, c) * 1e6, "microstrain", 0) for c in ("exx", "eyy", "exy")})
+    return maps
+
+
+STRAIN_FLOOR = 100.0   # microstrain: the least half-range of a strain map's colours (a run at rest)
+
+
+def plot_state(folder: str | os.PathLike, st: StereoState, axes: MapAxes, label: str, *,
+               scales: RunScales | None = None, image: np.ndarray | None = None, frame: str = "rig's frame",
+               movies: dict[str, MapMovie] | None = None) -> None:
     """PNG maps of one state k, named `label` (its load case): state{k}_{Z,dX,dY,dZ}.png [+ _exx, _eyy,
-    _exy, microstrain] on `axes` (stereodic.dic.maps.surface_axes: the reference surface's X, Y in mm); none
-    for a state that measured no point (its diagnosis says why: `stereodic.dic3d.diagnose`)."""
+    _exy, microstrain] on `axes` (stereodic.dic.maps.surface_axes: the reference surface's X, Y in mm),
+    titled with the reporting `frame`; with `scales`, the run's colour limits (`RunScales`); with
+    `image` (the state's original left image), each map also drawn over it; `movies`: quantity ->
+    the MapMovie each of its maps is added to. State 0's strains are labelled: zero by definition (the
+    measurement's noise floor shows in a second image of the specimen at rest). None for a state that
+    measured no point (its diagnosis says why: `stereodic.dic3d.diagnose`)."""
     if not st.converged.any():
         return
     folder = Path(folder)
-    maps = {"Z": (st.points[..., 2], "mm", 3), "dX": (st.displacement[..., 0], "mm", 4),
-            "dY": (st.displacement[..., 1], "mm", 4), "dZ": (st.displacement[..., 2], "mm", 4)}
-    if st.measure is not None:
-        maps.update({c: (getattr(st.measure, c) * 1e6, "microstrain", 0) for c in ("exx", "eyy", "exy")})
-    for name, (arr, unit, decimals) in maps.items():
+    backdrop = None if image is None else Backdrop(image, st.left.real[..., 0], st.left.real[..., 1])
+    for name, (arr, unit, decimals) in state_maps(st).items():
         what = f"{name}, {st.measure.measure} strain" if name.startswith("e") else name
-        save_map(folder / f"state{st.state}_{name}.png", arr, axes, title=f"{label} - {what}", quantity=name,
-                 unit=unit, decimals=decimals, signed=name != "Z")
+        title = f"{label} - {what} ({frame})"
+        if st.state == 0 and name.startswith("e"):
+            title += "\nthe reference: strain 0 by definition (its noise floor shows in a second image at rest)"
+        fig = map_figure(arr, axes, title=title, quantity=name, unit=unit, decimals=decimals, signed=name != "Z",
+                         scale=None if scales is None else scales.scale(name), backdrop=backdrop)
+        with atomic_output(folder / f"state{st.state}_{name}.png") as tmp:
+            fig.savefig(tmp, dpi=100)
+        if movies and name in movies:
+            movies[name].add(fig)

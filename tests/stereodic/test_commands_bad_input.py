@@ -88,7 +88,7 @@ COMMANDS: dict[str, list[list]] = {
               "-o", Out("output", "file", "cloud.ply"), "--mesh", Out("mesh", "file", "mesh.ply")]],
     "dic2d": [["dic2d", In("ref", IMG, "a"), In("defs", IMG, "b", "small"), "--mask", In("mask", IMG, "a", "small"),
                "--roi-polygon", In("roi_polygon", "polygon file", "polygon"), "-o", Out("output", "file", "r.csv"),
-               "--npz", Out("npz", "file", "r.npz"), "--plot",
+               "--npz", Out("npz", "file", "r.npz"), "--mat", Out("mat", "file", "r.mat"), "--plot",
                Out("plot", "dir", "maps")]],
     "dic": [["dic", In("rig", "rig", "dic_rig", "scan_rig", "capture.json"), DIC, "--mask",
              In("mask", IMG, "dic_left", "small"), "--roi-polygon", In("roi_polygon", "polygon file", "polygon"),
@@ -98,6 +98,11 @@ COMMANDS: dict[str, list[list]] = {
             ["dic", In("rig", "rig", "dic_rig", "scan_rig", "img_0000_0.png"), "--images",
              In("images", "image folder", "pairs"), "-o", Out("output", "dir", "run")]],
     "strain": [["strain", In("result", "DIC result", "result"), "-o", Out("output", "dir", "strain")]],
+    "gauge": [["gauge", In("result", "DIC result", "result"), "--point", "30,24", "--gauges",
+               In("gauges", "gauge file", "gauges"), "-o", Out("output", "dir", "gauges")],
+              ["gauge", In("result", "DIC result", "result"), "--point", "30,24", "--load",
+               In("load", "load file", "load"), "--join", "time", "--state-times",
+               In("state_times", "timestamps file", "times"), "-o", Out("output", "dir", "gauges")]],
     "speckle": [["speckle", In("image", IMG, "a"), "--static", In("static", IMG, "b", "small"), "-o",
                  Out("output", "dir", "speckle")]],
     "import": [["import", In("calibration", "calibration", "opencv_yaml"), "-o", Out("output", "file", "rig.npz")]],
@@ -188,6 +193,10 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
     _run_ok(["dic2d", paths["a"], paths["b"], "--subset", 11, "--step", 8, "-o", root / "result.csv",
              "--npz", root / "result.npz"])
     paths["result"] = root / "result.npz"
+    (root / "gauges.json").write_text(json.dumps({"format": "stereodic.gauges/1", "points": [{"at": [40, 20]}]}))
+    (root / "load.csv").write_text("time,force\n0,0\n10,100\n")
+    (root / "times.csv").write_text("time\n1.5\n2.5\n")
+    paths.update(gauges=root / "gauges.json", load=root / "load.csv", times=root / "times.csv")
     _run_ok(["calibrate", paths["cal"], "-o", root / "calibrated.npz", "--report", root / "report"])
     paths["response"] = root / "report" / "display_response.json"
     assert paths["response"].is_file()
@@ -200,7 +209,7 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
     bad = root / "bad"
     bad.mkdir()
     (bad / "frames").mkdir()
-    for suffix in (".png", ".tif", ".npz", ".json", ".yml"):
+    for suffix in (".png", ".tif", ".npz", ".json", ".yml", ".csv"):
         (bad / f"empty{suffix}").write_bytes(b"")
         (bad / f"random{suffix}").write_bytes(np.random.default_rng(5).bytes(3000))
     png = paths["a"].read_bytes()
@@ -278,6 +287,12 @@ def _bad_inputs(slot: In, paths) -> list[tuple[str, str, Path, str]]:
         return cases + [("empty file", "empty", bad / "empty.json", "empty.json"),
                         ("corrupt", "random bytes", bad / "random.json", "random.json"),
                         ("wrong size", "a polygon outside the image", bad / "outside.json", "outside.json")]
+    if slot.kind in ("gauge file", "load file", "timestamps file"):
+        suffix = ".json" if slot.kind == "gauge file" else ".csv"
+        cases += [("empty file", "empty", bad / f"empty{suffix}", f"empty{suffix}"),
+                  ("corrupt", "random bytes", bad / f"random{suffix}", f"random{suffix}"),
+                  ("wrong kind", "another JSON file", bad / "other.json", "other.json")]
+        return cases
     if slot.kind in ("display response", "calibration"):
         suffix = ".json" if slot.kind == "display response" else ".yml"
         cases += [("empty file", "empty", bad / f"empty{suffix}", f"empty{suffix}"),
