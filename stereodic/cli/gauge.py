@@ -40,9 +40,10 @@ def register(sub):
                    help="also give each state's deformation-only displacement dX_def, dY_def, dZ_def (stereo)")
     p.add_argument("--scale", type=float, metavar="MM_PER_PX",
                    help="a dic2d result's scale: lengths and displacements in mm (default: pixels)")
-    p.add_argument("--window", type=int, metavar="N",
+    p.add_argument("--strain-window", type=int, metavar="N",
                    help="strain window, grid points, odd (default: the run's own, else 5)")
-    p.add_argument("--measure", choices=MEASURES, help="strain measure (default: the run's own, else green-lagrange)")
+    p.add_argument("--measure", choices=MEASURES, metavar="MEASURE",
+                   help=f"strain measure: {', '.join(MEASURES)} (default: the run's own, else green-lagrange)")
     add_input(p, "--load", what="load file", metavar="LOADS.csv",
               help="the testing machine's CSV: force, time and/or image index, optionally crosshead")
     p.add_argument("--join", choices=["index", "time"], default="index",
@@ -205,7 +206,7 @@ def run(args) -> int:
     if args.line_states:
         line_states = [int(v) for v in args.line_states]
     result = open_gauge_result(args.result, frame=args.frame, origin_px=origin, x_direction_px=x_dir,
-                               remove_rigid=args.remove_rigid, scale_mm_per_px=args.scale, window=args.window,
+                               remove_rigid=args.remove_rigid, scale_mm_per_px=args.scale, window=args.strain_window,
                                measure=args.measure)
     gauges = _gauges(args)
     if args.section is not None:

@@ -166,7 +166,7 @@ def open_gauge_result(path: str | os.PathLike, *, frame: str = "rig", origin_px:
     own_window = settings.get("strain_window") if res.kind == "dic" else None
     window = window or own_window or 5
     if window < 3 or window % 2 == 0:
-        raise InputError("--window", f"must be an odd number >= 3, got {window}")
+        raise InputError("--strain-window", f"must be an odd number >= 3, got {window}")
     measure = measure or (settings.get("strain_measure") if res.kind == "dic" else meta.get("strain_measure")) \
         or "green-lagrange"
     if frame not in ("rig", "specimen"):
