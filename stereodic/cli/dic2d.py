@@ -166,7 +166,7 @@ def run(args) -> int:
                         yield z[key]
 
             write_npz(args.npz, grid, values, len(defs), has_strain, settings, [str(p) for p in defs],
-                      args.measure if has_strain else None)
+                      args.measure if has_strain else None, reference=str(args.ref))
     n_points = int(act.sum())
     if args.columns == "dice":
         wrote(out.parent, f"DICe's solution files {out.stem}_<k>{out.suffix or '.txt'} ({n_points} points x "
