@@ -68,6 +68,12 @@ def iter_slices(path: str | os.PathLike, name: str) -> Iterator[np.ndarray]:
             yield np.frombuffer(f.read(size), dtype).reshape(shape[1:]).copy()
 
 
+def slice_count(path: str | os.PathLike, name: str) -> int:
+    """How many slices array `name` of an uncompressed `.npz` has (its header alone is read)."""
+    with zipfile.ZipFile(path) as zf, zf.open(name + ".npy") as f:
+        return int(_stacked_header(f, name)[0][0])
+
+
 def read_slice(path: str | os.PathLike, name: str, k: int) -> np.ndarray:
     """Slice `k` (along the first axis) of array `name` of an uncompressed `.npz`, read alone (a seek
     past the slices before it, not a read of them). IndexError if the array has no slice `k`."""

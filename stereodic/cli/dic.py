@@ -155,6 +155,7 @@ def _summary(st, n) -> str:
 
 
 def run(args) -> int:
+    import os
     import sys
     from pathlib import Path
 
@@ -207,7 +208,7 @@ def run(args) -> int:
                   f"{report.p95:.3f} px) is larger than its calibration allows (p95 {report.expected_p95:.3f} px): "
                   f"has a camera moved since the calibration?", file=sys.stderr)
     info = {"rig": str(args.rig), "dataset": data.source, "world_from_rig": rig.world_from_rig.tolist(),
-            "state_labels": labels}
+            "state_labels": labels, "left_images": [os.path.abspath(p) for p in data.left]}
     dice = None
     if args.columns == "dice":
         from stereodic.dice_columns import StereoDiceWriter

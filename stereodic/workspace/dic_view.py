@@ -1,0 +1,235 @@
+"""The results page: a DIC result state by state over the original left reference image.
+
+The field is one WebGL scatter trace (a square marker per grid point at its place in the original
+left reference image, semi-transparent over it) whose colours alone change with the state or the
+quantity: a redraw sends one array of the state's values (a Dash `Patch`), read from one state's file
+(`results.DicSource`). The colour limits are fixed per quantity over the run; the colour bar carries the
+unit. A click gives the point's history; the gauges (extensometer, line, area) drawn on the image give
+their curves at once (`stereodic.gauge`, the `stereodic gauge` command's library); a testing machine's
+load CSV gives the stress-strain curve; every curve downloads as CSV, every view as PNG (the graph's
+camera button).
+"""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from calib.errors import InputError
+from stereodic.workspace.access import Access
+from stereodic.workspace.results import DicSource
+
+_SOURCES: dict[str, DicSource] = {}
+_LOCK = threading.Lock()
+GRAPH_WIDTH_PX = 900   # the field's plot width the marker size is chosen for
+TOOLS = {"point": "pan", "extensometer": "drawline", "line": "drawline", "area": "drawclosedpath"}
+
+
+def source(path: str | Path) -> DicSource:
+    """The opened result at `path` (opened once per server, its finished states read again each time)."""
+    key = str(path)
+    with _LOCK:
+        if key not in _SOURCES:
+            _SOURCES[key] = DicSource(path)
+        src = _SOURCES[key]
+    src.refresh()
+    return src
+
+
+def image_url(path: Path | None) -> str | None:
+    from urllib.parse import quote
+    return None if path is None else f"/image?path={quote(str(path))}"
+
+
+def colour_scale(src: DicSource, name: str) -> str:
+    if name == "status":
+        return "Turbo"
+    return "RdBu_r" if src.quantity(name).signed else "Viridis"
+
+
+def field_figure(src: DicSource, name: str, k: int):
+    """The field figure of quantity `name` in state k (module docstring)."""
+    import plotly.graph_objects as go
+
+    from calib.imageio import image_size
+    ref = src.reference_image()
+    if ref is not None:
+        w, h = image_size(ref)
+    else:
+        w, h = int(np.ceil(src.x.max())) + 1, int(np.ceil(src.y.max())) + 1
+    spacing = np.sqrt(max(np.ptp(src.x) * np.ptp(src.y), 1.0) / max(src.x.size, 1))
+    size = float(np.clip(spacing * GRAPH_WIDTH_PX / w, 2.0, 30.0))
+    lo, hi = src.limits(name)
+    q = src.quantity(name)
+    fig = go.Figure(go.Scattergl(
+        x=src.x.astype(np.float32), y=src.y.astype(np.float32), mode="markers",
+        marker=dict(color=src.values(k, name).astype(np.float32), cmin=lo, cmax=hi, colorscale=colour_scale(src, name),
+                    size=size, symbol="square", opacity=0.65,
+                    colorbar=dict(title=dict(text=_bar_title(src, name), side="right"))),
+        hovertemplate="x %{x:.1f} px, y %{y:.1f} px<br>%{marker.color:.5g} " + q.unit + "<extra></extra>"))
+    images = []
+    if ref is not None:
+        images = [dict(source=image_url(ref), xref="x", yref="y", x=-0.5, y=-0.5, sizex=w, sizey=h,
+                       sizing="stretch", layer="below")]
+    fig.update_layout(images=images, margin=dict(l=50, r=10, t=30, b=40), height=int(GRAPH_WIDTH_PX * h / w) + 70,
+                      width=GRAPH_WIDTH_PX + 160, dragmode="pan", plot_bgcolor="#222", uirevision="field",
+                      title=dict(text=_title(src, name, k), font=dict(size=13)),
+                      newshape=dict(line=dict(color="#ff0", width=3)))
+    fig.update_xaxes(range=[-0.5, w - 0.5], title="x, original left image (px)", showgrid=False)
+    fig.update_yaxes(range=[h - 0.5, -0.5], title="y (px)", scaleanchor="x", showgrid=False)
+    return fig
+
+
+def _bar_title(src: DicSource, name: str) -> str:
+    unit = src.unit(name)
+    return f"{name} ({unit})" if unit else name
+
+
+def _title(src: DicSource, name: str, k: int) -> str:
+    labels = src.labels()
+    frame = "" if src.kind == "dic2d" else f", frame: {src.meta.get('frame', 'rig')}"
+    return f"{name} - {labels[k] if k < len(labels) else f'state {k}'}{frame}"
+
+
+def layout(path: Path, access: Access):
+    from dash import dcc, html
+    src = source(path)
+    access.allow_files([p for p in [src.reference_image()] if p is not None])
+    names = [q.name for q in src.quantities]
+    start = "exx" if "exx" in names else names[0]
+    running = src.run_folder is not None and src.count < src.total
+    return html.Div([
+        dcc.Store(id="dic-path", data=str(path)),
+        dcc.Store(id="curve-data"),
+        html.Div([
+            html.Label("quantity "), dcc.Dropdown(names, start, id="quantity", clearable=False,
+                                                  style={"width": "140px", "display": "inline-block"}),
+            html.Button("play", id="play", n_clicks=0, style={"marginLeft": "12px"}),
+            html.Span(id="state-label", style={"marginLeft": "12px"}),
+            html.Span(f"  {src.x.size} points, {src.count} states", id="run-size", style={"color": "#666"}),
+        ], style={"padding": "6px"}),
+        html.Div(dcc.Slider(0, max(src.count - 1, 0), 1, value=0, id="state", updatemode="drag",
+                            marks=None, tooltip={"placement": "bottom", "always_visible": True}),
+                 style={"width": "900px", "padding": "0 8px"}),
+        dcc.Interval(id="player", interval=400, disabled=True),
+        dcc.Interval(id="poll", interval=2000, disabled=not running),
+        html.Div([
+            html.Div(dcc.Graph(id="field", figure=field_figure(src, start, 0),
+                               config={"displaylogo": False, "scrollZoom": True,
+                                       "modeBarButtonsToAdd": ["drawline", "drawclosedpath", "eraseshape"],
+                                       "toImageButtonOptions": {"format": "png", "filename": "field"}}),
+                     style={"display": "inline-block", "verticalAlign": "top"}),
+            html.Div([
+                dcc.RadioItems([{"label": " click a point: its history", "value": "point"},
+                                {"label": " draw an extensometer (two ends)", "value": "extensometer"},
+                                {"label": " draw a line: the profile", "value": "line"},
+                                {"label": " draw an area: its mean", "value": "area"}],
+                               "point", id="tool"),
+                dcc.Graph(id="curve", style={"height": "330px", "width": "520px"},
+                          config={"displaylogo": False, "toImageButtonOptions": {"filename": "curve"}}),
+                html.Button("curve as CSV", id="curve-csv", n_clicks=0), dcc.Download(id="download"),
+                html.Hr(),
+                html.Div(["load CSV of the testing machine: ",
+                          dcc.Upload(html.Button("choose file"), id="load-upload"),
+                          " cross-section ", dcc.Input(id="load-area", type="number", value=None, min=0,
+                                                       placeholder="mm^2", style={"width": "80px"}), " mm^2"]),
+                dcc.Graph(id="stress-strain", style={"height": "300px", "width": "520px"},
+                          config={"displaylogo": False, "toImageButtonOptions": {"filename": "stress-strain"}}),
+                html.Div(id="message", style={"color": "#b00", "whiteSpace": "pre-wrap"}),
+            ], style={"display": "inline-block", "verticalAlign": "top", "marginLeft": "10px"}),
+        ]),
+    ])
+
+
+def register(app, access: Access) -> None:
+    from dash import Input, Output, Patch, State, ctx, dcc, no_update
+
+    from stereodic.workspace.app import error_text
+
+    @app.callback(Output("field", "figure"), Output("state-label", "children"), Output("message", "children",
+                                                                                       allow_duplicate=True),
+                  Input("quantity", "value"), Input("state", "value"), State("dic-path", "data"),
+                  prevent_initial_call=True)
+    def redraw(name, k, path):
+        try:
+            src = source(path)
+            k = int(k)
+            values = src.values(k, name)
+            lo, hi = src.limits(name)
+        except (InputError, TypeError, ValueError) as exc:
+            return no_update, no_update, error_text(exc)
+        patch = Patch()
+        patch["data"][0]["marker"]["color"] = values.astype(np.float32)
+        if ctx.triggered_id == "quantity":
+            patch["data"][0]["marker"]["cmin"] = lo
+            patch["data"][0]["marker"]["cmax"] = hi
+            patch["data"][0]["marker"]["colorscale"] = colour_scale(src, name)
+            patch["data"][0]["marker"]["colorbar"]["title"]["text"] = _bar_title(src, name)
+            patch["data"][0]["hovertemplate"] = ("x %{x:.1f} px, y %{y:.1f} px<br>%{marker.color:.5g} "
+                                                 + src.unit(name) + "<extra></extra>")
+        patch["layout"]["title"]["text"] = _title(src, name, k)
+        return patch, src.labels()[k], ""
+
+    @app.callback(Output("player", "disabled"), Output("play", "children"), Input("play", "n_clicks"),
+                  State("player", "disabled"), prevent_initial_call=True)
+    def play(_, disabled):
+        return (False, "pause") if disabled else (True, "play")
+
+    @app.callback(Output("state", "value"), Input("player", "n_intervals"), State("state", "value"),
+                  State("state", "max"), prevent_initial_call=True)
+    def step(_, k, last):
+        return (int(k) + 1) % (int(last) + 1)
+
+    @app.callback(Output("state", "max"), Output("run-size", "children"), Output("poll", "disabled"),
+                  Input("poll", "n_intervals"), State("dic-path", "data"), prevent_initial_call=True)
+    def grow(_, path):
+        src = source(path)
+        return max(src.count - 1, 0), f"  {src.x.size} points, {src.count} of {src.total} states", \
+            src.count >= src.total
+
+    @app.callback(Output("field", "figure", allow_duplicate=True), Input("tool", "value"),
+                  prevent_initial_call=True)
+    def tool(value):
+        patch = Patch()
+        patch["layout"]["dragmode"] = TOOLS.get(value, "pan")
+        return patch
+
+    @app.callback(Output("curve", "figure"), Output("curve-data", "data"),
+                  Output("message", "children", allow_duplicate=True),
+                  Input("field", "clickData"), State("tool", "value"), State("quantity", "value"),
+                  State("dic-path", "data"), prevent_initial_call=True)
+    def history(click, tool_, name, path):
+        if tool_ != "point" or not click or not click.get("points"):
+            return no_update, no_update, no_update
+        try:
+            src = source(path)
+            p = click["points"][0]
+            i = int(p["pointIndex"]) if p.get("curveNumber", 0) == 0 else src.nearest(p["x"], p["y"])
+            values = src.history(i, name)
+        except (InputError, KeyError, TypeError, ValueError) as exc:
+            return no_update, no_update, error_text(exc)
+        label = f"point at ({src.x[i]:.1f}, {src.y[i]:.1f}) px"
+        table = {"columns": ["state", "x_px", "y_px", f"{name}_{src.unit(name) or 'value'}"],
+                 "rows": [[k, float(src.x[i]), float(src.y[i]), float(v)] for k, v in enumerate(values)]}
+        return curve_figure(np.arange(values.size), {label: values}, "state", _bar_title(src, name),
+                            f"{name} history, {label}"), table, ""
+
+    @app.callback(Output("download", "data"), Input("curve-csv", "n_clicks"), State("curve-data", "data"),
+                  prevent_initial_call=True)
+    def download(_, table):
+        if not table:
+            return no_update
+        text = ",".join(table["columns"]) + "\n" + "".join(
+            ",".join(f"{v:.9g}" if isinstance(v, float) else str(v) for v in row) + "\n" for row in table["rows"])
+        return dcc.send_string(text, "curve.csv")
+
+
+def curve_figure(x, series: dict, xlabel: str, ylabel: str, title: str):
+    """A line plot of one or more curves against the state (or another x)."""
+    import plotly.graph_objects as go
+    fig = go.Figure([go.Scatter(x=x, y=y, mode="lines+markers", name=name) for name, y in series.items()])
+    fig.update_layout(title=dict(text=title, font=dict(size=12)), margin=dict(l=60, r=10, t=35, b=40),
+                      xaxis_title=xlabel, yaxis_title=ylabel, showlegend=len(series) > 1)
+    return fig
