@@ -120,7 +120,7 @@ def layout(path: Path, access: Access):
                                config={"displaylogo": False, "scrollZoom": True,
                                        "modeBarButtonsToAdd": ["drawline", "drawclosedpath", "eraseshape"],
                                        "toImageButtonOptions": {"format": "png", "filename": "field"}}),
-                     style={"display": "inline-block", "verticalAlign": "top"}),
+                     style={"flex": "none"}),
             html.Div([
                 dcc.RadioItems([{"label": " click a point: its history", "value": "point"},
                                 {"label": " draw an extensometer (two ends)", "value": "extensometer"},
@@ -138,8 +138,8 @@ def layout(path: Path, access: Access):
                 dcc.Graph(id="stress-strain", style={"height": "300px", "width": "520px"},
                           config={"displaylogo": False, "toImageButtonOptions": {"filename": "stress-strain"}}),
                 html.Div(id="message", style={"color": "#b00", "whiteSpace": "pre-wrap"}),
-            ], style={"display": "inline-block", "verticalAlign": "top", "marginLeft": "10px"}),
-        ]),
+            ], style={"flex": "none", "marginLeft": "10px"}),
+        ], style={"display": "flex", "alignItems": "flex-start"}),
     ])
 
 

@@ -150,7 +150,7 @@ def layout(path: Path, access: Access):
                 dcc.Graph(id="ref-image", figure=reference_figure(data.left[0], shapes),
                           config={"displaylogo": False, "modeBarButtonsToAdd": ["drawclosedpath", "drawrect",
                                                                                  "eraseshape"]}),
-            ], style={"display": "inline-block", "verticalAlign": "top"}),
+            ], style={"flex": "none"}),
             html.Div([
                 html.Div(["subset ", dcc.Input(id="setup-subset", type="number", value=21, min=5, step=2,
                                                style={"width": "60px"}), " px, step ",
@@ -164,8 +164,8 @@ def layout(path: Path, access: Access):
                 html.Pre(id="command", style={"whiteSpace": "pre-wrap", "maxWidth": "480px"}),
                 html.Div(id="progress"), dcc.Interval(id="run-poll", interval=1000, disabled=True),
                 html.Div(id="setup-message", style={"color": "#b00", "whiteSpace": "pre-wrap"}),
-            ], style={"display": "inline-block", "verticalAlign": "top", "marginLeft": "10px"}),
-        ]),
+            ], style={"flex": "none", "marginLeft": "10px"}),
+        ], style={"display": "flex", "alignItems": "flex-start"}),
     ])
 
 
