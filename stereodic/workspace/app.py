@@ -51,31 +51,32 @@ def kind_of(path: Path) -> str:
 
 def make_app(access: Access):
     """The Dash application of the workspace, serving what `access` allows (module docstring)."""
-    from dash import Dash, html
+    from dash import Dash, Input, Output, dcc, html
 
     from stereodic.workspace import dic_view, other_views, setup_view
 
     app = Dash(__name__, title="stereodic view", serve_locally=True, update_title=None,
                suppress_callback_exceptions=True)
+    app.layout = html.Div([dcc.Location(id="url"),
+                           html.Div([html.B("stereodic view"), html.Span(id="page-path")],
+                                    style={"padding": "4px 8px", "borderBottom": "1px solid #ccc"}),
+                           dcc.Loading(html.Div(id="page"), delay_show=300)],
+                          style={"fontFamily": "sans-serif", "fontSize": "14px"})
 
-    def layout():
-        from flask import request
-        asked = request.args.get("path") if request else None
+    @app.callback(Output("page", "children"), Output("page-path", "children"), Input("url", "search"))
+    def page(search):
+        from urllib.parse import parse_qs
+        asked = parse_qs((search or "").lstrip("?")).get("path", [None])[0]
         try:
             path = access.resolve(asked) if asked else access.roots[0]
             if not path.exists():
                 raise InputError(asked or path, "does not exist")
             kind = kind_of(path)
-            page = {"dic": dic_view.layout, "setup": setup_view.layout, "prvm": other_views.prvm_layout,
-                    "rig": other_views.rig_layout, "scan": other_views.scan_layout}[kind](path, access)
+            return {"dic": dic_view.layout, "setup": setup_view.layout, "prvm": other_views.prvm_layout,
+                    "rig": other_views.rig_layout, "scan": other_views.scan_layout}[kind](path, access), f"  {path}"
         except InputError as exc:
-            page = html.Div(f"stereodic view: {exc}", id="page-error", className="error")
-        return html.Div([html.Div([html.B("stereodic view"), html.Span(f"  {asked or access.roots[0]}",
-                                                                         id="page-path")],
-                                  style={"padding": "4px 8px", "borderBottom": "1px solid #ccc"}), page],
-                        style={"fontFamily": "sans-serif", "fontSize": "14px"})
+            return html.Div(f"stereodic view: {exc}", id="page-error", style={"color": "#b00", "padding": "8px"}), ""
 
-    app.layout = layout
     dic_view.register(app, access)
     setup_view.register(app, access)
     other_views.register(app, access)

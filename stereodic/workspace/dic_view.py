@@ -102,7 +102,7 @@ def layout(path: Path, access: Access):
     running = src.run_folder is not None and src.count < src.total
     return html.Div([
         dcc.Store(id="dic-path", data=str(path)),
-        dcc.Store(id="curve-data"),
+        dcc.Store(id="curve-data"), dcc.Store(id="ext-strain"),
         html.Div([
             html.Label("quantity "), dcc.Dropdown(names, start, id="quantity", clearable=False,
                                                   style={"width": "140px", "display": "inline-block"}),
@@ -122,6 +122,9 @@ def layout(path: Path, access: Access):
                                        "toImageButtonOptions": {"format": "png", "filename": "field"}}),
                      style={"flex": "none"}),
             html.Div([
+                html.Div(["gauges in the frame of the ", dcc.RadioItems(["rig", "specimen"], "rig", id="frame",
+                                                                          inline=True)],
+                         style={"display": "none"} if src.kind == "dic2d" else {}),
                 dcc.RadioItems([{"label": " click a point: its history", "value": "point"},
                                 {"label": " draw an extensometer (two ends)", "value": "extensometer"},
                                 {"label": " draw a line: the profile", "value": "line"},
@@ -216,6 +219,31 @@ def register(app, access: Access) -> None:
         return curve_figure(np.arange(values.size), {label: values}, "state", _bar_title(src, name),
                             f"{name} history, {label}"), table, ""
 
+    @app.callback(Output("curve", "figure", allow_duplicate=True), Output("curve-data", "data", allow_duplicate=True),
+                  Output("ext-strain", "data"), Output("message", "children", allow_duplicate=True),
+                  Input("field", "relayoutData"), State("tool", "value"), State("quantity", "value"),
+                  State("frame", "value"), State("dic-path", "data"), prevent_initial_call=True)
+    def gauge(relayout, tool_, name, frame, path):
+        if tool_ == "point" or not relayout or not relayout.get("shapes"):
+            return no_update, no_update, no_update, no_update
+        try:
+            figure, table, strain = gauge_curve(path, relayout["shapes"][-1], tool_, name, frame)
+        except (InputError, KeyError, TypeError, ValueError) as exc:
+            return no_update, no_update, no_update, error_text(exc)
+        return figure, table, strain, ""
+
+    @app.callback(Output("stress-strain", "figure"), Output("message", "children", allow_duplicate=True),
+                  Input("load-upload", "contents"), Input("load-area", "value"), Input("ext-strain", "data"),
+                  State("load-upload", "filename"), State("dic-path", "data"), prevent_initial_call=True)
+    def stress_strain(contents, area, strain, filename, path):
+        if not contents or not area or not strain:
+            return no_update, ("load a CSV, give the cross-section and draw an extensometer for the stress-strain "
+                               "curve" if contents else no_update)
+        try:
+            return stress_strain_figure(contents, filename or "load.csv", float(area), strain), ""
+        except (InputError, TypeError, ValueError) as exc:
+            return no_update, error_text(exc)
+
     @app.callback(Output("download", "data"), Input("curve-csv", "n_clicks"), State("curve-data", "data"),
                   prevent_initial_call=True)
     def download(_, table):
@@ -224,6 +252,91 @@ def register(app, access: Access) -> None:
         text = ",".join(table["columns"]) + "\n" + "".join(
             ",".join(f"{v:.9g}" if isinstance(v, float) else str(v) for v in row) + "\n" for row in table["rows"])
         return dcc.send_string(text, "curve.csv")
+
+
+_GAUGE_RESULTS: dict[tuple[str, str], object] = {}
+
+
+def gauge_result(path: str, frame: str):
+    """The result opened for gauges (`stereodic.gauge.open_gauge_result`), once per path and frame."""
+    from stereodic.gauge.result import open_gauge_result
+    key = (path, frame)
+    with _LOCK:
+        if key not in _GAUGE_RESULTS:
+            _GAUGE_RESULTS[key] = open_gauge_result(path, frame=frame)
+        return _GAUGE_RESULTS[key]
+
+
+def gauge_curve(path: str, shape: dict, tool: str, name: str, frame: str):
+    """(figure, CSV table, extensometer strain or None) of the gauge drawn as plotly `shape` with `tool`
+    (extensometer, line, area), measured by `stereodic.gauge.measure_gauges` (what `stereodic gauge`
+    writes)."""
+    from stereodic.gauge.gauges import AreaGauge, Extensometer, Gauges, LineGauge, measure_gauges
+    from stereodic.workspace.setup_view import shape_polygon
+    res = gauge_result(path, frame or "rig")
+    if tool in ("extensometer", "line"):
+        if shape.get("type") != "line":
+            raise InputError(tool, "draw it as a line from one end to the other")
+        a, b = (float(shape["x0"]), float(shape["y0"])), (float(shape["x1"]), float(shape["y1"]))
+        gauges = Gauges(extensometers=[Extensometer("E1", a, b)]) if tool == "extensometer" else \
+            Gauges(lines=[LineGauge("L1", a, b)])
+    else:
+        corners = tuple(map(tuple, shape_polygon(shape).points.tolist()))
+        gauges = Gauges(areas=[AreaGauge("A1", corners)])
+    t = measure_gauges(res, gauges)
+    states = np.arange(len(t.labels))
+    where = f"({a[0]:.0f}, {a[1]:.0f}) - ({b[0]:.0f}, {b[1]:.0f}) px" if tool != "area" else ""
+    if tool == "extensometer":
+        e = t.extensometers[0]
+        table = {"columns": ["state", "name", f"length_{t.unit}", "strain"],
+                 "rows": [[int(k), "E1", float(L), float(s)] for k, L, s in zip(states, e.length, e.strain)]}
+        fig = curve_figure(states, {"E1": e.strain * 1e6}, "state", "engineering strain (microstrain)",
+                           f"extensometer {where}, L0 = {e.length[0]:.4g} {t.unit}")
+        return fig, table, [float(v) for v in e.strain]
+    unit = t.units.get(name, "")
+    label = f"{name} ({'microstrain' if name in _STRAIN_NAMES else unit})" if (unit or name in _STRAIN_NAMES) \
+        else name
+    scale = 1e6 if name in _STRAIN_NAMES else 1.0
+    if tool == "line":
+        p = t.lines[0]
+        if name not in p.values:
+            raise InputError("quantity", f"{name} has no profile; choose one of {', '.join(p.values)}")
+        series = {f"state {int(k)}": p.values[name][i] * scale for i, k in enumerate(p.states)}
+        table = {"columns": ["state", f"distance_{t.unit}", name],
+                 "rows": [[int(k), float(d), float(v)] for i, k in enumerate(p.states)
+                          for d, v in zip(p.distance, p.values[name][i])]}
+        return curve_figure(p.distance, series, f"distance along the line ({t.unit})", label,
+                            f"{name} profile {where}"), table, None
+    ar = t.areas[0]
+    if name not in ar.mean:
+        raise InputError("quantity", f"{name} has no area mean; choose one of {', '.join(ar.mean)}")
+    table = {"columns": ["state", "name", f"{name}_mean", f"{name}_std", "count"],
+             "rows": [[int(k), "A1", float(m), float(sd), int(c)] for k, m, sd, c in
+                      zip(states, ar.mean[name], ar.std[name], ar.count[name])]}
+    return curve_figure(states, {"mean": ar.mean[name] * scale}, "state", label,
+                        f"{name} mean over the area ({ar.points} points)"), table, None
+
+
+_STRAIN_NAMES = ("exx", "eyy", "exy", "e_major", "e_minor", "e_vm")
+
+
+def stress_strain_figure(contents: str, filename: str, area_mm2: float, strain: list):
+    """The stress-strain curve of an uploaded load CSV (a dcc.Upload data URL) joined to the states by its
+    image index column (`stereodic.gauge.load`), against the last extensometer's engineering strain."""
+    import base64
+    import tempfile
+
+    from stereodic.gauge.load import join_load, read_load, stress
+    data = base64.b64decode(contents.split(",", 1)[1])
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / Path(filename).name
+        path.write_bytes(data)
+        load = read_load(path, need="index")
+        at = join_load(load, len(strain), by="index")
+    eng, _ = stress(at.force_n, area_mm2=area_mm2)
+    fig = curve_figure(np.asarray(strain) * 1e6, {"stress": eng}, "engineering strain (microstrain)",
+                       "engineering stress (MPa)", f"stress-strain ({filename}, A0 = {area_mm2:g} mm^2)")
+    return fig
 
 
 def curve_figure(x, series: dict, xlabel: str, ylabel: str, title: str):

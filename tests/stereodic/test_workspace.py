@@ -1,0 +1,297 @@
+"""`stereodic view`: the workspace's access rules over plain HTTP, its result reader against dic.csv, and
+the whole path in a real headless Chromium (marked `browser`): a simulated DIC dataset, a polygon region
+drawn on the original image, the run started and followed, the state slider, a clicked point's history
+against dic.csv, an extensometer against `stereodic gauge`, a calibration and a scan."""
+
+import csv
+import json
+import shutil
+import tempfile
+import time
+import urllib.error
+import urllib.parse
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stereodic.cli import main
+
+
+def _get(url, cookie=None):
+    req = urllib.request.Request(url, headers={"Cookie": cookie} if cookie else {})
+    try:
+        with urllib.request.urlopen(req, timeout=30) as r:
+            return r.status, r.read().decode("latin-1"), r.headers
+    except urllib.error.HTTPError as e:
+        return e.code, e.read().decode("latin-1"), e.headers
+
+
+@pytest.fixture(scope="module")
+def secret_dir(tmp_path_factory):
+    """A served folder with an image, and a file beside it that must not be served."""
+    from calib.imageio import write_gray
+    root = tmp_path_factory.mktemp("served")
+    served = root / "served"
+    served.mkdir()
+    write_gray(served / "img.png", np.arange(64 * 48, dtype=np.uint16).reshape(48, 64).astype(np.uint8))
+    (root / "secret.txt").write_text("the lab's secret\n")
+    return served
+
+
+def test_other_host_needs_a_token(capsys):
+    assert main(["view", "--host", "0.0.0.0", "--no-browser", "."]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--host" in err and "--token" in err
+    assert main(["view", "--host", "0.0.0.0", "--token", "short", "--no-browser", "."]) == 2
+    assert "--token" in capsys.readouterr().err
+
+
+def test_token_and_path_traversal_over_http(secret_dir):
+    from stereodic.workspace.server import start
+    token = "0123456789abcdef0123"
+    ws = start([secret_dir], host="127.0.0.1", token=token, background=True)
+    try:
+        base = ws.url.split("?")[0]
+        assert _get(base)[0] == 403                                  # no token: refused
+        assert _get(base + "?token=wrong-wrong-wrong-wrong")[0] == 403
+        status, body, headers = _get(ws.url)
+        assert status == 200 and "stereodic view" in body
+        cookie = headers["Set-Cookie"].split(";")[0]
+        img = urllib.parse.quote(str(secret_dir / "img.png"))
+        status, body, _ = _get(f"{base}image?path={img}", cookie)    # the token's cookie: served
+        assert status == 200 and body.startswith("\x89PNG")
+        assert _get(f"{base}image?path={img}")[0] == 403              # no cookie, no token
+        for crafted in ("../secret.txt", "img.png/../../secret.txt", str(secret_dir / ".." / "secret.txt"),
+                        "%2e%2e/secret.txt", "/etc/passwd"):
+            status, body, _ = _get(f"{base}image?path={crafted if '%' in crafted else urllib.parse.quote(crafted)}",
+                                   cookie)
+            assert status == 403 and "secret" not in body.replace("secret.txt", "") and "root:" not in body
+            assert "outside the folders" in body and len(body.strip().splitlines()) == 1
+        status, body, _ = _get(f"{base}image", cookie)                 # a bad parameter: one line, no traceback
+        assert status == 400 and "Traceback" not in body and len(body.strip().splitlines()) == 1
+        # the page asked for a path outside (the same check in the page's own callback)
+        payload = {"output": "..page.children...page-path.children..", "outputs": [
+            {"id": "page", "property": "children"}, {"id": "page-path", "property": "children"}],
+            "inputs": [{"id": "url", "property": "search", "value": "?path=../secret.txt"}],
+            "changedPropIds": ["url.search"], "state": []}
+        req = urllib.request.Request(base + "_dash-update-component", data=json.dumps(payload).encode(),
+                                     headers={"Content-Type": "application/json", "Cookie": cookie})
+        with urllib.request.urlopen(req, timeout=30) as r:
+            answer = r.read().decode()
+        assert "outside the folders" in answer and "the lab's secret" not in answer
+    finally:
+        ws.stop()
+
+
+def _csv(path):
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.fixture(scope="module")
+def dic_run(dic_sim, tmp_path_factory):
+    """`stereodic dic` on the shared simulated dataset (3 states)."""
+    out = tmp_path_factory.mktemp("ws_run") / "run"
+    assert main(["dic", str(dic_sim / "rig.npz"), str(dic_sim), "-o", str(out), "--step", "8", "--no-vtk",
+                 "--no-plot"]) == 0
+    return out
+
+
+def test_result_reader_against_dic_csv(dic_run):
+    from stereodic.workspace.results import DicSource
+    rows = [r for r in _csv(dic_run / "dic.csv") if r["converged"] == "1"]
+    for src in (DicSource(dic_run), DicSource(dic_run / "dic.npz")):     # the run folder and dic.npz
+        assert src.count == 3 and src.reference_image().name == "cam0.png"
+        by_state = {}
+        for r in rows:
+            by_state.setdefault(int(r["state"]), []).append(r)
+        r = by_state[2][len(by_state[2]) // 2]
+        ref = next(q for q in by_state[0] if q["x"] == r["x"] and q["y"] == r["y"])
+        i = src.nearest(float(ref["left_x0"]), float(ref["left_y0"]))
+        assert abs(src.x[i] - float(ref["left_x0"])) < 1e-5
+        hist = src.history(i, "dX")
+        want = [float(next(q for q in by_state[k] if q["x"] == r["x"] and q["y"] == r["y"])["dX"]) for k in range(3)]
+        np.testing.assert_allclose(hist, want, atol=2e-6)
+        exx = src.values(2, "exx")
+        assert abs(np.nanmedian(exx) - 1e6 * np.median([float(q["exx"]) for q in by_state[2]
+                                                        if q["strain_valid"] == "1"])) < 1.0
+        lo, hi = src.limits("exx")
+        assert lo == -hi and hi > 9000          # fixed, symmetric, covering the 1 % tension
+
+
+# ---------------------------------------------------------------------------------------- the browser
+
+CHROMIUM, DRIVER = shutil.which("chromium"), shutil.which("chromedriver")
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if not (CHROMIUM and DRIVER):
+        pytest.fail("Debian's chromium and chromium-driver are needed (./run test installs them)")
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+    opts = webdriver.ChromeOptions()
+    profile = tempfile.mkdtemp(prefix="chromium-")
+    for a in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+              "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={profile}",
+              "--window-size=1600,1100", "--enable-unsafe-swiftshader"):
+        opts.add_argument(a)
+    opts.binary_location = CHROMIUM
+    driver = webdriver.Chrome(service=Service(DRIVER), options=opts)
+    yield driver
+    driver.quit()
+    shutil.rmtree(profile, ignore_errors=True)
+
+
+def _wait(what, timeout=60.0, every=0.2):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        got = what()
+        if got:
+            return got
+        time.sleep(every)
+    raise AssertionError(f"timed out after {timeout} s")
+
+
+def _plot(driver, graph_id, attr="data"):
+    return driver.execute_script(f"var g = document.querySelector('#{graph_id} .js-plotly-plot');"
+                                 f"return g && g.{attr} ? JSON.parse(JSON.stringify(g.{attr})) : null;")
+
+
+def _to_screen(driver, graph_id, x, y):
+    """Page pixel offsets from the graph's drag layer's top-left corner of data point (x, y)."""
+    return driver.execute_script(
+        f"var g = document.querySelector('#{graph_id} .js-plotly-plot'); var l = g._fullLayout;"
+        "return [l.xaxis.l2p(arguments[0]), l.yaxis.l2p(arguments[1])];", x, y)
+
+
+def _draw(driver, graph_id, points, closed=False):
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+    drag = driver.find_element(By.CSS_SELECTOR, f"#{graph_id} .nsewdrag")
+    w, h = drag.size["width"], drag.size["height"]
+    px = [_to_screen(driver, graph_id, x, y) for x, y in points]
+    chain = ActionChains(driver, duration=50).move_to_element_with_offset(drag, px[0][0] - w / 2, px[0][1] - h / 2)
+    chain.click_and_hold()
+    prev = px[0]
+    for p in px[1:] + ([px[0]] if closed else []):
+        steps = 6
+        for s in range(1, steps + 1):
+            target = (prev[0] + (p[0] - prev[0]) * s / steps, prev[1] + (p[1] - prev[1]) * s / steps)
+            chain.move_to_element_with_offset(drag, target[0] - w / 2, target[1] - h / 2)
+        prev = p
+    chain.release().perform()
+
+
+@pytest.mark.browser
+def test_workspace_in_a_browser(browser, dic_sim, tmp_path):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+
+    from stereodic.workspace.server import start
+    d = browser
+    shots = tmp_path / "shots"
+    shots.mkdir()
+    work = tmp_path / "work"
+    work.mkdir()
+    ws = start([dic_sim, work], background=True)
+    try:
+        base = ws.url
+        # -- set up a run: the dataset's page, a polygon drawn on the original left image
+        d.get(base + "?path=" + urllib.parse.quote(str(dic_sim)))
+        _wait(lambda: _plot(d, "noise"), 90)
+        d.find_element(By.ID, "clear-region").click()
+        _wait(lambda: not (_plot(d, "ref-image", "layout") or {}).get("shapes"))
+        polygon = [(40, 40), (190, 45), (185, 150), (45, 150)]
+        _draw(d, "ref-image", polygon, closed=True)
+        _wait(lambda: (_plot(d, "ref-image", "layout") or {}).get("shapes"))
+        d.save_screenshot(str(shots / "1-setup.png"))
+        out = work / "run"
+        field = d.find_element(By.ID, "setup-output")
+        field.send_keys(Keys.CONTROL, "a")
+        field.send_keys(str(out))
+        d.find_element(By.ID, "setup-step").send_keys(Keys.CONTROL, "a", "8")
+        d.find_element(By.ID, "start").click()
+        _wait(lambda: "stereodic dic" in d.find_element(By.ID, "command").text, 30)
+        _wait(lambda: d.find_elements(By.ID, "open-results") or "stopped" in d.find_element(By.ID, "progress").text,
+              240, 1.0)
+        d.save_screenshot(str(shots / "2-run-done.png"))
+        assert d.find_elements(By.ID, "open-results"), d.find_element(By.ID, "progress").text
+        record = json.loads((out / "workspace.json").read_text())
+        drawn = np.array(record["region"][0]["points"])
+        assert len(record["region"]) == 1 and len(drawn) >= 4
+        assert np.abs(drawn.min(0) - [40, 40]).max() < 3 and np.abs(drawn.max(0) - [190, 150]).max() < 3
+        rows = _csv(out / "dic.csv")
+        from matplotlib.path import Path as MPath
+        ref_rows = [r for r in rows if r["state"] == "0" and r["converged"] == "1"]
+        inside = MPath(drawn).contains_points([(float(r["left_x0"]), float(r["left_y0"])) for r in ref_rows],
+                                              radius=1.5)
+        assert len(ref_rows) > 50 and inside.mean() > 0.99      # the points are where the region was drawn
+        assert record["command"].startswith("stereodic dic ") and "--mask" in record["command"]
+
+        # -- the results: the state slider, a point's history against dic.csv
+        d.find_element(By.ID, "open-results").click()
+        _wait(lambda: _plot(d, "field"), 60)
+        handle = d.find_element(By.CSS_SELECTOR, "#state [role=slider]")
+        handle.click()
+        handle.send_keys(Keys.END)
+        _wait(lambda: "tension" in (_plot(d, "field", "layout") or {}).get("title", {}).get("text", ""))
+        d.save_screenshot(str(shots / "3-results-state2.png"))
+        xs, ys = _plot(d, "field")[0]["x"], _plot(d, "field")[0]["y"]
+        xs, ys = (np.array(v if isinstance(v, list) else [v[str(i)] for i in range(len(v))]) for v in (xs, ys))
+        i = len(xs) // 2
+        from selenium.webdriver.common.action_chains import ActionChains
+        drag = d.find_element(By.CSS_SELECTOR, "#field .nsewdrag")
+        px = _to_screen(d, "field", float(xs[i]), float(ys[i]))
+        ActionChains(d).move_to_element_with_offset(drag, px[0] - drag.size["width"] / 2,
+                                                    px[1] - drag.size["height"] / 2).click().perform()
+        curve = _wait(lambda: _plot(d, "curve"))
+        title = _plot(d, "curve", "layout")["title"]["text"]
+        at = [float(v) for v in title.split("(")[1].split(")")[0].split(",")]
+        row0 = min(ref_rows, key=lambda r: np.hypot(float(r["left_x0"]) - at[0], float(r["left_y0"]) - at[1]))
+        assert np.hypot(float(row0["left_x0"]) - at[0], float(row0["left_y0"]) - at[1]) < 0.06
+        truth = [float(next(r for r in rows if r["state"] == str(k) and r["x"] == row0["x"] and r["y"] == row0["y"])
+                       ["exx"]) * 1e6 for k in range(3)]
+        np.testing.assert_allclose(curve[0]["y"], truth, atol=0.01)
+        d.save_screenshot(str(shots / "4-history.png"))
+
+        # -- an extensometer drawn on the image against `stereodic gauge`
+        d.find_element(By.CSS_SELECTOR, "#tool input[value=extensometer]").click()
+        _wait(lambda: (_plot(d, "field", "layout") or {}).get("dragmode") == "drawline")
+        _draw(d, "field", [(70, 80), (160, 85)])
+        ext = _wait(lambda: _plot(d, "curve") if "extensometer" in
+                    (_plot(d, "curve", "layout") or {}).get("title", {}).get("text", "") else None, 60)
+        shape = _plot(d, "field", "layout")["shapes"][-1]
+        ends = ",".join(f"{shape[k]:.6f}" for k in ("x0", "y0", "x1", "y1"))
+        assert main(["gauge", str(out), "--extensometer", ends, "-o", str(tmp_path / "gauge")]) == 0
+        want = [float(r["strain"]) * 1e6 for r in _csv(tmp_path / "gauge" / "extensometers.csv")]
+        np.testing.assert_allclose(ext[0]["y"], want, atol=0.01)
+        assert abs(want[2] - 1e4) < 500          # the simulated 1 % stretch along x
+        d.save_screenshot(str(shots / "5-extensometer.png"))
+
+        # -- a calibration (a PRVM file) and a scan (a PLY cloud of a known sphere)
+        d.get(base + "?path=" + urllib.parse.quote(str(dic_sim / "truth_cam0.npz")))
+        about = _wait(lambda: d.find_elements(By.ID, "about") and d.find_element(By.ID, "about").text, 60)
+        assert "PRVM of camera" in about
+        _wait(lambda: len(d.find_elements(By.CSS_SELECTOR, ".map .js-plotly-plot")) >= 1)
+        d.save_screenshot(str(shots / "6-calibration.png"))
+        import open3d as o3d
+        rng = np.random.default_rng(3)
+        v = rng.normal(size=(3000, 3))
+        pts = np.array([5.0, -2.0, 300.0]) + 20.0 * v / np.linalg.norm(v, axis=1)[:, None]
+        pts += rng.normal(scale=0.01, size=pts.shape)
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+        o3d.io.write_point_cloud(str(work / "sphere.ply"), cloud)
+        d.get(base + "?path=" + urllib.parse.quote(str(work / "sphere.ply")))
+        _wait(lambda: d.find_elements(By.CSS_SELECTOR, "#scan-shape input[value=sphere]"), 60)
+        d.find_element(By.CSS_SELECTOR, "#scan-shape input[value=sphere]").click()
+        about = _wait(lambda: "sphere of radius" in d.find_element(By.ID, "about").text
+                      and d.find_element(By.ID, "about").text, 60)
+        radius = float(about.split("sphere of radius ")[1].split(" mm")[0])
+        assert abs(radius - 20.0) < 0.005 and "RMS 0.01" in about
+        assert _plot(d, "cloud")[0]["type"] == "scatter3d"
+        d.save_screenshot(str(shots / "7-scan.png"))
+    finally:
+        ws.stop()
