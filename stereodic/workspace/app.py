@@ -60,7 +60,7 @@ def make_app(access: Access):
     app.layout = html.Div([dcc.Location(id="url"),
                            html.Div([html.B("stereodic view"), html.Span(id="page-path")],
                                     style={"padding": "4px 8px", "borderBottom": "1px solid #ccc"}),
-                           dcc.Loading(html.Div(id="page"), delay_show=300)],
+                           dcc.Loading(html.Div(id="page"), delay_show=300, target_components={"page": "children"})],
                           style={"fontFamily": "sans-serif", "fontSize": "14px"})
 
     @app.callback(Output("page", "children"), Output("page-path", "children"), Input("url", "search"))
