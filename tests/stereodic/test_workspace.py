@@ -260,11 +260,11 @@ def test_workspace_in_a_browser(browser, dic_sim, tmp_path):
         handle.send_keys(Keys.END)
         _wait(lambda: "tension" in (_plot(d, "field", "layout") or {}).get("title", {}).get("text", ""))
         d.save_screenshot(str(shots / "3-results-state2.png"))
-        xs, ys = _array(d, "field", 0, "x"), _array(d, "field", 0, "y")
-        i = len(xs) // 2
+        target = ref_rows[len(ref_rows) // 2]           # click on a measured point, where it is in the image
+        tx, ty = float(target["left_x0"]), float(target["left_y0"])
         from selenium.webdriver.common.action_chains import ActionChains
         drag = d.find_element(By.CSS_SELECTOR, "#field .nsewdrag")
-        px = _to_screen(d, "field", float(xs[i]), float(ys[i]))
+        px = _to_screen(d, "field", tx, ty)
         ActionChains(d).move_to_element_with_offset(drag, px[0] - drag.size["width"] / 2,
                                                     px[1] - drag.size["height"] / 2).click().perform()
         _wait(lambda: _plot(d, "curve"))
@@ -272,6 +272,7 @@ def test_workspace_in_a_browser(browser, dic_sim, tmp_path):
         at = [float(v) for v in title.split("(")[1].split(")")[0].split(",")]
         row0 = min(ref_rows, key=lambda r: np.hypot(float(r["left_x0"]) - at[0], float(r["left_y0"]) - at[1]))
         assert np.hypot(float(row0["left_x0"]) - at[0], float(row0["left_y0"]) - at[1]) < 0.06
+        assert np.hypot(at[0] - tx, at[1] - ty) < 8.0       # the clicked point or a neighbour (a cell is a step)
         truth = [float(next(r for r in rows if r["state"] == str(k) and r["x"] == row0["x"] and r["y"] == row0["y"])
                        ["exx"]) * 1e6 for k in range(3)]
         np.testing.assert_allclose(_array(d, "curve", 0, "y"), truth, atol=0.06)   # dic.csv's %.7f: 0.05 microstrain
