@@ -185,6 +185,12 @@ def layout(path: Path, access: Access):
                 dcc.Graph(id="stress-strain", style={"height": "300px", "width": "520px"},
                           config={"displaylogo": False, "toImageButtonOptions": {"filename": "stress-strain"}}),
                 html.Div(id="message", style={"color": "#b00", "whiteSpace": "pre-wrap"}),
+                html.Div([html.Hr(), html.Button("rig health: epipolar error of state 0", id="health-button",
+                                                 n_clicks=0),
+                          html.Div(id="health-text"),
+                          dcc.Graph(id="health", style={"height": "280px", "width": "520px"},
+                                    config={"displaylogo": False})],
+                         style={} if src.kind == "dic" else {"display": "none"}),
             ], style={"flex": "none", "marginLeft": "10px"}),
         ], style={"display": "flex", "alignItems": "flex-start"}),
     ])
@@ -288,6 +294,14 @@ def register(app, access: Access) -> None:
         except (InputError, TypeError, ValueError) as exc:
             return no_update, error_text(exc)
 
+    @app.callback(Output("health", "figure"), Output("health-text", "children"), Input("health-button", "n_clicks"),
+                  State("dic-path", "data"), prevent_initial_call=True)
+    def health(_, path):
+        try:
+            return rig_health(source(path))
+        except InputError as exc:
+            return no_update, error_text(exc)
+
     @app.callback(Output("download", "data"), Input("curve-csv", "n_clicks"), State("curve-data", "data"),
                   prevent_initial_call=True)
     def download(_, table):
@@ -296,6 +310,46 @@ def register(app, access: Access) -> None:
         text = ",".join(table["columns"]) + "\n" + "".join(
             ",".join(f"{v:.9g}" if isinstance(v, float) else str(v) for v in row) + "\n" for row in table["rows"])
         return dcc.send_string(text, "curve.csv")
+
+
+def rig_health(src: DicSource):
+    """(histogram figure, one line) of the rig's epipolar error over state 0's matches of a stereo result
+    (`stereodic.dic3d.epipolar`: right row minus where the left ray is seen, pixels; what the calibration
+    allows; whether the rig looks bumped). InputError naming the result when it has no dic.npz or its rig
+    file is gone."""
+    import plotly.graph_objects as go
+
+    from stereodic.dic3d.epipolar import check, epipolar_error
+    from stereodic.rig import load_rig
+    npz = src.path if src.run_folder is None else src.run_folder / "dic.npz"
+    if not npz.is_file():
+        raise InputError(src.path, "has no dic.npz yet: the rig's health is measured on a finished run")
+    rig_name = src.meta.get("rig")
+    candidates = [Path(rig_name), npz.parent / rig_name] if rig_name else []
+    rig_path = next((p for p in candidates if p.is_file()), None)
+    if rig_path is None:
+        raise InputError(npz, f"names the rig {rig_name!r}, which is not there any more")
+    rig = load_rig(rig_path)
+    from calib.npz_stream import read_slice
+    with np.load(npz) as z:
+        xs, ys = z["x"].astype(np.float64), z["y"].astype(np.float64)
+    X, Y = np.meshgrid(xs, ys)
+    ru, rv, noise = (read_slice(npz, k, 0) for k in ("right_u", "right_v", "right_noise_px"))
+    ok = np.isfinite(read_slice(npz, "left_u", 0)) & np.isfinite(ru)
+    xl, yl, xr, yr = X[ok], Y[ok], (X + ru)[ok], (Y + rv)[ok]
+    report = check(rig, xl, yl, xr, yr, noise[ok])
+    if report is None:
+        raise InputError(npz, "state 0 has no point matched in both cameras")
+    e = epipolar_error(rig, xl, yl, xr, yr)
+    fig = go.Figure(go.Histogram(x=e[np.isfinite(e)], nbinsx=60))
+    for v in (-report.expected_p95, report.expected_p95):
+        fig.add_vline(x=v, line=dict(color="red", dash="dash", width=1))
+    fig.update_layout(title=dict(text="epipolar error of state 0 (red: the p95 the calibration allows)",
+                                 font=dict(size=12)), xaxis_title="right row - where the left ray is seen (px)",
+                      yaxis_title="points", margin=dict(l=60, r=10, t=35, b=40))
+    verdict = ("the rig looks moved since its calibration" if report.bumped else
+               "within what the calibration allows")
+    return fig, f"{report.line()}: {verdict}"
 
 
 _GAUGE_RESULTS: dict[tuple[str, str], object] = {}

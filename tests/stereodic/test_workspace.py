@@ -92,11 +92,24 @@ def _csv(path):
 
 @pytest.fixture(scope="module")
 def dic_run(dic_sim, tmp_path_factory):
-    """`stereodic dic` on the shared simulated dataset (3 states)."""
+    """`stereodic dic` on the shared simulated dataset (3 states); its printed lines in out/printed.txt."""
+    import contextlib
+    import io
     out = tmp_path_factory.mktemp("ws_run") / "run"
-    assert main(["dic", str(dic_sim / "rig.npz"), str(dic_sim), "-o", str(out), "--step", "8", "--no-vtk",
-                 "--no-plot"]) == 0
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main(["dic", str(dic_sim / "rig.npz"), str(dic_sim), "-o", str(out), "--step", "8", "--no-vtk",
+                     "--no-plot"]) == 0
+    (out / "printed.txt").write_text(printed.getvalue())
     return out
+
+
+def test_rig_health_is_what_dic_reported(dic_run):
+    from stereodic.workspace.dic_view import rig_health, source
+    figure, line = rig_health(source(dic_run))
+    said = next(t for t in (dic_run / "printed.txt").read_text().splitlines() if t.startswith("epipolar error"))
+    assert line.startswith(said) and "within what the calibration allows" in line
+    assert figure.data[0].x.size == int(said.split(" over ")[1].split()[0])
 
 
 def test_result_reader_against_dic_csv(dic_run):
@@ -289,6 +302,15 @@ def test_workspace_in_a_browser(browser, dic_sim, tmp_path):
         want = _gauge_strain(out, ends, tmp_path / "gauge")
         np.testing.assert_allclose(_array(d, "curve", 0, "y"), want, atol=0.01)
         assert abs(want[2] - 1e4) < 500          # the simulated 1 % stretch along x
+        # -- the testing machine's load (its own image index column) against the extensometer: stress-strain
+        load = work / "machine.csv"
+        load.write_text("Image,Force [N]\n0,0\n1,120.5\n2,2410\n3,2500\n")
+        d.find_element(By.CSS_SELECTOR, "#load-upload input[type=file]").send_keys(str(load))
+        d.find_element(By.ID, "load-area").send_keys("12.5")
+        _wait(lambda: _plot(d, "stress-strain") and "stress-strain" in
+              (_plot(d, "stress-strain", "layout") or {}).get("title", {}).get("text", ""), 30)
+        np.testing.assert_allclose(_array(d, "stress-strain", 0, "y"), [0.0, 120.5 / 12.5, 2410 / 12.5], rtol=1e-9)
+        np.testing.assert_allclose(_array(d, "stress-strain", 0, "x"), want, atol=0.01)
         d.save_screenshot(str(shots / "5-extensometer.png"))
 
         # -- a calibration (a PRVM file) and a scan (a PLY cloud of a known sphere)
