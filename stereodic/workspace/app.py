@@ -1,8 +1,8 @@
 """The workspace's pages (Dash): what PATH is decides the page.
 
 - a `dic` run folder, a `dic.npz` or a `dic2d` NPZ: the results (`dic_view`);
-- a `kind: dic` dataset (its folder or capture.json), or a folder of image pairs: setting up a run
-  (`setup_view`);
+- a `kind: dic` dataset (its folder or capture.json), or a folder of image pairs NAME_0 / NAME_1 (DICe's
+  and VIC-3D's naming): setting up a run (`setup_view`);
 - a PRVM file: its distortion, uncertainty and residual maps; a RIG file: its geometry and error vector
   matrices; a PLY point cloud: the cloud in 3D coloured by its distance to a fitted plane or sphere
   (`other_views`).
@@ -21,15 +21,23 @@ from calib.errors import InputError
 from stereodic.workspace.access import Access
 
 
+def image_pairs(folder: Path) -> bool:
+    """Whether `folder` holds image pairs named as DICe and VIC-3D name them (NAME_0.tif, NAME_1.tif)."""
+    from calib.imageio import IMAGE_SUFFIXES
+    return any(p.suffix.lower() in IMAGE_SUFFIXES and p.stem.endswith("_0") and
+               any((folder / f"{p.stem[:-2]}_1{s}").is_file() for s in (p.suffix, p.suffix.lower()))
+               for p in folder.iterdir())
+
+
 def kind_of(path: Path) -> str:
     """What `path` holds: "dic", "setup", "prvm", "rig" or "scan"; InputError naming it otherwise."""
     if path.is_dir():
         if (path / "run.json").is_file() or (path / "dic.npz").is_file():
             return "dic"
-        if (path / "capture.json").is_file():
+        if (path / "capture.json").is_file() or image_pairs(path):
             return "setup"
         raise InputError(path, "is neither a `stereodic dic` output folder nor a DIC dataset (no run.json, "
-                               "dic.npz or capture.json)")
+                               "dic.npz, capture.json or image pairs NAME_0 / NAME_1)")
     if path.name == "capture.json":
         return "setup"
     if path.suffix.lower() == ".ply":

@@ -1,4 +1,5 @@
-"""The set-up page: from a `kind: dic` dataset and a rig to a running `stereodic dic`.
+"""The set-up page: from a `kind: dic` dataset (or a folder of image pairs NAME_0 / NAME_1) and a rig to a
+running `stereodic dic`.
 
 The left reference image is shown with the specimen's region found automatically (`region.automatic_region`
 on the speckle's predicted noise); the user edits it in the ORIGINAL image: rectangles and polygons add
@@ -87,10 +88,13 @@ def apply_relayout(shapes: list, relayout: dict) -> list:
 
 
 def _states(dataset: Path, rig_path: Path):
-    from stereodic.dic3d.dataset import load_states
+    """(rig, the experiment's states) of a dataset folder, or of a folder of image pairs NAME_0 / NAME_1."""
+    from stereodic.dic3d.dataset import load_states, states_from_folder
     from stereodic.rig import load_rig
     rig = load_rig(rig_path)
-    return rig, load_states(dataset, rig)
+    if (dataset / "capture.json").is_file():
+        return rig, load_states(dataset, rig)
+    return rig, states_from_folder(dataset, "_0", "_1", rig)
 
 
 def default_output(dataset: Path, access: Access) -> Path:
@@ -192,7 +196,8 @@ def write_run_files(output: Path, rig_path: Path, dataset: Path, polygons: list[
         raise InputError("region", "covers no pixel of the rectified left image: draw it on the specimen")
     output.mkdir(parents=True, exist_ok=True)
     write_gray(output / "region_mask.png", mask.astype(np.uint8) * 255)
-    command = ["stereodic", "dic", str(rig_path), str(dataset), "-o", str(output),
+    images = [str(dataset)] if (dataset / "capture.json").is_file() else ["--images", str(dataset)]
+    command = ["stereodic", "dic", str(rig_path), *images, "-o", str(output),
                "--mask", str(output / "region_mask.png"), "--subset", str(settings["subset"]), "--step",
                str(settings["step"]), "--strain-window", str(settings["strain_window"]), "--no-vtk"]
     write_json(output / "workspace.json", {"format": RUN_FORMAT, "rig": str(rig_path), "dataset": str(dataset),

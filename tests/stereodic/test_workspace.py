@@ -338,3 +338,38 @@ def test_workspace_in_a_browser(browser, dic_sim, tmp_path):
         d.save_screenshot(str(shots / "7-scan.png"))
     finally:
         ws.stop()
+
+
+def test_region_on_image_pairs_goes_to_the_rectified_mask(dic_sim, tmp_path):
+    """A folder of image pairs (DICe's naming) is set up like a dataset; the polygon drawn on the original
+    left image becomes the rectified mask whose pixels sample the original inside it (checked through the
+    rig's own maps, pixel by pixel), with the hole left out."""
+    from matplotlib.path import Path as MPath
+
+    from stereodic.rig import load_rig
+    from stereodic.workspace.app import kind_of
+    from stereodic.workspace.region import Polygon
+    from stereodic.workspace.setup_view import write_run_files
+    pairs = tmp_path / "pairs"
+    pairs.mkdir()
+    for k in range(3):
+        for cam, side in (("cam0", 0), ("cam1", 1)):
+            shutil.copy(dic_sim / f"s{k:03d}" / f"{cam}.png", pairs / f"img_{k:04d}_{side}.png")
+    assert kind_of(pairs) == "setup"
+    outline = np.array([[40.0, 40.0], [190.0, 45.0], [185.0, 150.0], [45.0, 150.0]])
+    hole = np.array([[100.0, 80.0], [130.0, 80.0], [130.0, 110.0], [100.0, 110.0]])
+    out = tmp_path / "run"
+    command = write_run_files(out, dic_sim / "rig.npz", pairs, [Polygon(outline), Polygon(hole, hole=True)],
+                              {"subset": 21, "step": 8, "strain_window": 5})
+    assert command[3:5] == ["--images", str(pairs)] and "--mask" in command
+    from calib.imageio import read_gray
+    mask = read_gray(out / "region_mask.png") > 0
+    imm = load_rig(dic_sim / "rig.npz").left.imm
+    assert mask.shape == imm.shape
+    sampled = np.column_stack([imm.map_x[imm.valid], imm.map_y[imm.valid]])
+    m = mask[imm.valid]
+    deep = MPath(outline).contains_points(sampled, radius=-2.0) & ~MPath(hole).contains_points(sampled, radius=2.0)
+    near = MPath(outline).contains_points(sampled, radius=2.0) & ~MPath(hole).contains_points(sampled, radius=-2.0)
+    assert m[deep].all() and not m[~near].any() and m.sum() > 1000
+    record = json.loads((out / "workspace.json").read_text())
+    assert [p["hole"] for p in record["region"]] == [False, True] and len(record["left_images"]) == 3
