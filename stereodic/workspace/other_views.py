@@ -68,7 +68,7 @@ def prvm_layout(path: Path, access: Access):
                                   f"1-sigma ray uncertainty at z = {fixed(z0, 3)} mm (per axis)", "camera px",
                                   "Magma"))
     res = prvm.residual_mm
-    if res is not None and np.isfinite(res).any():
+    if res is not None and np.nanmax(np.where(valid, res, np.nan), initial=0.0) > 0:   # a fit was made
         figures.append(map_figure(np.where(valid, res * 1000.0, np.nan), "line-fit residual (error of the rays' "
                                                                           "fit to the decoded points)", "um", "Magma"))
     h, w = valid.shape
