@@ -18,7 +18,6 @@ Goals: redraw <= 0.2 s, open <= 2 s (issue 26).
 
 from __future__ import annotations
 
-import json
 import shutil
 import statistics
 import tempfile
@@ -112,15 +111,12 @@ def _wall(fn) -> float:
     return time.perf_counter() - t0
 
 
-def _browser(big: Path, long: Path, image: Path, states: int) -> list[Figure]:
-    from urllib.parse import quote
-
+def headless_chromium():
+    """(Selenium driver, its fresh profile folder) of Debian's chromium, headless, as root may run it: no
+    sandbox, no GPU (software WebGL), nothing fetched in the background; 1600x1100. Quit the driver and
+    remove the folder after use."""
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
-    from selenium.webdriver.common.by import By
-    from selenium.webdriver.common.keys import Keys
-
-    from stereodic.workspace.server import start
     opts = webdriver.ChromeOptions()
     profile = tempfile.mkdtemp(prefix="chromium-")
     for a in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
@@ -128,8 +124,18 @@ def _browser(big: Path, long: Path, image: Path, states: int) -> list[Figure]:
               "--window-size=1600,1100", "--enable-unsafe-swiftshader"):
         opts.add_argument(a)
     opts.binary_location = shutil.which("chromium")
+    return webdriver.Chrome(service=Service(shutil.which("chromedriver")), options=opts), profile
+
+
+def _browser(big: Path, long: Path, image: Path, states: int) -> list[Figure]:
+    from urllib.parse import quote
+
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+
+    from stereodic.workspace.server import start
     ws = start([big, long, image.parent], background=True)
-    d = webdriver.Chrome(service=Service(shutil.which("chromedriver")), options=opts)
+    d, profile = headless_chromium()
     title = ("var g = document.querySelector('#field .js-plotly-plot');"
              "return g && g._fullLayout ? g._fullLayout.title.text : null;")
 

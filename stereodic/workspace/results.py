@@ -65,6 +65,7 @@ class DicSource:
         self.path = path
         self.run_folder = None
         self.meta: dict = {}
+        self._settings: dict | None = None
         if path.is_dir() and (path / "run.json").is_file():
             self.run_folder = path
             self.kind = "dic"
@@ -108,8 +109,9 @@ class DicSource:
         self.run_settings = manifest.get("settings", {})
 
     def refresh(self) -> int:
-        """The number of finished states, read again (a run folder whose run goes on); returns it."""
-        if self.run_folder is not None:
+        """The number of finished states, read again while the run goes on (a run folder whose states are
+        not all done); returns it."""
+        if self.run_folder is not None and self.count < self.total:
             self._count_states()
         return self.count
 
@@ -188,9 +190,11 @@ class DicSource:
         return [f"state {k}" for k in range(self.count)]
 
     def _workspace(self) -> dict:
-        """The run's workspace.json (the settings a run started from the workspace saved), or {}."""
-        p = (self.run_folder or self.path.parent) / "workspace.json"
-        return json.loads(p.read_text()) if p.is_file() else {}
+        """The run's workspace.json (the settings a run started from the workspace saved), or {}; read once."""
+        if self._settings is None:
+            p = (self.run_folder or self.path.parent) / "workspace.json"
+            self._settings = json.loads(p.read_text()) if p.is_file() else {}
+        return self._settings
 
     def reference_image(self) -> Path | None:
         """The original left reference image's file, where the result names it (dic.npz's left_images, the

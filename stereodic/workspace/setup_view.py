@@ -97,6 +97,15 @@ def _states(dataset: Path, rig_path: Path):
     return rig, states_from_folder(dataset, "_0", "_1", rig)
 
 
+def automatic_shapes(image: Path) -> list[dict]:
+    """The specimen's region found in `image` (`region.automatic_region` on the predicted noise of 21 px
+    subsets) as editable plotly shapes."""
+    from calib.imageio import read_gray
+    from stereodic.dic.speckle_quality import speckle_quality
+    noise = speckle_quality(read_gray(image), subset=21, sizes=(21,)).noise_map
+    return [polygon_shape(p) for p in automatic_region(noise)]
+
+
 def default_output(dataset: Path, access: Access) -> Path:
     """Where a run goes unless the user says otherwise: beside the dataset where that is served, else in it."""
     beside = dataset.parent / f"{dataset.name}-dic"
@@ -134,10 +143,7 @@ def layout(path: Path, access: Access):
                                   "rig` or `stereodic import` there, or serve its folder too (stereodic view "
                                   "DATASET RIG_FOLDER)")
     rig, data = _states(dataset, default)
-    from stereodic.dic.speckle_quality import speckle_quality
-    from calib.imageio import read_gray
-    q = speckle_quality(read_gray(data.left[0]), subset=21, sizes=(21,))
-    shapes = [polygon_shape(p) for p in automatic_region(q.noise_map)]
+    shapes = automatic_shapes(data.left[0])
     return html.Div([
         dcc.Store(id="setup-dataset", data=str(dataset)), dcc.Store(id="shapes", data=shapes),
         html.Div(["rig ", dcc.Dropdown([str(r) for r in rigs], str(default), id="setup-rig", clearable=False,
@@ -270,11 +276,8 @@ def register(app, access: Access) -> None:
         if trigger == "clear-region":
             shapes = []
         elif trigger == "auto-region":
-            from calib.imageio import read_gray
-            from stereodic.dic.speckle_quality import speckle_quality
             _, data = _states(Path(dataset), access.resolve(rig_path))
-            shapes = [polygon_shape(p) for p in automatic_region(
-                speckle_quality(read_gray(data.left[0]), subset=21, sizes=(21,)).noise_map)]
+            shapes = automatic_shapes(data.left[0])
         else:
             if not relayout or not any(k.startswith("shapes") for k in relayout):
                 return no_update, no_update
@@ -311,8 +314,7 @@ def register(app, access: Access) -> None:
                   State("setup-step", "value"), State("setup-window", "value"), prevent_initial_call=True)
     def start(_, shapes, dataset, rig_path, output, subset, step, window):
         try:
-            polygons = from_json([{"points": shape_polygon(s).points.tolist(), "hole": shape_polygon(s).hole}
-                                  for s in shapes or []])
+            polygons = from_json(to_json([shape_polygon(s) for s in shapes or []]))   # checked: >= 3 vertices
             if not any(not p.hole for p in polygons):
                 raise InputError("region", "has no part: draw the specimen's outline first")
             out = access.resolve(output)

@@ -6,12 +6,10 @@ against dic.csv, an extensometer against `stereodic gauge`, a calibration and a 
 import csv
 import json
 import shutil
-import tempfile
 import time
 import urllib.error
 import urllib.parse
 import urllib.request
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -143,16 +141,8 @@ CHROMIUM, DRIVER = shutil.which("chromium"), shutil.which("chromedriver")
 def browser():
     if not (CHROMIUM and DRIVER):
         pytest.fail("Debian's chromium and chromium-driver are needed (./run test installs them)")
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-    opts = webdriver.ChromeOptions()
-    profile = tempfile.mkdtemp(prefix="chromium-")
-    for a in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-              "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={profile}",
-              "--window-size=1600,1100", "--enable-unsafe-swiftshader"):
-        opts.add_argument(a)
-    opts.binary_location = CHROMIUM
-    driver = webdriver.Chrome(service=Service(DRIVER), options=opts)
+    from stereodic.bench.view import headless_chromium
+    driver, profile = headless_chromium()
     yield driver
     driver.quit()
     shutil.rmtree(profile, ignore_errors=True)
