@@ -27,7 +27,12 @@ FINGERPRINT_BYTES = 16384
 
 def fingerprint(path: str | os.PathLike) -> str:
     """'<size>:<SHA-1 of up to 16 KiB from the middle of the file>': cheap, and different for two
-    captures of a speckle (its noise alone differs)."""
+    captures of a speckle (its noise alone differs). A frame of a sequence file (`FILE::K`,
+    `calib.sequences`): the file's fingerprint and the frame's name."""
+    from calib.sequences import parse_frame_ref
+    ref = parse_frame_ref(path)
+    if ref is not None:
+        return f"{fingerprint(ref[0])}#{os.fspath(path)[len(os.fspath(ref[0])) + 2:]}"
     path = Path(path)
     size = path.stat().st_size
     with open(path, "rb") as f:

@@ -10,6 +10,7 @@ import re
 from pathlib import Path
 
 from calib.errors import InputError
+from calib.sequences import expand_sequence
 
 _DIGITS = re.compile(r"(\d+)")
 
@@ -22,8 +23,13 @@ def natural_key(path: str | os.PathLike) -> tuple:
 
 def expand(pattern: str | os.PathLike) -> list[Path]:
     """The files a shell-style pattern (`*`, `?`, `[...]`, `**`) names, in natural order; a name without
-    wildcards is itself. InputError naming the pattern when it matches no file."""
+    wildcards is itself, unless it names a sequence file (a video, a TIFF stack, a .cine, a .mraw; or
+    FILE:left / FILE:right, the halves of a side-by-side stream): then its frames' references
+    (`calib.sequences.expand_sequence`). InputError naming the pattern when it matches no file."""
     text = os.path.expanduser(os.fspath(pattern))
+    frames = expand_sequence(text)
+    if frames is not None:
+        return frames
     if not glob.has_magic(text):
         return [Path(text)]
     files = [Path(p) for p in glob.glob(text, recursive=True) if os.path.isfile(p)]

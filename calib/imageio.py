@@ -1,4 +1,5 @@
-"""Reading and writing grayscale images: 8/16-bit PNG and TIFF.
+"""Reading and writing grayscale images: 8/16-bit PNG and TIFF, and the frames of sequence files (videos,
+TIFF stacks, .cine, .mraw: `calib.sequences`) named `FILE::K`.
 
 Colour images are converted to monochrome (the seed: treat colour as monochrome); a single-channel Bayer
 image keeps its raw pixels. Values are returned in their native dtype (uint8 or uint16).
@@ -15,6 +16,7 @@ import numpy as np
 
 from calib.atomic import atomic_output
 from calib.errors import InputError
+from calib.sequences import frame_size, parse_frame_ref, read_frame
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
 SUPPORTED_MODES = ("1", "L", "LA", "P", "RGB", "RGBA", "I;16", "I;16B", "I;16L", "I;16N", "I")  # PIL's names
@@ -36,6 +38,8 @@ def image_size(path: str | os.PathLike) -> tuple[int, int]:
     checksums are verified, a TIFF's strips or tiles must lie inside the file), so that thousands of
     images are checked in seconds before any work."""
     from PIL import Image  # here: a command that reads its few images whole never needs it
+    if parse_frame_ref(path) is not None:
+        return frame_size(path)
     path = Path(path)
     _check_file(path)
     if path.stat().st_size == 0:
@@ -78,7 +82,10 @@ def check_size(path: str | os.PathLike, size: tuple[int, int], of: str) -> None:
 
 def read_gray(path: str | os.PathLike) -> np.ndarray:
     """Read an image as a 2-D uint8 or uint16 array (colour -> luminance, alpha dropped); InputError
-    naming the file if it is missing or not a readable image."""
+    naming the file if it is missing or not a readable image. A frame reference `FILE::K` reads frame K of
+    a video, TIFF stack, .cine or .mraw (`calib.sequences`)."""
+    if parse_frame_ref(path) is not None:
+        return read_frame(path)
     path = Path(path)
     _check_file(path)
     level = cv2.utils.logging.getLogLevel()

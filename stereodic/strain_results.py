@@ -15,11 +15,14 @@ from pathlib import Path
 from typing import Iterator
 
 
+import numpy as np
+
 from calib.errors import InputError
 from calib.npz_stream import iter_slices
 from calib.npzfile import read_npz
 from stereodic.dic.grid import Grid
 from stereodic.dic.maps import MapAxes, pixel_axes, surface_axes
+from stereodic.gauge.frame import SpecimenFrame, specimen_frame
 from stereodic.strain import StrainFit, strain_2d
 from stereodic.strain_measures import StrainMeasure, measure_strain
 
@@ -64,23 +67,37 @@ def state_labels(result: DicResult) -> list[str]:
         [f"state {k}" for k in range(result.states)]
 
 
-def map_axes(result: DicResult) -> MapAxes:
-    """The axes of `result`'s maps: the reference surface's X, Y in mm for a stereo result, the reference
-    image's pixels for a dic2d one (stereodic.dic.maps)."""
+def map_axes(result: DicResult, *, frame: SpecimenFrame | None = None) -> MapAxes:
+    """The axes of `result`'s maps: the reference surface's X, Y in mm for a stereo result (in `frame`,
+    the specimen's, when given), the reference image's pixels for a dic2d one (stereodic.dic.maps)."""
     g = result.grid
     if result.kind == "dic2d":
         return pixel_axes(g.xs, g.ys, g.active)
-    return surface_axes(g.xs, g.ys, next(iter_slices(result.path, "points")), g.active)
+    P0 = next(iter_slices(result.path, "points"))
+    return surface_axes(g.xs, g.ys, P0 if frame is None else frame.apply(P0), g.active)
 
 
-def strains(result: DicResult, window: int, measure: str) -> Iterator[StrainMeasure]:
-    """The strain measure of every state of `result`, fitted over window x window grid points."""
+def specimen_frame_of(result: DicResult, *, origin_px=None, x_direction_px=(1.0, 0.0)) -> SpecimenFrame:
+    """The specimen's frame of a stereo result (`stereodic.gauge.frame.specimen_frame` of state 0's points
+    and their positions in the original left reference image); InputError for a dic2d result."""
+    if result.kind != "dic":
+        raise InputError("--frame", f"{result.path} is a 2-D result: the specimen's frame needs a stereo result")
+    P0 = next(iter_slices(result.path, "points"))
+    px = np.stack([next(iter_slices(result.path, "left_x0")), next(iter_slices(result.path, "left_y0"))], -1)
+    ok = np.isfinite(P0).all(-1) & np.isfinite(px).all(-1)
+    return specimen_frame(P0[ok], px[ok], origin_px=origin_px, x_direction_px=x_direction_px)
+
+
+def strains(result: DicResult, window: int, measure: str, *, frame: SpecimenFrame | None = None
+            ) -> Iterator[StrainMeasure]:
+    """The strain measure of every state of `result`, fitted over window x window grid points; with
+    `frame` (a stereo result), in the specimen's axes (e1: its x projected on the tangent plane)."""
     g = result.grid
     if result.kind == "dic2d":
         for u, v in zip(iter_slices(result.path, "u"), iter_slices(result.path, "v")):
             yield measure_strain(strain_2d(g.xs, g.ys, u, v, window=window), measure=measure)
         return
     points = iter_slices(result.path, "points")
-    fit = StrainFit(next(points), window=window)
+    fit = StrainFit(next(points) if frame is None else frame.apply(next(points)), window=window)
     for disp in iter_slices(result.path, "displacement"):
-        yield measure_strain(fit(disp), measure=measure)
+        yield measure_strain(fit(disp if frame is None else frame.rotate(disp)), measure=measure)

@@ -219,5 +219,6 @@ def _stereo(quick: bool) -> list[Figure]:
 
 
 def run(quick: bool = False) -> list[Figure]:
-    from stereodic.bench import dic_sequence
-    return _real_images(quick) + _synthetic_errors(quick) + _speed(quick) + _stereo(quick) + dic_sequence.figures(quick)
+    from stereodic.bench import dic_sequence, sequences
+    return (_real_images(quick) + _synthetic_errors(quick) + _speed(quick) + _stereo(quick) + dic_sequence.figures(quick)
+            + sequences.figures(quick))

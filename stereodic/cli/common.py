@@ -127,6 +127,9 @@ def _a(noun: str) -> str:
 
 def _check_input(path: Path, option: PathOption) -> None:
     from calib.errors import InputError
+    from calib.sequences import parse_frame_ref
+    ref = parse_frame_ref(path)
+    path = path if ref is None else ref[0]     # a frame of a sequence file (FILE::K): the file
     what = f"{option.what} " if option.what else ""
     if option.kind == "dataset":
         if not path.exists():
@@ -179,7 +182,9 @@ def check_paths(args: argparse.Namespace) -> None:
             values = [Path(v) for v in _values(args, option)]
             if option.kind == "pattern":
                 from calib.image_files import expand
-                values = [p for v in values for p in expand(v)]
+                from calib.sequences import parse_frame_ref
+                values = [p for v in values for p in expand(v)]    # a sequence file's frames: the file
+                values = list(dict.fromkeys(ref[0] if (ref := parse_frame_ref(p)) else p for p in values))
                 option = PathOption(option.dest, option.name, False, "file", option.what)
             elif option.kind == "dataset":
                 from calib.image_files import expand_datasets
@@ -278,6 +283,32 @@ def check_prefilter(args) -> None:
     from calib.errors import InputError
     if args.prefilter < 0:
         raise InputError("--prefilter", f"must be >= 0, got {args.prefilter}")
+
+
+def add_frame_options(p: argparse.ArgumentParser, rig: str) -> None:
+    """--frame rig|specimen, --origin X,Y and --x-axis X0,Y0,X1,Y1 (the specimen's frame: the best-fit
+    plane of the reference shape, `stereodic.gauge.frame`); `rig` says what "rig" means for the command."""
+    p.add_argument("--frame", choices=["rig", "specimen"], default="rig",
+                   help=f"rig: {rig} (default); specimen: the best-fit plane of the reference shape, x along the "
+                        f"left image's columns (or --x-axis), z towards the cameras (recorded in the outputs)")
+    p.add_argument("--origin", type=parse_floats, metavar="X,Y",
+                   help="with --frame specimen: the origin's pixel in the left reference image (default: centroid)")
+    p.add_argument("--x-axis", type=parse_floats, metavar="X0,Y0,X1,Y1",
+                   help="with --frame specimen: the x axis's direction, two pixels of the left reference image")
+
+
+def frame_options(args) -> tuple[tuple[float, float] | None, tuple[float, float]]:
+    """(origin pixel or None, x direction in pixels) of `add_frame_options`' options; InputError naming
+    the option when they do not fit."""
+    from calib.errors import InputError
+    if (args.origin or args.x_axis) and args.frame != "specimen":
+        raise InputError("--origin/--x-axis", "go with --frame specimen")
+    if args.origin is not None and len(args.origin) != 2:
+        raise InputError("--origin", f"needs X,Y pixels, got {args.origin}")
+    if args.x_axis is not None and len(args.x_axis) != 4:
+        raise InputError("--x-axis", f"needs X0,Y0,X1,Y1 pixels, got {args.x_axis}")
+    x = args.x_axis
+    return (tuple(args.origin) if args.origin else None), ((x[2] - x[0], x[3] - x[1]) if x else (1.0, 0.0))
 
 
 def add_scheduler_option(p: argparse.ArgumentParser, tasks: str) -> None:

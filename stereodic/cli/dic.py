@@ -11,7 +11,7 @@ Z, displacements and strains per state).
 from __future__ import annotations
 
 from stereodic.cli.common import (add_grid_options, add_input, add_output, add_prefilter_option, add_scheduler_option,
-                                  check_prefilter, dic_grid, parse_ints)
+                                  add_frame_options, check_prefilter, dic_grid, frame_options, parse_ints)
 
 
 def register(sub):
@@ -25,7 +25,9 @@ def register(sub):
     add_input(p, "dataset", kind="dataset", metavar="DATASET", nargs="?",
               help="folder (or capture.json) of a kind 'dic' dataset")
     add_input(p, "--left", kind="pattern", what="image", metavar="PATTERN",
-              help="the left camera's images: a shell-style pattern (quote it), natural order")
+              help="the left camera's images: a shell-style pattern (quote it), natural order; or a video, TIFF "
+                   "stack, .cine or .mraw (every frame a state; VIDEO:left for the left half of a side-by-side "
+                   "stream)")
     add_input(p, "--right", kind="pattern", what="image", metavar="PATTERN", help="the right camera's images, likewise")
     add_input(p, "--images", kind="dir", what="image", metavar="DIR",
               help="a folder of image pairs NAME<left suffix>.tif / NAME<right suffix>.tif (DICe's and VIC-3D's "
@@ -64,8 +66,15 @@ def register(sub):
                         "DIR/DICe_solution_stereo_<k>.txt, right camera) instead of dic.csv")
     p.add_argument("--restart", action="store_true",
                    help="discard a run already in the output folder (default: resume it)")
+    add_frame_options(p, "the frame of X, Y, Z, displacements and strains is the rig's world frame")
+    p.add_argument("--mat", action="store_true", help="also write DIR/dic.mat: dic.npz's arrays as a MATLAB file")
     p.add_argument("--no-vtk", action="store_true", help="skip the VTK files")
     p.add_argument("--no-plot", action="store_true", help="skip the PNG maps")
+    p.add_argument("--no-overlay", action="store_true",
+                   help="maps without their copy over the state's left image")
+    p.add_argument("--animate", metavar="Q[,Q...]", default="",
+                   help="also write DIR/maps/<Q>.mp4, the maps of these quantities over the test (Z, dX, dY, dZ, "
+                        "exx, eyy, exy)")
     p.add_argument("--plot-every", type=int, default=1, metavar="N",
                    help="PNG maps of every N-th state only (default 1: all)")
     add_scheduler_option(p, "states (a chain: one state after the other) and their maps")
@@ -89,6 +98,10 @@ def _settings(args):
     if not args.max_gap > 0:
         raise InputError("--max-gap", f"must be > 0 pixel pitches, got {args.max_gap}")
     check_prefilter(args)
+    unknown = set(filter(None, args.animate.split(","))) - {"Z", "dX", "dY", "dZ", "exx", "eyy", "exy"}
+    if unknown:
+        raise InputError("--animate", f"no map of {', '.join(sorted(unknown))} (Z, dX, dY, dZ, exx, eyy, exy)")
+    frame_options(args)
     disparity = None
     if args.disparity:
         disparity = tuple(parse_ints(args.disparity, 2, "--disparity"))
@@ -160,6 +173,8 @@ def run(args) -> int:
     from pathlib import Path
 
     from calib.progress import note
+    from calib.imageio import read_gray
+    from calib.sequences import frame_times
     from stereodic.cli.common import wrote
     from stereodic.dic3d import epipolar
     from stereodic.dic3d.run import run_states, write_outputs
@@ -176,7 +191,9 @@ def run(args) -> int:
     store = RunStore(out)
     n = len(data)
     done = store.open(record, inputs, n, restart=args.restart)
-    outputs = {"columns": args.columns, "vtk": not args.no_vtk, "plot_every": 0 if args.no_plot else args.plot_every}
+    outputs = {"columns": args.columns, "vtk": not args.no_vtk, "plot_every": 0 if args.no_plot else args.plot_every,
+               "mat": args.mat, "frame": [args.frame, args.origin, args.x_axis], "overlay": not args.no_overlay,
+               "animate": args.animate}
     if done == n and store.outputs_written(outputs):
         print(f"{out}: all {n} states are done and written; nothing to do (--restart to run again)")
         return 0
@@ -209,12 +226,25 @@ def run(args) -> int:
                   f"has a camera moved since the calibration?", file=sys.stderr)
     info = {"rig": str(args.rig), "dataset": data.source, "world_from_rig": rig.world_from_rig.tolist(),
             "state_labels": labels, "left_images": [os.path.abspath(p) for p in data.left]}
+    frame = None
+    if args.frame == "specimen":
+        from stereodic.dic3d.frame import SpecimenStates
+        origin, x_dir = frame_options(args)
+        frame = SpecimenStates(state0, settings, origin_px=origin, x_direction_px=x_dir)
+        info["frame"] = frame.frame.record()
+    else:
+        info["frame"] = {"frame": "rig"}
+    times = frame_times(data.left)            # the frames' own timestamps (a video, .cine, .mraw): for loads
+    if times is not None:
+        info["state_times_s"] = times
     dice = None
     if args.columns == "dice":
         from stereodic.dice_columns import StereoDiceWriter
         dice = StereoDiceWriter(out, grid, data, settings, args.step)
     write_outputs(store, grid, out, settings, info, vtk=not args.no_vtk, plot_every=plot_every,
-                  dice=dice, csv=args.columns != "dice", state_files=not args.scheduler, labels=labels)
+                  dice=dice, csv=args.columns != "dice", state_files=not args.scheduler, labels=labels, frame=frame,
+                  image_of=None if args.no_overlay else (lambda k: read_gray(data.left[k])),
+                  frame_name=f"{args.frame}'s frame", animate=tuple(filter(None, args.animate.split(","))))
     store.record_outputs(outputs)
     states = f"{active} points x {n} states"
     if args.columns == "dice":
@@ -222,9 +252,17 @@ def run(args) -> int:
     else:
         wrote(out / "dic.csv", f"one row per point and state ({states})")
     wrote(out / "dic.npz", "the same as arrays")
+    if args.mat:
+        from stereodic.dic.matfile import write_mat
+        write_mat(out / "dic.npz", out / "dic.mat")
+        wrote(out / "dic.mat", "dic.npz's arrays as a MATLAB file")
     if not args.no_vtk:
         wrote(out / "vtk" / "states.pvd", f"ParaView collection of {n} states (state*.vtp)")
     if not args.no_plot:
-        wrote(out / "maps", "PNG maps of Z, displacements and strains per state")
+        wrote(out / "maps", f"PNG maps of Z, displacements and strains per state, in the {args.frame}'s frame, "
+                            f"one colour scale per quantity over the run"
+                            + ("" if args.no_overlay else ", beside their copy over the left image"))
+        for q in filter(None, args.animate.split(",")):
+            wrote(out / "maps" / f"{q}.mp4", f"{q} over the test")
     return 0
 

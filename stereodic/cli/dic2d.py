@@ -23,7 +23,8 @@ def register(sub):
                                    "reference, on a grid of points.")
     add_input(p, "ref", what="image", metavar="REF_IMG", help="reference image (8/16-bit PNG or TIFF)")
     add_input(p, "defs", kind="pattern", what="image", metavar="DEF_IMG_OR_PATTERN", nargs="+",
-              help="deformed images in order, or shell-style patterns (quote them; natural order)")
+              help="deformed images in order, or shell-style patterns (quote them; natural order), or a video, "
+                   "TIFF stack, .cine or .mraw (every frame; FILE::K is frame K, also as REF_IMG)")
     add_output(p, metavar="OUT.csv", help="CSV of the results")
     add_grid_options(p, "reference image")
     p.add_argument("--shape", choices=["affine", "quadratic"], default="affine",
@@ -46,6 +47,7 @@ def register(sub):
     p.add_argument("--columns", choices=["stereodic", "dice"], default="stereodic",
                    help="dice: DICe's solution files OUT_<k>.csv (its column names and layout) instead of OUT.csv")
     add_output(p, "--npz", metavar="OUT.npz", help="also write the fields as arrays (n_images, ny, nx)")
+    add_output(p, "--mat", metavar="OUT.mat", help="also write the NPZ's arrays as a MATLAB file")
     add_output(p, "--plot", kind="dir", metavar="DIR", help="write PNG maps of u, v, zncc (and strains) per image")
     add_scheduler_option(p, "deformed images (a chain: one image after the other)")
     p.set_defaults(func=run)
@@ -151,7 +153,7 @@ def run(args) -> int:
                                header(args.ref, str(defs[k]), args.subset, args.step, args.shape,
                                       "true" if args.incremental else "false",
                                       gauge_px(args.strain_window, args.step, args.subset)), cols)
-            if args.npz:
+            if args.npz or args.mat:
                 save_npz(Path(tmp) / f"{k}.npz", **image_arrays(f, m))
             if args.plot:
                 plot_field(args.plot, k, f, m, Path(defs[k]).name)
@@ -159,14 +161,18 @@ def run(args) -> int:
             note(f"image {k} ({defs[k]}): {n_ok}/{int(grid.active.sum())} points converged, "
                  f"mean u {fixed(np.nanmean(f.u) if n_ok else np.nan, 4)} px, "
                  f"mean v {fixed(np.nanmean(f.v) if n_ok else np.nan, 4)} px")
-        if args.npz:
+        if args.npz or args.mat:
             def values(key):
                 for k in range(len(defs)):
                     with np.load(Path(tmp) / f"{k}.npz") as z:
                         yield z[key]
 
-            write_npz(args.npz, grid, values, len(defs), has_strain, settings, [str(p) for p in defs],
+            npz = args.npz or Path(tmp) / "result.npz"
+            write_npz(npz, grid, values, len(defs), has_strain, settings, [str(p) for p in defs],
                       args.measure if has_strain else None, reference=str(args.ref))
+            if args.mat:
+                from stereodic.dic.matfile import write_mat
+                write_mat(npz, args.mat)
     n_points = int(act.sum())
     if args.columns == "dice":
         wrote(out.parent, f"DICe's solution files {out.stem}_<k>{out.suffix or '.txt'} ({n_points} points x "
@@ -175,6 +181,8 @@ def run(args) -> int:
         wrote(out, f"{n_points * len(defs)} rows ({n_points} points x {len(defs)} deformed images)")
     if args.npz:
         wrote(args.npz, "the fields as arrays (n_images, ny, nx)")
+    if args.mat:
+        wrote(args.mat, "the same arrays as a MATLAB file")
     if args.plot:
         wrote(args.plot, f"PNG maps of u, v, zncc{' and strains' if has_strain else ''} per deformed image")
     return 0

@@ -10,7 +10,7 @@ memory at a time (stereodic.strain_results).
 from __future__ import annotations
 
 
-from stereodic.cli.common import add_input, add_output
+from stereodic.cli.common import add_frame_options, add_input, add_output
 
 
 def register(sub):
@@ -24,6 +24,7 @@ def register(sub):
                    help="strain fitted over N x N grid points, odd (default: the run's own, else 5)")
     p.add_argument("--measure", choices=MEASURES, default="green-lagrange",
                    help="strain measure (default green-lagrange)")
+    add_frame_options(p, "a stereo result's strains in the axes it was saved in")
     add_output(p, kind="dir", metavar="DIR", help="output folder")
     p.add_argument("--no-plot", action="store_true", help="skip the PNG maps")
     p.set_defaults(func=run)
@@ -39,12 +40,14 @@ def run(args) -> int:
     from calib.errors import InputError
     from calib.npz_stream import write_stacked_npz
     from calib.progress import progress
-    from stereodic.cli.common import wrote
+    from stereodic.cli.common import frame_options, wrote
     from stereodic.dic.maps import save_map
     from stereodic.dic.output import STRAIN_COLUMNS, fmt
-    from stereodic.strain_results import map_axes, open_result, state_labels, strains
+    from stereodic.strain_results import map_axes, open_result, specimen_frame_of, state_labels, strains
 
     result = open_result(args.result)
+    origin, x_dir = frame_options(args)
+    frame = specimen_frame_of(result, origin_px=origin, x_direction_px=x_dir) if args.frame == "specimen" else None
     own = (result.meta.get("settings", {}).get("strain_window") if result.kind == "dic" else None)
     window = args.window or own or 5
     if window < 3 or window % 2 == 0:
@@ -54,7 +57,7 @@ def run(args) -> int:
     act = g.active.ravel()
     X, Y = g.points()
     label = "state" if result.kind == "dic" else "image"
-    axes, titles = (map_axes(result), state_labels(result)) if not args.no_plot else (None, None)
+    axes, titles = (map_axes(result, frame=frame), state_labels(result)) if not args.no_plot else (None, None)
     keys = [c for c, _, _ in STRAIN_COLUMNS] + ["strain_valid"]
     fields = {c: f for c, f, _ in STRAIN_COLUMNS} | {"strain_valid": "valid"}
     tmp_dir = out / ".strain-states"
@@ -62,7 +65,7 @@ def run(args) -> int:
     try:
         with atomic_output(out / "strain.csv") as tmp, open(tmp, "w") as csv:
             csv.write(",".join([label, "x", "y"] + keys) + "\n")
-            for k, m in enumerate(progress(strains(result, window, args.measure), "strain", total=result.states,
+            for k, m in enumerate(progress(strains(result, window, args.measure, frame=frame), "strain", total=result.states,
                                            unit="state")):
                 cols = [[str(k)] * int(act.sum()), fmt("%g", X[act]), fmt("%g", Y[act])]
                 cols += [fmt(f, getattr(m, field).ravel()[act]) for _, field, f in STRAIN_COLUMNS]
@@ -73,7 +76,8 @@ def run(args) -> int:
                     for c in ("exx", "eyy", "exy", "von_mises"):
                         name = "e_vm" if c == "von_mises" else c
                         save_map(out / "maps" / f"{label}{k}_{name}.png", getattr(m, c) * 1e6, axes,
-                                 title=f"{titles[k]} - {name}, {args.measure} strain", quantity=name,
+                                 title=f"{titles[k]} - {name}, {args.measure} strain ({args.frame}'s frame)",
+                                 quantity=name,
                                  unit="microstrain", decimals=0)
 
         def values(key):
@@ -82,7 +86,8 @@ def run(args) -> int:
                     yield z[key]
 
         meta = {"format": "stereodic.strain/1", "source": str(result.path), "window": window,
-                "measure": args.measure}
+                "measure": args.measure,
+                "frame": frame.record() if frame is not None else result.meta.get("frame", {"frame": "rig"})}
         write_stacked_npz(out / "strain.npz", dict(meta=np.array(json.dumps(meta)), x=g.xs, y=g.ys, active=g.active),
                           {key: (lambda key=key: values(key)) for key in keys}, result.states)
     finally:

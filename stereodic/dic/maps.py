@@ -8,6 +8,13 @@ carry, never "-0"). The title adds the median, the range of the middle 90 % (5th
 how many of the grid's active points (its ROI and mask) were measured; the map shows the active points'
 extent. The colour range spans the 1st-99th percentile (arrows on the bar where values go beyond);
 a range across zero is centred on zero with a diverging colour map.
+
+Over a run (`RunScales`), each quantity keeps one colour map and one range for every state, so that
+states compare by eye: a change (displacement, strain) a diverging map centred on zero, spanning the
+largest 1st-99th percentile magnitude of any state; a position or score viridis over the run's range.
+With a `Backdrop` the map is drawn twice, plain and over the state's original left image
+(semi-transparent, each point where the camera saw it). `MapMovie` writes a quantity's maps over the
+run as an MP4 video.
 """
 
 from __future__ import annotations
@@ -88,13 +95,65 @@ def _decimals(step: float) -> int:
     return 6
 
 
-def save_map(path: str | os.PathLike, values: np.ndarray, axes: MapAxes, *, title: str, quantity: str,
-             unit: str, decimals: int, signed: bool = True) -> None:
-    """One map (matplotlib PNG, atomic) of `values` (ny, nx; NaN where not measured, left blank) on
-    `axes`; `title` names the load case, `quantity` and `unit` label the colour bar ("exx",
-    "microstrain"; unit "" for a pure number), `decimals` is the precision of the title's figures;
-    `signed`: a change (displacement, strain) whose range across zero is centred on zero, not a
-    position or a score."""
+@dataclass(frozen=True)
+class ColourScale:
+    """A quantity's colour limits and map, fixed over a run."""
+
+    lo: float
+    hi: float
+    cmap: str
+
+
+class RunScales:
+    """The colour scales of a run's quantities (module docstring), gathered state by state: `add(name,
+    values, signed=...)` for every state's map, then `scale(name)`. `given` fixes a quantity's limits
+    (name -> (lo, hi)) instead of the run's percentiles; `floor` (name -> half-width) is the least range
+    (a quantity that stays at zero, such as the reference state's strain, still gets readable ticks)."""
+
+    def __init__(self, given: dict[str, tuple[float, float]] | None = None, floor: dict[str, float] | None = None):
+        self.given, self.floor = dict(given or {}), dict(floor or {})
+        self._range: dict[str, list[float]] = {}
+        self._signed: dict[str, bool] = {}
+
+    def add(self, name: str, values: np.ndarray, *, signed: bool, active: np.ndarray | None = None) -> None:
+        v = np.asarray(values, float)
+        v = v[np.isfinite(v) & (True if active is None else active)]
+        self._signed[name] = signed
+        if v.size:
+            lo, hi = np.percentile(v, [1, 99])
+            r = self._range.setdefault(name, [lo, hi])
+            r[0], r[1] = min(r[0], lo), max(r[1], hi)
+
+    def scale(self, name: str) -> ColourScale | None:
+        """The quantity's scale, or None if no state measured it."""
+        signed = self._signed.get(name, True)
+        if name in self.given:
+            lo, hi = self.given[name]
+        elif name in self._range:
+            lo, hi = self._range[name]
+        else:
+            return None
+        if signed:
+            half = max(abs(lo), abs(hi), self.floor.get(name, 0.0))
+            return ColourScale(-half, half, "RdBu_r")
+        if hi <= lo:
+            lo, hi = lo - 1.0, hi + 1.0
+        return ColourScale(lo, hi, "viridis")
+
+
+@dataclass(frozen=True)
+class Backdrop:
+    """The state's original left image (H, W) and where each grid point is in it, x, y (ny, nx) pixels
+    (NaN where not seen), for the map over the image."""
+
+    image: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+
+
+def map_figure(values: np.ndarray, axes: MapAxes, *, title: str, quantity: str, unit: str, decimals: int,
+               signed: bool = True, scale: ColourScale | None = None, backdrop: Backdrop | None = None):
+    """The matplotlib Figure of one map (`save_map`)."""
     from matplotlib.figure import Figure   # not pyplot: the caller's backend (a notebook's) stays as it is
     from matplotlib.ticker import FuncFormatter, MaxNLocator
 
@@ -115,9 +174,11 @@ def save_map(path: str | os.PathLike, values: np.ndarray, axes: MapAxes, *, titl
                    f"{fixed(p95, decimals)}; {finite.size} of {active.sum()} points measured")
     else:
         lo, hi, cmap, summary = -1.0, 1.0, "viridis", f"no point measured of {active.sum()}"
+    if scale is not None:
+        lo, hi, cmap = scale.lo, scale.hi, scale.cmap
     box = active_box(active)
-    fig = Figure(figsize=(7.2, 5.6), layout="constrained")
-    ax = fig.subplots()
+    fig = Figure(figsize=(7.2 if backdrop is None else 13.0, 5.6), layout="constrained")
+    ax, over = (fig.subplots(), None) if backdrop is None else fig.subplots(1, 2)
     im = ax.pcolormesh(axes.x[box], axes.y[box], np.ma.masked_invalid(np.where(active, values, np.nan)[box]),
                        shading="nearest", cmap=cmap, vmin=lo, vmax=hi)
     extend = {(False, False): "neither", (True, False): "min", (False, True): "max", (True, True): "both"}[
@@ -135,6 +196,77 @@ def save_map(path: str | os.PathLike, values: np.ndarray, axes: MapAxes, *, titl
         ax.invert_xaxis()
     if axes.flip_y:
         ax.invert_yaxis()
-    ax.set_title(f"{title}\n{summary}", fontsize=9.5)
+    if over is None:
+        ax.set_title(f"{title}\n{summary}", fontsize=9.5)
+    else:
+        _draw_over_image(over, backdrop, np.where(active, values, np.nan), lo, hi, cmap)
+        fig.suptitle(f"{title}\n{summary}", fontsize=9.5)
+    return fig
+
+
+def _draw_over_image(ax, backdrop: Backdrop, values: np.ndarray, lo: float, hi: float, cmap: str) -> None:
+    """The field as semi-transparent squares where the left camera saw each point, over its image."""
+    img = np.asarray(backdrop.image, float)
+    ax.imshow(img, cmap="gray", vmin=np.percentile(img, 0.5), vmax=np.percentile(img, 99.5), interpolation="nearest")
+    ok = np.isfinite(values) & np.isfinite(backdrop.x) & np.isfinite(backdrop.y)
+    if ok.any():
+        step = np.nanmedian(np.hypot(*np.diff(np.stack([backdrop.x, backdrop.y], -1), axis=1).reshape(-1, 2).T)) \
+            if values.shape[1] > 1 else 4.0
+        ax.figure.draw_without_rendering()                 # the constrained layout: the axes' final size
+        width_pt = ax.get_window_extent().width * 72 / ax.figure.dpi
+        size = (1.15 * max(step, 1.0) * width_pt / img.shape[1]) ** 2   # squares that touch
+        ax.scatter(backdrop.x[ok], backdrop.y[ok], c=values[ok], s=size, marker="s", cmap=cmap, vmin=lo, vmax=hi,
+                   alpha=0.55, linewidths=0)
+    ax.set_xlim(-0.5, img.shape[1] - 0.5)
+    ax.set_ylim(img.shape[0] - 0.5, -0.5)
+    ax.set_xlabel("x (px, left image)")
+    ax.set_ylabel("y (px)")
+    ax.set_title("over the left camera's image of the state", fontsize=9)
+
+
+def save_map(path: str | os.PathLike, values: np.ndarray, axes: MapAxes, *, title: str, quantity: str,
+             unit: str, decimals: int, signed: bool = True, scale: ColourScale | None = None,
+             backdrop: Backdrop | None = None) -> None:
+    """One map (matplotlib PNG, atomic) of `values` (ny, nx; NaN where not measured, left blank) on
+    `axes`; `title` names the load case, `quantity` and `unit` label the colour bar ("exx",
+    "microstrain"; unit "" for a pure number), `decimals` is the precision of the title's figures;
+    `signed`: a change (displacement, strain) whose range across zero is centred on zero, not a
+    position or a score; `scale`: the run's colour limits and map (`RunScales`), else the map's own;
+    `backdrop`: also drawn over the state's original left image, beside the plain map."""
+    fig = map_figure(values, axes, title=title, quantity=quantity, unit=unit, decimals=decimals, signed=signed,
+                     scale=scale, backdrop=backdrop)
     with atomic_output(path) as tmp:
         fig.savefig(tmp, dpi=100)
+
+
+class MapMovie:
+    """A quantity's maps over a run as an MP4 video (OpenCV's mp4v codec), one frame per state written as
+    it comes (`add(figure)`), so that memory holds one frame; `close()` finishes the file (atomic)."""
+
+    def __init__(self, path: str | os.PathLike, *, fps: float = 4.0):
+        self.path, self.fps = path, fps
+        self._ctx = None
+        self._writer = None
+        self._size = None
+
+    def add(self, fig) -> None:
+        import cv2
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        canvas = FigureCanvasAgg(fig)
+        canvas.draw()
+        rgb = np.asarray(canvas.buffer_rgba())[..., :3]
+        if self._writer is None:
+            self._ctx = atomic_output(self.path, suffix=".mp4")
+            tmp = self._ctx.__enter__()
+            self._size = (rgb.shape[1] // 2 * 2, rgb.shape[0] // 2 * 2)
+            self._writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, self._size)
+        frame = np.zeros((self._size[1], self._size[0], 3), np.uint8)
+        h, w = min(rgb.shape[0], self._size[1]), min(rgb.shape[1], self._size[0])
+        frame[:h, :w] = rgb[:h, :w]
+        self._writer.write(np.ascontiguousarray(frame[..., ::-1]))
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.release()
+            self._ctx.__exit__(None, None, None)
+            self._writer = None

@@ -30,7 +30,7 @@ from calib.atomic import atomic_output
 from calib.npz_stream import write_stacked_npz
 from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import STATUS_NAMES
-from stereodic.dic.maps import MapAxes, save_map
+from stereodic.dic.maps import Backdrop, MapAxes, MapMovie, RunScales, map_figure
 from stereodic.dic.output import STRAIN_COLUMNS, fmt
 from stereodic.dic3d.stereo import NO_REFERENCE, RAY_GAP, CameraMatch, StereoSettings, StereoState
 from stereodic.strain_measures import StrainMeasure
@@ -154,15 +154,38 @@ def write_npz(path: str | os.PathLike, grid: Grid, values: Callable[[str], Itera
     write_stacked_npz(path, arrays, {key: (lambda key=key: values(key)) for key in npz_keys(has_strain)}, count)
 
 
-def plot_state(folder: str | os.PathLike, st: StereoState, axes: MapAxes, label: str) -> None:
-    """PNG maps of one state k, named `label` (its load case): state{k}_{Z,dX,dY,dZ}.png [+ _exx, _eyy,
-    _exy, microstrain] on `axes` (stereodic.dic.maps.surface_axes: the reference surface's X, Y in mm)."""
-    folder = Path(folder)
+def state_maps(st: StereoState) -> dict[str, tuple[np.ndarray, str, int]]:
+    """The quantities of a state's maps: name -> (values (ny, nx), unit, decimals): Z, dX, dY, dZ (mm)
+    [, exx, eyy, exy (microstrain)]."""
     maps = {"Z": (st.points[..., 2], "mm", 3), "dX": (st.displacement[..., 0], "mm", 4),
             "dY": (st.displacement[..., 1], "mm", 4), "dZ": (st.displacement[..., 2], "mm", 4)}
     if st.measure is not None:
         maps.update({c: (getattr(st.measure, c) * 1e6, "microstrain", 0) for c in ("exx", "eyy", "exy")})
-    for name, (arr, unit, decimals) in maps.items():
+    return maps
+
+
+STRAIN_FLOOR = 100.0   # microstrain: the least half-range of a strain map's colours (a run at rest)
+
+
+def plot_state(folder: str | os.PathLike, st: StereoState, axes: MapAxes, label: str, *,
+               scales: RunScales | None = None, image: np.ndarray | None = None, frame: str = "rig's frame",
+               movies: dict[str, MapMovie] | None = None) -> None:
+    """PNG maps of one state k, named `label` (its load case): state{k}_{Z,dX,dY,dZ}.png [+ _exx, _eyy,
+    _exy, microstrain] on `axes` (stereodic.dic.maps.surface_axes: the reference surface's X, Y in mm),
+    titled with the reporting `frame`; with `scales`, the run's colour limits (`RunScales`); with
+    `image` (the state's original left image), each map also drawn over it; `movies`: quantity ->
+    the MapMovie each of its maps is added to. State 0's strains are labelled: zero by definition (the
+    measurement's noise floor shows in a second image of the specimen at rest)."""
+    folder = Path(folder)
+    backdrop = None if image is None else Backdrop(image, st.left.real[..., 0], st.left.real[..., 1])
+    for name, (arr, unit, decimals) in state_maps(st).items():
         what = f"{name}, {st.measure.measure} strain" if name.startswith("e") else name
-        save_map(folder / f"state{st.state}_{name}.png", arr, axes, title=f"{label} - {what}", quantity=name,
-                 unit=unit, decimals=decimals, signed=name != "Z")
+        title = f"{label} - {what} ({frame})"
+        if st.state == 0 and name.startswith("e"):
+            title += "\nthe reference: strain 0 by definition (its noise floor shows in a second image at rest)"
+        fig = map_figure(arr, axes, title=title, quantity=name, unit=unit, decimals=decimals, signed=name != "Z",
+                         scale=None if scales is None else scales.scale(name), backdrop=backdrop)
+        with atomic_output(folder / f"state{st.state}_{name}.png") as tmp:
+            fig.savefig(tmp, dpi=100)
+        if movies and name in movies:
+            movies[name].add(fig)

@@ -11,15 +11,20 @@ whatever the length of the sequence.
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+
+from calib.atomic import write_npz as save_npz
 from calib.progress import progress
 from stereodic.dic.grid import Grid
-from stereodic.dic.maps import MapAxes, surface_axes
+from stereodic.dic.maps import MapAxes, MapMovie, RunScales, surface_axes
 from stereodic.dic.sequence import prefetch
 from stereodic.dic3d.dataset import DicStates
-from stereodic.dic3d.output import csv_rows, plot_state, write_csv, write_npz
+from stereodic.dic3d.output import (STRAIN_FLOOR, csv_rows, plot_state, state_arrays, state_maps, write_csv,
+                                    write_npz)
 from stereodic.dic3d.stereo import PreparedPair, StereoRun, StereoSettings, StereoState, solve_state
 from stereodic.dic3d.store import RunStore
 from stereodic.dic3d.vtk import write_collection, write_state
@@ -60,26 +65,71 @@ def run_states(store: RunStore, data: DicStates, rig: Rig, grid: Grid, seeds, se
 
 
 def write_state_files(folder: str | Path, st: StereoState, *, vtk: bool, plot_every: int, axes: MapAxes | None,
-                      label: str) -> None:
+                      label: str, **maps) -> None:
     """One state's own outputs: folder/vtk/state{k:03d}.vtp (with `vtk`) and its PNG maps in folder/maps/
     (when it is a `plot_every`-th state; 0 = none) on `axes` (`stereodic.dic.maps.surface_axes` of state
-    0's points), titled `label` (its load case)."""
+    0's points), titled `label` (its load case); `maps`: `output.plot_state`'s options (run scales, the
+    left image, the frame's name, movies)."""
     folder = Path(folder)
     if vtk:
         write_state(folder / "vtk", st)
     if plot_every and st.state % plot_every == 0:
-        plot_state(folder / "maps", st, axes, label)
+        plot_state(folder / "maps", st, axes, label, **maps)
+
+
+def _framed_store(store: RunStore, folder: Path, frame: Callable[[StereoState], StereoState]) -> RunStore:
+    """A store over folder/.frame/ holding every state of `store` turned by `frame` (the specimen's
+    frame: `stereodic.dic3d.frame.SpecimenStates`), written one state at a time."""
+    n = store.manifest["states"]
+    view = RunStore(folder / ".frame")
+    view.states_dir.mkdir(parents=True, exist_ok=True)
+    view.manifest = {"states": n, "settings": store.manifest["settings"]}
+    for st in progress(store.states(), "frame", total=n, unit="state"):
+        save_npz(view.state_path(st.state), **state_arrays(frame(st)))
+    return view
 
 
 def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: StereoSettings, info: dict, *,
                   vtk: bool = True, plot_every: int = 0, dice: Callable[[StereoState], None] | None = None,
-                  csv: bool = True, state_files: bool = True, labels: list[str] | None = None) -> None:
+                  csv: bool = True, state_files: bool = True, labels: list[str] | None = None,
+                  frame: Callable[[StereoState], StereoState] | None = None,
+                  image_of: Callable[[int], np.ndarray] | None = None, frame_name: str = "rig's frame",
+                  animate: tuple[str, ...] = ()) -> None:
     """The combined outputs from the store's state files (module docstring): folder/dic.csv (unless
     `dice` writes DICe's files instead, or not `csv`), folder/dic.npz, folder/vtk/ (with `vtk`),
     folder/maps/ (every `plot_every`-th state, 0 = none; titled by `labels`, one per state, default
     "state k"). Not `state_files`: each state's VTK file and maps were written already
-    (`write_state_files`, by a cluster's tasks); the rest is written here."""
+    (`write_state_files`, by a cluster's tasks); the rest is written here. `frame`: every state turned
+    into another reporting frame first (the specimen's), its VTK files and maps written here, titled
+    `frame_name`. The maps written here share the run's colour scales (`stereodic.dic.maps.RunScales`),
+    and are also drawn over the state's original left image, `image_of(k)`, when it is given; `animate`:
+    the quantities (Z, dX, dY, dZ, exx, eyy, exy) whose maps also make folder/maps/<quantity>.mp4."""
     folder = Path(folder)
+    options = dict(vtk=vtk, plot_every=plot_every, dice=dice, csv=csv, labels=labels, image_of=image_of,
+                   frame_name=frame_name, animate=animate)
+    if frame is None:
+        _write_outputs(store, grid, folder, settings, info, state_files=state_files, **options)
+        return
+    view = _framed_store(store, folder, frame)
+    try:
+        _write_outputs(view, grid, folder, settings, info, state_files=True, **options)
+    finally:
+        shutil.rmtree(folder / ".frame", ignore_errors=True)
+
+
+def _run_scales(store: RunStore, every: int, active) -> RunScales:
+    """The colour scales of the maps of every `every`-th state, read one state at a time."""
+    scales = RunScales(floor={c: STRAIN_FLOOR for c in ("exx", "eyy", "exy")})
+    for st in store.states():
+        if st.state % every == 0:
+            for name, (values, _, _) in state_maps(st).items():
+                scales.add(name, values, signed=name != "Z", active=active)
+    return scales
+
+
+def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSettings, info: dict, *,
+                   vtk: bool, plot_every: int, dice, csv: bool, state_files: bool, labels, image_of, frame_name,
+                   animate) -> None:
     n = store.manifest["states"]
     has_strain = bool(settings.strain_window)
     write_npz(folder / "dic.npz", grid, store.values, n, has_strain, settings, info)
@@ -89,13 +139,24 @@ def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: Ste
         store.remove_rows()
     if (state_files and (vtk or plot_every)) or dice is not None:
         axes = None
-        for st in progress(store.states(), "writing", total=n, unit="state"):
-            if state_files:
-                if axes is None:  # state 0: the reference surface gives every map its mm axes
-                    axes = surface_axes(grid.xs, grid.ys, st.points, grid.active)
-                write_state_files(folder, st, vtk=vtk, plot_every=plot_every, axes=axes,
-                                  label=labels[st.state] if labels else f"state {st.state}")
-            if dice is not None:
-                dice(st)
+        maps = {}
+        if state_files and plot_every:
+            maps = dict(scales=_run_scales(store, plot_every, grid.active), frame=frame_name,
+                        movies={q: MapMovie(folder / "maps" / f"{q}.mp4") for q in animate})
+        try:
+            for st in progress(store.states(), "writing", total=n, unit="state"):
+                if state_files:
+                    if axes is None:  # state 0: the reference surface gives every map its mm axes
+                        axes = surface_axes(grid.xs, grid.ys, st.points, grid.active)
+                    image = image_of(st.state) if image_of is not None and plot_every and \
+                        st.state % plot_every == 0 else None
+                    write_state_files(folder, st, vtk=vtk, plot_every=plot_every, axes=axes,
+                                      label=labels[st.state] if labels else f"state {st.state}", image=image,
+                                      **maps)
+                if dice is not None:
+                    dice(st)
+        finally:
+            for movie in maps.get("movies", {}).values():
+                movie.close()
     if vtk:
         write_collection(folder / "vtk", range(n))

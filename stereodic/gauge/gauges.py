@@ -320,6 +320,8 @@ def read_gauge_file(path: str | os.PathLike) -> Gauges:
             doc = json.load(f)
     except json.JSONDecodeError as exc:
         raise InputError(path, f"is not valid JSON ({exc.msg}, line {exc.lineno})") from None
+    except UnicodeDecodeError:
+        raise InputError(path, "is not a text (JSON) file") from None
     if not isinstance(doc, dict) or doc.get("format", GAUGES_FORMAT) != GAUGES_FORMAT:
         raise InputError(path, f"is not a {GAUGES_FORMAT} file")
     out = Gauges()
@@ -342,13 +344,18 @@ def read_gauge_file(path: str | os.PathLike) -> Gauges:
     return out
 
 
-def write_gauge_file(path: str | os.PathLike, gauges: Gauges) -> None:
-    """Write `gauges` as a JSON gauge file (module docstring; atomic), for `read_gauge_file`."""
-    from calib.atomic import write_json
-    write_json(path, {
+def gauges_document(gauges: Gauges) -> dict:
+    """`gauges` as the JSON document of a gauge file (module docstring)."""
+    return {
         "format": GAUGES_FORMAT,
         "extensometers": [{"name": e.name, "start": list(e.start_px), "end": list(e.end_px)}
                           for e in gauges.extensometers],
         "points": [{"name": p.name, "at": list(p.at_px)} for p in gauges.points],
         "areas": [{"name": a.name, "polygon": [list(c) for c in a.polygon_px]} for a in gauges.areas],
-        "lines": [{"name": ln.name, "start": list(ln.start_px), "end": list(ln.end_px)} for ln in gauges.lines]})
+        "lines": [{"name": ln.name, "start": list(ln.start_px), "end": list(ln.end_px)} for ln in gauges.lines]}
+
+
+def write_gauge_file(path: str | os.PathLike, gauges: Gauges) -> None:
+    """Write `gauges` as a JSON gauge file (module docstring; atomic), for `read_gauge_file`."""
+    from calib.atomic import write_json
+    write_json(path, gauges_document(gauges))

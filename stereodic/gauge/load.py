@@ -159,12 +159,18 @@ def state_times(count: int, *, start_s: float | None = None, rate_hz: float | No
         Seconds. InputError naming the option or file when none is given or they do not fit.
     """
     offset = start_s or 0.0
+    if times_file is not None and rate_hz is not None:
+        raise InputError("--state-times", "give either the states' times or --frame-rate, not both")
     if rate_hz is not None:
         if not rate_hz > 0:
             raise InputError("--frame-rate", f"must be > 0 Hz, got {rate_hz}")
         return offset + np.arange(count) / rate_hz
     if times_file is not None:
-        rows = [r for r in csv.reader(open(times_file, newline="")) if r]
+        try:
+            with open(times_file, newline="", encoding="utf-8-sig") as f:
+                rows = [r for r in csv.reader(f) if r]
+        except (UnicodeDecodeError, csv.Error):
+            raise InputError(times_file, "is not a text (CSV) file of times") from None
         col = -1
         low = [c.strip().lower() for c in rows[0]] if rows else []
         for name in ("time", "timestamp", "time_s", "t"):

@@ -28,10 +28,10 @@ import numpy as np
 from calib.errors import InputError
 from calib.npz_stream import iter_slices
 from stereodic.dic.grid import Grid
-from stereodic.gauge.frame import SpecimenFrame, rigid_motion, specimen_frame
-from stereodic.strain import StrainFit, strain_2d
+from stereodic.gauge.frame import SpecimenFrame, rigid_motion
+from stereodic.strain import strain_2d
 from stereodic.strain_measures import measure_strain
-from stereodic.strain_results import open_result, state_labels
+from stereodic.strain_results import DicResult, open_result, specimen_frame_of, state_labels, strains
 
 STRAINS = ("exx", "eyy", "exy", "e_major", "e_minor", "e_vm")
 _MEASURE_FIELD = {"exx": "exx", "eyy": "eyy", "exy": "exy", "e_major": "major", "e_minor": "minor",
@@ -73,6 +73,7 @@ class GaugeResult:
     remove_rigid: bool = False
     scale_mm_per_px: float | None = None
     meta: dict = field(default_factory=dict)
+    _result: DicResult | None = None
 
     def frame_record(self) -> dict:
         """The frame the quantities are in, as JSON-ready numbers (what outputs record)."""
@@ -80,7 +81,8 @@ class GaugeResult:
             return {**self.frame.record(), "rigid_motion_removed": self.remove_rigid}
         if self.kind == "dic2d":
             return {"frame": "image", "scale_mm_per_px": self.scale_mm_per_px}
-        return {"frame": "rig", "world_from_rig": self.meta.get("world_from_rig")}
+        saved = self.meta.get("frame", {"frame": "rig"})      # the frame the result was saved in
+        return {**saved, "world_from_rig": self.meta.get("world_from_rig"), "rigid_motion_removed": self.remove_rigid}
 
     def states(self) -> Iterator[GaugeState]:
         """Every state, from state 0, one in memory at a time (module docstring)."""
@@ -93,13 +95,12 @@ class GaugeResult:
         f = self.frame
         to_frame = (lambda P: P) if f is None else f.apply
         rotate = (lambda D: D) if f is None else f.rotate
-        fit = None
         P0 = None
-        for k, (P, D) in enumerate(zip(iter_slices(self.path, "points"), iter_slices(self.path, "displacement"))):
+        fields = zip(iter_slices(self.path, "points"), iter_slices(self.path, "displacement"),
+                     strains(self._result, self.window, self.measure, frame=f))
+        for k, (P, D, m) in enumerate(fields):
             P, D = to_frame(P), rotate(D)
-            if P0 is None:
-                P0 = P
-                fit = StrainFit(P0, window=self.window)
+            P0 = P if P0 is None else P0
             q = {"X": P[..., 0], "Y": P[..., 1], "Z": P[..., 2], "dX": D[..., 0], "dY": D[..., 1],
                  "dZ": D[..., 2]}
             rigid = None
@@ -108,7 +109,7 @@ class GaugeResult:
                 Dd = (P - t) @ R - P0           # R^T (P - t) - P0
                 q.update(dX_def=Dd[..., 0], dY_def=Dd[..., 1], dZ_def=Dd[..., 2])
                 rigid = (R, t)
-            q.update(self._strains(measure_strain(fit(D), measure=self.measure)))
+            q.update(self._strains(m))
             yield GaugeState(k, P, q, rigid)
 
     def _image_states(self) -> Iterator[GaugeState]:
@@ -116,12 +117,13 @@ class GaugeResult:
         s = self.scale_mm_per_px or 1.0
         x, y = np.meshgrid(g.xs, g.ys)
         ref = np.where(g.active, 0.0, np.nan)
-        fields = zip(iter_slices(self.path, "u"), iter_slices(self.path, "v"))
-        for k, (u, v) in enumerate(itertools.chain([(ref, ref)], fields)):
+        fields = zip(iter_slices(self.path, "u"), iter_slices(self.path, "v"), strains(self._result, self.window,
+                                                                                       self.measure))
+        zero = measure_strain(strain_2d(g.xs, g.ys, ref, ref, window=self.window), measure=self.measure)
+        for k, (u, v, m) in enumerate(itertools.chain([(ref, ref, zero)], fields)):
             q = {"u": u, "v": v}
             if self.scale_mm_per_px:
                 q.update(dX=u * s, dY=v * s)
-            m = measure_strain(strain_2d(g.xs, g.ys, u, v, window=self.window), measure=self.measure)
             q.update(self._strains(m))
             yield GaugeState(k, np.stack([(x + u) * s, (y + v) * s, np.zeros_like(u)], -1), q)
 
@@ -137,7 +139,8 @@ def open_gauge_result(path: str | os.PathLike, *, frame: str = "rig", origin_px:
     path : path
         A `stereodic dic` output folder or its dic.npz, or a `stereodic dic2d --npz` file.
     frame : {"rig", "specimen"}
-        "rig": the rig's world frame (a dic2d result: the image); "specimen": the best-fit plane of the
+        "rig": the frame the result was saved in (the rig's world frame, or the specimen's for a
+        `dic --frame specimen` run; a dic2d result: the image); "specimen": the best-fit plane of the
         reference shape (`frame.specimen_frame`; stereo results only).
     origin_px, x_direction_px
         With "specimen": the origin's position and the x axis's direction in the original left
@@ -181,7 +184,7 @@ def open_gauge_result(path: str | os.PathLike, *, frame: str = "rig", origin_px:
         labels = ["reference image"] + state_labels(res)
         units = {"u": "px", "v": "px"} | ({"dX": "mm", "dY": "mm"} if scale_mm_per_px else {}) | strain_units
         return GaugeResult(res.path, "dic2d", g, res.states + 1, labels, "mm" if scale_mm_per_px else "px",
-                           image_px, None, units, window, measure, False, scale_mm_per_px, meta)
+                           image_px, None, units, window, measure, False, scale_mm_per_px, meta, res)
     if scale_mm_per_px is not None:
         raise InputError("--scale", f"{res.path} is a stereo result, already in mm")
     image_px = np.stack([next(iter_slices(res.path, "left_x0")), next(iter_slices(res.path, "left_y0"))], -1)
@@ -190,9 +193,9 @@ def open_gauge_result(path: str | os.PathLike, *, frame: str = "rig", origin_px:
     image_px = np.where(ok[..., None], image_px, np.nan)
     spec = None
     if frame == "specimen":
-        spec = specimen_frame(P0[ok], image_px[ok], origin_px=origin_px, x_direction_px=x_direction_px)
+        spec = specimen_frame_of(res, origin_px=origin_px, x_direction_px=x_direction_px)
     units = {q: "mm" for q in ("X", "Y", "Z", "dX", "dY", "dZ")}
     if remove_rigid:
         units |= {q: "mm" for q in ("dX_def", "dY_def", "dZ_def")}
     return GaugeResult(res.path, "dic", g, res.states, state_labels(res), "mm", image_px, spec, units | strain_units,
-                       window, measure, remove_rigid, None, meta)
+                       window, measure, remove_rigid, None, meta, res)

@@ -8,7 +8,7 @@ import pytest
 from stereodic.cli import COMMANDS, main
 
 DESIGN_COMMANDS = ["demo", "simulate", "patterns", "calibrate", "undistort", "rig", "rectify", "scan",
-                   "dic2d", "dic", "strain", "speckle", "import", "export", "bench", "acquire", "show"]
+                   "dic2d", "dic", "strain", "gauge", "speckle", "import", "export", "bench", "acquire", "show"]
 
 
 def test_all_design_commands_exist():

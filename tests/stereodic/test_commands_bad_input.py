@@ -86,7 +86,8 @@ COMMANDS: dict[str, list[list]] = {
     "scan": [["scan", In("rig", "rig", "scan_rig", "dic_rig", "capture.json"), In("dataset", "scan dataset", "scan"),
               "-o", Out("output", "file", "cloud.ply"), "--mesh", Out("mesh", "file", "mesh.ply")]],
     "dic2d": [["dic2d", In("ref", IMG, "a"), In("defs", IMG, "b", "small"), "--mask", In("mask", IMG, "a", "small"),
-               "-o", Out("output", "file", "r.csv"), "--npz", Out("npz", "file", "r.npz"), "--plot",
+               "-o", Out("output", "file", "r.csv"), "--npz", Out("npz", "file", "r.npz"), "--mat",
+               Out("mat", "file", "r.mat"), "--plot",
                Out("plot", "dir", "maps")]],
     "dic": [["dic", In("rig", "rig", "dic_rig", "scan_rig", "capture.json"), DIC, "--mask",
              In("mask", IMG, "dic_left", "small"), "-o", Out("output", "dir", "run")],
@@ -95,6 +96,11 @@ COMMANDS: dict[str, list[list]] = {
             ["dic", In("rig", "rig", "dic_rig", "scan_rig", "img_0000_0.png"), "--images",
              In("images", "image folder", "pairs"), "-o", Out("output", "dir", "run")]],
     "strain": [["strain", In("result", "DIC result", "result"), "-o", Out("output", "dir", "strain")]],
+    "gauge": [["gauge", In("result", "DIC result", "result"), "--point", "30,24", "--gauges",
+               In("gauges", "gauge file", "gauges"), "-o", Out("output", "dir", "gauges")],
+              ["gauge", In("result", "DIC result", "result"), "--point", "30,24", "--load",
+               In("load", "load file", "load"), "--join", "time", "--state-times",
+               In("state_times", "timestamps file", "times"), "-o", Out("output", "dir", "gauges")]],
     "speckle": [["speckle", In("image", IMG, "a"), "--static", In("static", IMG, "b", "small"), "-o",
                  Out("output", "dir", "speckle")]],
     "import": [["import", In("calibration", "calibration", "opencv_yaml"), "-o", Out("output", "file", "rig.npz")]],
@@ -185,6 +191,10 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
     _run_ok(["dic2d", paths["a"], paths["b"], "--subset", 11, "--step", 8, "-o", root / "result.csv",
              "--npz", root / "result.npz"])
     paths["result"] = root / "result.npz"
+    (root / "gauges.json").write_text(json.dumps({"format": "stereodic.gauges/1", "points": [{"at": [40, 20]}]}))
+    (root / "load.csv").write_text("time,force\n0,0\n10,100\n")
+    (root / "times.csv").write_text("time\n1.5\n2.5\n")
+    paths.update(gauges=root / "gauges.json", load=root / "load.csv", times=root / "times.csv")
     _run_ok(["calibrate", paths["cal"], "-o", root / "calibrated.npz", "--report", root / "report"])
     paths["response"] = root / "report" / "display_response.json"
     assert paths["response"].is_file()
@@ -194,7 +204,7 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
     bad = root / "bad"
     bad.mkdir()
     (bad / "frames").mkdir()
-    for suffix in (".png", ".tif", ".npz", ".json", ".yml"):
+    for suffix in (".png", ".tif", ".npz", ".json", ".yml", ".csv"):
         (bad / f"empty{suffix}").write_bytes(b"")
         (bad / f"random{suffix}").write_bytes(np.random.default_rng(5).bytes(3000))
     png = paths["a"].read_bytes()
@@ -266,6 +276,12 @@ def _bad_inputs(slot: In, paths) -> list[tuple[str, str, Path, str]]:
                   ("corrupt", "random bytes", bad / "random.png", "random.png")]
         if slot.wrong_size:
             cases += [("wrong size", "another size", paths[slot.wrong_size], paths[slot.wrong_size].name)]
+        return cases
+    if slot.kind in ("gauge file", "load file", "timestamps file"):
+        suffix = ".json" if slot.kind == "gauge file" else ".csv"
+        cases += [("empty file", "empty", bad / f"empty{suffix}", f"empty{suffix}"),
+                  ("corrupt", "random bytes", bad / f"random{suffix}", f"random{suffix}"),
+                  ("wrong kind", "another JSON file", bad / "other.json", "other.json")]
         return cases
     if slot.kind in ("display response", "calibration"):
         suffix = ".json" if slot.kind == "display response" else ".yml"

@@ -105,3 +105,45 @@ def test_a_run_records_its_state_names_and_maps_in_mm(dic_sim, tmp_path):
     assert sorted(p.name for p in (out / "maps").glob("*_exx.png")) == ["state0_exx.png", "state2_exx.png"]
     # the maps' titles name the measure that the run folder's states are read back with
     assert RunStore(out).attach().read_state(2).measure.measure == "green-lagrange"
+
+
+def test_run_scales_fix_each_quantitys_colours_over_the_run():
+    """The same limits for every state (the widest 1st-99th percentile), centred on zero for a change,
+    with a floor for a quantity at rest (the reference's strain), and a given range kept as it is."""
+    from stereodic.dic.maps import RunScales, map_figure
+    rng = np.random.default_rng(0)
+    scales = RunScales(floor={"exx": 100.0}, given={"dY": (-0.5, 0.5)})
+    states = [np.zeros((len(YS), len(XS))), 3000 + 50 * rng.standard_normal((len(YS), len(XS))),
+              9000 + 50 * rng.standard_normal((len(YS), len(XS)))]
+    for v in states:
+        scales.add("exx", v, signed=True)
+        scales.add("Z", 400 + v / 1000, signed=False)
+    s = scales.scale("exx")
+    assert s.cmap == "RdBu_r" and s.lo == -s.hi and 9000 < s.hi < 9200
+    assert scales.scale("Z").cmap == "viridis" and scales.scale("Z").lo < 400.01 and scales.scale("Z").hi > 409
+    rest = RunScales(floor={"exx": 100.0})
+    rest.add("exx", states[0], signed=True)
+    assert (rest.scale("exx").lo, rest.scale("exx").hi) == (-100.0, 100.0)
+    assert (scales.scale("dY").lo, scales.scale("dY").hi) == (-0.5, 0.5) and scales.scale("dZ") is None
+    for v in states:                                  # every state's map drawn with the run's limits
+        fig = map_figure(v, pixel_axes(XS, YS), title="t", quantity="exx", unit="microstrain", decimals=0, scale=s)
+        assert fig.axes[0].collections[0].get_clim() == (s.lo, s.hi)
+
+
+def test_map_over_the_image_and_a_movie(tmp_path):
+    import cv2
+
+    from stereodic.dic.maps import Backdrop, MapMovie, map_figure
+    image = (np.random.default_rng(1).random((220, 320)) * 255).astype(np.uint8)
+    x, y = np.meshgrid(XS, YS)
+    movie = MapMovie(tmp_path / "exx.mp4")
+    for k in range(3):
+        fig = map_figure(np.full(x.shape, 100.0 * k), pixel_axes(XS, YS), title=f"state {k}", quantity="exx",
+                         unit="microstrain", decimals=0, backdrop=Backdrop(image, x + 0.5 * k, y))
+        assert len(fig.axes) == 3                     # the map, its colour bar, the map over the image
+        over = fig.axes[1] if fig.axes[1].images else fig.axes[2]
+        assert over.images[0].get_array().shape == image.shape
+        movie.add(fig)
+    movie.close()
+    cap = cv2.VideoCapture(str(tmp_path / "exx.mp4"))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 3

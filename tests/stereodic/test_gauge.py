@@ -112,3 +112,20 @@ def test_gauge_file_round_trip(tmp_path):
     (tmp_path / "bad.json").write_text('{"points": [{"name": "P"}]}')
     with pytest.raises(InputError, match="bad.json"):
         read_gauge_file(tmp_path / "bad.json")
+
+
+def test_specimen_x_axis_along_a_chosen_image_direction(tension, tmp_path):
+    """x along the image's rows (down): the specimen's exx is the plate's strain along e2 (Poisson), its
+    eyy the tension; `stereodic strain --frame specimen` writes the same and records the frame."""
+    from stereodic.cli import main
+    res = open_gauge_result(tension, frame="specimen", x_direction_px=(0.0, 1.0))
+    assert res.frame.rotation[0] @ gc.E2 > 0.9999
+    last = list(res.states())[3].quantities
+    e = 0.01
+    assert abs(np.nanmedian(last["exx"]) - 0.5 * ((1 - gc.POISSON * e) ** 2 - 1)) < 20e-6
+    assert abs(np.nanmedian(last["eyy"]) - 0.5 * ((1 + e) ** 2 - 1)) < 20e-6
+    assert main(["strain", str(tension), "--frame", "specimen", "--no-plot", "-o", str(tmp_path / "s")]) == 0
+    with np.load(tmp_path / "s" / "strain.npz") as z:
+        import json
+        assert json.loads(str(z["meta"]))["frame"]["frame"] == "specimen"
+        assert abs(np.nanmedian(z["exx"][3]) - 0.5 * ((1 + e) ** 2 - 1)) < 20e-6
