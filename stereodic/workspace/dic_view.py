@@ -24,18 +24,24 @@ from calib.errors import InputError
 from stereodic.workspace.access import Access
 from stereodic.workspace.results import DicSource
 
-_SOURCES: dict[str, DicSource] = {}
+_SOURCES: dict[tuple[str, str], DicSource] = {}
 _LOCK = threading.Lock()
 GRAPH_WIDTH_PX = 900   # the field's plot width, screen pixels
 TOOLS = {"point": "pan", "extensometer": "drawline", "line": "drawline", "area": "drawclosedpath"}
 
 
-def source(path: str | Path) -> DicSource:
-    """The opened result at `path` (opened once per server, its finished states read again each time)."""
-    key = str(path)
+def source(path: str | Path, frame: str = "rig") -> DicSource:
+    """The opened result at `path`, its positions and displacements in the rig's (the result's own) or the
+    specimen's frame (`stereodic.strain_results.specimen_frame_of`; a finished stereo run only), opened once
+    per server; a running run's finished states counted again each time."""
+    key = (str(path), frame or "rig")
     with _LOCK:
         if key not in _SOURCES:
-            _SOURCES[key] = DicSource(path)
+            specimen = None
+            if key[1] == "specimen":
+                from stereodic.strain_results import open_result, specimen_frame_of
+                specimen = specimen_frame_of(open_result(path))
+            _SOURCES[key] = DicSource(path, frame=specimen)
         src = _SOURCES[key]
     src.refresh()
     return src
@@ -133,7 +139,8 @@ def _bar_title(src: DicSource, name: str) -> str:
 
 def _title(src: DicSource, name: str, k: int) -> str:
     labels = src.labels()
-    frame = "" if src.kind == "dic2d" else f", frame: {src.meta.get('frame', 'rig')}"
+    own = (src.meta.get("frame") or {}).get("frame", "rig") if isinstance(src.meta.get("frame"), dict) else "rig"
+    frame = "" if src.kind == "dic2d" else f", frame: {'specimen' if src.frame is not None else own}"
     return f"{name} - {labels[k] if k < len(labels) else f'state {k}'}{frame}"
 
 
@@ -166,8 +173,8 @@ def layout(path: Path, access: Access):
                                        "toImageButtonOptions": {"format": "png", "filename": "field"}}),
                      style={"flex": "none"}),
             html.Div([
-                html.Div(["gauges in the frame of the ", dcc.RadioItems(["rig", "specimen"], "rig", id="frame",
-                                                                          inline=True)],
+                html.Div(["frame of the map and gauges: ", dcc.RadioItems(["rig", "specimen"], "rig", id="frame",
+                                                                            inline=True)],
                          style={"display": "none"} if src.kind == "dic2d" else {}),
                 dcc.RadioItems([{"label": " click a point: its history", "value": "point"},
                                 {"label": " draw an extensometer (two ends)", "value": "extensometer"},
@@ -203,11 +210,11 @@ def register(app, access: Access) -> None:
 
     @app.callback(Output("field", "figure"), Output("state-label", "children"), Output("message", "children",
                                                                                        allow_duplicate=True),
-                  Input("quantity", "value"), Input("state", "value"), State("dic-path", "data"),
-                  prevent_initial_call=True)
-    def redraw(name, k, path):
+                  Input("quantity", "value"), Input("state", "value"), Input("frame", "value"),
+                  State("dic-path", "data"), prevent_initial_call=True)
+    def redraw(name, k, frame, path):
         try:
-            src = source(path)
+            src = source(path, frame)
             k = int(k)
             values = src.values(k, name)
             lo, hi = src.limits(name)
@@ -215,7 +222,7 @@ def register(app, access: Access) -> None:
             return no_update, no_update, error_text(exc)
         patch = Patch()
         patch["data"][0]["z"] = raster(src).encoded(values)
-        if ctx.triggered_id == "quantity":
+        if ctx.triggered_id in ("quantity", "frame"):
             patch["data"][0]["zmin"] = lo
             patch["data"][0]["zmax"] = hi
             patch["data"][0]["colorscale"] = colour_scale(src, name)
@@ -252,12 +259,12 @@ def register(app, access: Access) -> None:
     @app.callback(Output("curve", "figure"), Output("curve-data", "data"),
                   Output("message", "children", allow_duplicate=True),
                   Input("field", "clickData"), State("tool", "value"), State("quantity", "value"),
-                  State("dic-path", "data"), prevent_initial_call=True)
-    def history(click, tool_, name, path):
+                  State("frame", "value"), State("dic-path", "data"), prevent_initial_call=True)
+    def history(click, tool_, name, frame, path):
         if tool_ != "point" or not click or not click.get("points"):
             return no_update, no_update, no_update
         try:
-            src = source(path)
+            src = source(path, frame)
             p = click["points"][0]
             i = src.nearest(float(p["x"]), float(p["y"]))
             values = src.history(i, name)

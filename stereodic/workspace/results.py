@@ -58,10 +58,14 @@ class DicSource:
     ----------
     path : path
         The result; InputError naming it when it is none of the three, or holds no finished state.
+    frame : SpecimenFrame, optional
+        Report positions (Z) and displacements (dX, dY, dZ) in this frame (`stereodic.gauge.frame`: the
+        specimen's) rather than the result's own; strains stay on the result's own axes.
     """
 
-    def __init__(self, path: str | os.PathLike):
+    def __init__(self, path: str | os.PathLike, *, frame=None):
         path = Path(path)
+        self.frame = frame
         self.path = path
         self.run_folder = None
         self.meta: dict = {}
@@ -143,6 +147,8 @@ class DicSource:
             raise InputError("state", f"{k} is not one of the finished states 0..{self.count - 1}")
         q = self.quantity(name)
         a = self._read(k, q.key)
+        if self.frame is not None and q.key in ("points", "displacement"):
+            a = self.frame.apply(a) if q.key == "points" else self.frame.rotate(a)
         a = a.reshape(-1, 3)[:, q.component] if q.component is not None else a.ravel()
         return a[self.index].astype(np.float64) * q.scale
 

@@ -1,7 +1,7 @@
 """`stereodic view`: the workspace's access rules over plain HTTP, its result reader against dic.csv, and
 the whole path in a real headless Chromium (marked `browser`): a simulated DIC dataset, a polygon region
 drawn on the original image, the run started and followed, the state slider, a clicked point's history
-against dic.csv, an extensometer against `stereodic gauge`, a calibration and a scan."""
+against dic.csv, an extensometer against `stereodic gauge`, a load CSV's stress-strain, a calibration and a scan."""
 
 import csv
 import json
@@ -196,17 +196,9 @@ def _draw(driver, graph_id, points, closed=False):
 
 
 def _gauge_strain(result, ends, out):
-    """The extensometer's strain (microstrain) per state as `stereodic gauge` writes it; where this branch
-    does not have the command yet, from the library it runs (`stereodic.gauge.measure_gauges`)."""
-    from stereodic.cli import COMMANDS
-    if "gauge" in COMMANDS:
-        assert main(["gauge", str(result), "--extensometer", ends, "-o", str(out)]) == 0
-        return [float(r["strain"]) * 1e6 for r in _csv(out / "extensometers.csv")]
-    from stereodic.gauge.gauges import Extensometer, Gauges, measure_gauges
-    from stereodic.gauge.result import open_gauge_result
-    x0, y0, x1, y1 = (float(v) for v in ends.split(","))
-    tables = measure_gauges(open_gauge_result(result), Gauges(extensometers=[Extensometer("E1", (x0, y0), (x1, y1))]))
-    return list(tables.extensometers[0].strain * 1e6)
+    """The extensometer's strain (microstrain) per state as the `stereodic gauge` command writes it."""
+    assert main(["gauge", str(result), "--extensometer", ends, "-o", str(out)]) == 0
+    return [float(r["strain"]) * 1e6 for r in _csv(out / "extensometers.csv")]
 
 
 @pytest.mark.browser
@@ -363,3 +355,20 @@ def test_region_on_image_pairs_goes_to_the_rectified_mask(dic_sim, tmp_path):
     assert m[deep].all() and not m[~near].any() and m.sum() > 1000
     record = json.loads((out / "workspace.json").read_text())
     assert [p["hole"] for p in record["region"]] == [False, True] and len(record["left_images"]) == 3
+
+
+def test_map_in_the_specimen_frame(dic_run):
+    """dX, dY, dZ in the specimen's frame: the same vectors turned (their lengths kept), dZ along the normal
+    of the plane fitted to state 0's points (an SVD here, not the frame's own fit)."""
+    from stereodic.workspace.dic_view import source
+    rig, spec = source(dic_run, "rig"), source(dic_run, "specimen")
+    d_rig = np.stack([rig.values(1, q) for q in ("dX", "dY", "dZ")], 1)
+    d_spec = np.stack([spec.values(1, q) for q in ("dX", "dY", "dZ")], 1)
+    ok = np.isfinite(d_rig).all(1)
+    assert ok.sum() > 100
+    np.testing.assert_allclose(np.linalg.norm(d_spec[ok], axis=1), np.linalg.norm(d_rig[ok], axis=1), atol=1e-9)
+    with np.load(dic_run / "dic.npz") as z:
+        p0 = z["points"][0].reshape(-1, 3)[rig.index]
+    p0 = p0[np.isfinite(p0).all(1)]
+    normal = np.linalg.svd(p0 - p0.mean(0))[2][2]
+    np.testing.assert_allclose(np.abs(d_spec[ok, 2]), np.abs(d_rig[ok] @ normal), atol=2e-4)
