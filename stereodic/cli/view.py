@@ -40,8 +40,8 @@ def run(args) -> int:
     if not 0 <= args.port <= 65535:
         raise InputError("--port", f"must be 0..65535, got {args.port}")
     paths = [Path(p) for p in args.paths] or [Path.cwd()]
-    if not paths[0].is_dir():
-        kind_of(paths[0].resolve())       # a file it cannot show: refused here, not in the browser
+    if args.paths:
+        kind_of(paths[0].resolve())       # a path it cannot show: refused here, not in the browser
     token = new_token() if args.token == "auto" else args.token
     ws = start(paths, host=args.host, port=args.port, token=token)
     print(f"stereodic view: serving {', '.join(map(str, paths))} at {ws.url}", flush=True)

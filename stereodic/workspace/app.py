@@ -43,11 +43,13 @@ def kind_of(path: Path) -> str:
     if path.suffix.lower() == ".ply":
         return "scan"
     if path.suffix.lower() == ".npz":
+        import zipfile
+
         import numpy as np
         try:
             with np.load(path) as z:
                 fmt = json.loads(str(z["meta"])).get("format") if "meta" in z.files else None
-        except (OSError, ValueError):
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile, AttributeError):
             raise InputError(path, "is not a readable .npz file") from None
         kinds = {"stereodic.dic/1": "dic", "stereodic.dic2d/1": "dic", "stereodic.prvm/1": "prvm",
                  "stereodic.rig/1": "rig"}
