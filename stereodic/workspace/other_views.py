@@ -2,7 +2,8 @@
 
 - PRVM file: the distortion map (each pixel's departure from the best pinhole view of a plane,
   `stereodic show`'s `distortion_px`, camera pixels), the 1-sigma ray uncertainty (camera pixels, where the
-  calibration recorded it) and the line-fit residual (micrometres, with three or more stage positions).
+  calibration recorded it), the line-fit residual (micrometres, with three or more stage positions) and,
+  for a simulated dataset's calibration, the ray error against its truth (camera pixels).
 - RIG file: its model, baseline and working distance, and each camera's error vector matrix (the
   model-less rays' departure from the virtual pinhole's, mrad): where the pinhole model misses.
   The rig's health in use, its epipolar error on a measured pair, is on a DIC result's page.
@@ -71,10 +72,35 @@ def prvm_layout(path: Path, access: Access):
     if res is not None and np.nanmax(np.where(valid, res, np.nan), initial=0.0) > 0:   # a fit was made
         figures.append(map_figure(np.where(valid, res * 1000.0, np.nan), "line-fit residual (error of the rays' "
                                                                           "fit to the decoded points)", "um", "Magma"))
+    truth = _truth_of(prvm)
+    if truth is not None:
+        from calib.evaluate import ErrorStats, ray_error_px, working_plane
+        err = ray_error_px(prvm, truth)
+        st = ErrorStats.of(err)
+        figures.append(map_figure(err, f"ray error against the simulated truth on z = {fixed(working_plane(truth), 3)} "
+                                       f"mm: RMS {fixed(st.rms, 4)} px", "camera px", "Magma"))
     h, w = valid.shape
     about = (f"PRVM of camera {prvm.meta.get('camera', '?')}, {w} x {h} px, {int(valid.sum())} pixels calibrated "
              f"({100 * valid.mean():.1f} %)")
     return html.Div([html.P(about, id="about"), _graphs(figures)])
+
+
+def _truth_of(prvm):
+    """The simulated truth of a calibration (its dataset's truth.npz, where the PRVM names a dataset folder
+    that has one and it fits: `calib.evaluate.check_truth`), else None."""
+    from calib.errors import InputError
+    from calib.evaluate import check_truth
+    from calib.prvm_file import load_prvm
+    dataset = Path(str(prvm.meta.get("dataset", "")))
+    path = (dataset.parent if dataset.name == "capture.json" else dataset) / "truth.npz"
+    if not str(prvm.meta.get("dataset", "")) or not path.is_file():
+        return None
+    try:
+        truth = load_prvm(path)
+        check_truth(prvm, truth, "calibration", path)
+    except InputError:
+        return None
+    return truth
 
 
 def rig_layout(path: Path, access: Access):

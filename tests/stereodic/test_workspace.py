@@ -372,3 +372,28 @@ def test_map_in_the_specimen_frame(dic_run):
     p0 = p0[np.isfinite(p0).all(1)]
     normal = np.linalg.svd(p0 - p0.mean(0))[2][2]
     np.testing.assert_allclose(np.abs(d_spec[ok, 2]), np.abs(d_rig[ok] @ normal), atol=2e-4)
+
+
+def test_calibration_page_error_map_against_its_truth(dic_sim, tmp_path):
+    """A PRVM whose dataset holds a truth.npz gets the ray error map: rays moved by half a footprint along
+    x on every plane show 0.5 camera px everywhere."""
+    from calib.evaluate import footprint_mm, working_plane
+    from calib.prvm_file import load_prvm
+    from stereodic.workspace.access import Access
+    from stereodic.workspace.other_views import prvm_layout
+    data = tmp_path / "dataset"
+    data.mkdir()
+    shutil.copy(dic_sim / "truth_cam0.npz", data / "truth.npz")
+    truth = load_prvm(data / "truth.npz")
+    with np.load(data / "truth.npz") as z:
+        arrays = {k: z[k] for k in z.files}
+    meta = json.loads(str(arrays["meta"]))
+    meta["dataset"] = str(data)
+    arrays["meta"] = np.array(json.dumps(meta))
+    arrays["origin"] = arrays["origin"] + [0.5 * footprint_mm(truth, working_plane(truth)), 0.0, 0.0]
+    np.savez(tmp_path / "cam.npz", **arrays)
+    page = prvm_layout(tmp_path / "cam.npz", Access([tmp_path]))
+    figures = [g.children.figure for g in page.children[1].children]
+    error = next(f for f in figures if f.layout.title.text.startswith("ray error"))
+    z = np.asarray(error.data[0].z, np.float64)
+    assert np.nanmax(np.abs(z - 0.5)) < 0.02 and "RMS 0.5" in error.layout.title.text
