@@ -67,6 +67,9 @@ def register(sub):
     p.add_argument("--restart", action="store_true",
                    help="discard a run already in the output folder (default: resume it)")
     add_frame_options(p, "the frame of X, Y, Z, displacements and strains is the rig's world frame")
+    p.add_argument("--remove-rigid", action="store_true",
+                   help="also write each state's displacement less its rigid motion (dX_def, dY_def, dZ_def; "
+                        "dic.npz's deformation), in the reporting frame")
     p.add_argument("--mat", action="store_true", help="also write DIR/dic.mat: dic.npz's arrays as a MATLAB file")
     p.add_argument("--no-vtk", action="store_true", help="skip the VTK files")
     p.add_argument("--no-plot", action="store_true", help="skip the PNG maps")
@@ -98,9 +101,10 @@ def _settings(args):
     if not args.max_gap > 0:
         raise InputError("--max-gap", f"must be > 0 pixel pitches, got {args.max_gap}")
     check_prefilter(args)
-    unknown = set(filter(None, args.animate.split(","))) - {"Z", "dX", "dY", "dZ", "exx", "eyy", "exy"}
+    maps = {"Z", "dX", "dY", "dZ", "exx", "eyy", "exy"} | ({"dX_def", "dY_def", "dZ_def"} if args.remove_rigid else set())
+    unknown = set(filter(None, args.animate.split(","))) - maps
     if unknown:
-        raise InputError("--animate", f"no map of {', '.join(sorted(unknown))} (Z, dX, dY, dZ, exx, eyy, exy)")
+        raise InputError("--animate", f"no map of {', '.join(sorted(unknown))} ({', '.join(sorted(maps))})")
     frame_options(args)
     disparity = None
     if args.disparity:
@@ -192,7 +196,8 @@ def run(args) -> int:
     n = len(data)
     done = store.open(record, inputs, n, restart=args.restart)
     outputs = {"columns": args.columns, "vtk": not args.no_vtk, "plot_every": 0 if args.no_plot else args.plot_every,
-               "mat": args.mat, "frame": [args.frame, args.origin, args.x_axis], "overlay": not args.no_overlay,
+               "mat": args.mat, "frame": [args.frame, args.origin, args.x_axis, args.remove_rigid],
+               "overlay": not args.no_overlay,
                "animate": args.animate}
     if done == n and store.outputs_written(outputs):
         print(f"{out}: all {n} states are done and written; nothing to do (--restart to run again)")
@@ -211,7 +216,7 @@ def run(args) -> int:
                             functools.partial(_summary, n=active))
         with connect(args.scheduler) as client:
             state0 = run_states_on(client, store, data, spec, csv=args.columns != "dice", vtk=not args.no_vtk,
-                                   plot_every=plot_every, labels=labels)
+                                   plot_every=0, labels=labels)    # the maps need the run's scales: drawn after
     else:
         state0 = run_states(store, data, rig, grid, seeds, settings, report=lambda st: note(_summary(st, active)))
     c0 = state0.left.ok & state0.right.ok         # matched, whether or not the rays meet
@@ -227,13 +232,13 @@ def run(args) -> int:
     info = {"rig": str(args.rig), "dataset": data.source, "world_from_rig": rig.world_from_rig.tolist(),
             "state_labels": labels, "left_images": [os.path.abspath(p) for p in data.left]}
     frame = None
-    if args.frame == "specimen":
-        from stereodic.dic3d.frame import SpecimenStates
+    info["frame"] = {"frame": "rig", "rigid_motion_removed": False}
+    if args.frame == "specimen" or args.remove_rigid:
+        from stereodic.dic3d.frame import ReportingFrame
         origin, x_dir = frame_options(args)
-        frame = SpecimenStates(state0, settings, origin_px=origin, x_direction_px=x_dir)
-        info["frame"] = frame.frame.record()
-    else:
-        info["frame"] = {"frame": "rig"}
+        frame = ReportingFrame(state0, settings, specimen=args.frame == "specimen", remove_rigid=args.remove_rigid,
+                               origin_px=origin, x_direction_px=x_dir)
+        info["frame"] = frame.record()
     times = frame_times(data.left)            # the frames' own timestamps (a video, .cine, .mraw): for loads
     if times is not None:
         info["state_times_s"] = times

@@ -94,6 +94,7 @@ def run(args) -> int:
     from calib.imageio import check_size, read_gray
     from calib.numbers import fixed
     from calib.progress import note, progress
+    from calib.sequences import frame_times
     from stereodic.cli.common import dic_grid, wrote
     from stereodic.dic import DicSettings, correlate_sequence
     from stereodic.dic.output import CsvWriter, image_arrays, plot_field, write_npz
@@ -169,7 +170,8 @@ def run(args) -> int:
 
             npz = args.npz or Path(tmp) / "result.npz"
             write_npz(npz, grid, values, len(defs), has_strain, settings, [str(p) for p in defs],
-                      args.measure if has_strain else None, reference=str(args.ref))
+                      args.measure if has_strain else None, frame_times([args.ref, *defs]),
+                      reference=str(args.ref))
             if args.mat:
                 from stereodic.dic.matfile import write_mat
                 write_mat(npz, args.mat)

@@ -20,7 +20,7 @@ run as an MP4 video.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -149,6 +149,40 @@ class Backdrop:
     image: np.ndarray
     x: np.ndarray
     y: np.ndarray
+    _cache: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def raster(self, values: np.ndarray) -> tuple[np.ndarray, tuple[float, float, float, float]]:
+        """(field, extent): `values` (ny, nx) interpolated linearly between the points where the camera
+        saw them (their Delaunay triangles) onto a raster of the image (cells half the grid's spacing;
+        NaN outside the triangles and farther than 1.5 spacings from any point), and the raster's extent
+        in image pixels (for imshow). The cells' triangles and weights are kept for the next quantity
+        measured at the same points."""
+        from matplotlib.tri import Triangulation
+        from scipy.spatial import cKDTree
+        ok = np.isfinite(values) & np.isfinite(self.x) & np.isfinite(self.y)
+        c = self._cache
+        if "ok" not in c or not np.array_equal(c["ok"], ok):
+            pts = np.column_stack([self.x[ok], self.y[ok]])
+            tree = cKDTree(pts)
+            spacing = float(np.median(tree.query(pts, k=2)[0][:, 1]))
+            r = max(1, int(spacing // 2))
+            gy, gx = np.mgrid[0:self.image.shape[0]:r, 0:self.image.shape[1]:r].astype(float)
+            cells = np.column_stack([gx.ravel(), gy.ravel()])
+            tri = Triangulation(pts[:, 0], pts[:, 1])
+            found = tri.get_trifinder()(cells[:, 0], cells[:, 1])       # matplotlib's trapezoid map: fast
+            vertices = tri.triangles[np.maximum(found, 0)]
+            a, b, e = (pts[vertices[:, i]] for i in range(3))
+            v0, v1, v2 = b - a, e - a, cells - a
+            d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
+            d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
+            den = np.where(found >= 0, d00 * d11 - d01 * d01, 1.0)
+            wb, we = (d11 * d20 - d01 * d21) / den, (d00 * d21 - d01 * d20) / den
+            inside = (found >= 0) & (tree.query(cells)[0] <= 1.5 * spacing)
+            c.update(ok=ok, shape=gx.shape, vertices=vertices, weights=np.column_stack([1 - wb - we, wb, we]),
+                     inside=inside, extent=(-r / 2, gx[0, -1] + r / 2, gy[-1, 0] + r / 2, -r / 2))
+        v = values[ok]
+        out = np.where(c["inside"], (v[c["vertices"]] * c["weights"]).sum(1), np.nan)
+        return out.reshape(c["shape"]), c["extent"]
 
 
 def map_figure(values: np.ndarray, axes: MapAxes, *, title: str, quantity: str, unit: str, decimals: int,
@@ -205,18 +239,14 @@ def map_figure(values: np.ndarray, axes: MapAxes, *, title: str, quantity: str, 
 
 
 def _draw_over_image(ax, backdrop: Backdrop, values: np.ndarray, lo: float, hi: float, cmap: str) -> None:
-    """The field as semi-transparent squares where the left camera saw each point, over its image."""
+    """The field over its image (`Backdrop.raster`), semi-transparent."""
     img = np.asarray(backdrop.image, float)
     ax.imshow(img, cmap="gray", vmin=np.percentile(img, 0.5), vmax=np.percentile(img, 99.5), interpolation="nearest")
     ok = np.isfinite(values) & np.isfinite(backdrop.x) & np.isfinite(backdrop.y)
-    if ok.any():
-        step = np.nanmedian(np.hypot(*np.diff(np.stack([backdrop.x, backdrop.y], -1), axis=1).reshape(-1, 2).T)) \
-            if values.shape[1] > 1 else 4.0
-        ax.figure.draw_without_rendering()                 # the constrained layout: the axes' final size
-        width_pt = ax.get_window_extent().width * 72 / ax.figure.dpi
-        size = (1.15 * max(step, 1.0) * width_pt / img.shape[1]) ** 2   # squares that touch
-        ax.scatter(backdrop.x[ok], backdrop.y[ok], c=values[ok], s=size, marker="s", cmap=cmap, vmin=lo, vmax=hi,
-                   alpha=0.55, linewidths=0)
+    if ok.sum() >= 3:
+        field, extent = backdrop.raster(values)
+        ax.imshow(np.ma.masked_invalid(field), cmap=cmap, vmin=lo, vmax=hi, alpha=0.55, interpolation="nearest",
+                  extent=extent)
     ax.set_xlim(-0.5, img.shape[1] - 0.5)
     ax.set_ylim(img.shape[0] - 0.5, -0.5)
     ax.set_xlabel("x (px, left image)")

@@ -10,7 +10,8 @@ cameras and the rays agree, and state 0 is measured), status (ok, left:<status>,
 ray_gap, no_reference), incremental (1: the point is tracked state to state) and, with a strain window,
 the strain measure's exx, eyy, exy on the tangent plane, its principal strains e_major, e_minor, the
 major direction e_angle (degrees from e1) and the von Mises equivalent e_vm (`strain_measures`), and
-strain_valid). Camera columns are NaN exactly where that camera's converged is 0; X..gap_mm exactly where
+strain_valid) and, with the rigid motion removed (`dic --remove-rigid`), dX_def, dY_def, dZ_def (mm: the
+displacement less the state's best-fit rigid motion). Camera columns are NaN exactly where that camera's converged is 0; X..gap_mm exactly where
 converged is 0; strains exactly where strain_valid is 0.
 
 The writers take the states as an iterable (each state is formatted and written, then dropped), so a
@@ -35,7 +36,7 @@ from stereodic.dic.output import STRAIN_COLUMNS, fmt
 from stereodic.dic3d.stereo import NO_REFERENCE, RAY_GAP, CameraMatch, StereoSettings, StereoState
 from stereodic.strain_measures import StrainMeasure
 
-def csv_columns(has_strain: bool) -> list[str]:
+def csv_columns(has_strain: bool, has_deformation: bool = False) -> list[str]:
     cols = ["state", "x", "y"]
     for cam in ("left", "right"):
         cols += [f"{cam}_{c}" for c in ("u", "v", "zncc", "converged", "status")]
@@ -43,6 +44,8 @@ def csv_columns(has_strain: bool) -> list[str]:
     cols += ["X", "Y", "Z", "dX", "dY", "dZ", "gap_mm", "converged", "status", "incremental"]
     if has_strain:
         cols += [c for c, _, _ in STRAIN_COLUMNS] + ["strain_valid"]
+    if has_deformation:
+        cols += ["dX_def", "dY_def", "dZ_def"]
     return cols
 
 
@@ -67,18 +70,21 @@ def csv_rows(grid: Grid, st: StereoState) -> str:
     if st.measure is not None:
         cols += [fmt(f, flat(getattr(st.measure, field))) for _, field, f in STRAIN_COLUMNS]
         cols += [ints(st.measure.valid)]
+    if st.deformation is not None:
+        deformation = flat(st.deformation)
+        cols += [fmt("%.6f", deformation[:, i]) for i in range(3)]
     return "".join(",".join(row) + "\n" for row in zip(*cols))
 
 
-def write_csv(path: str | os.PathLike, rows: Iterable[str], *, has_strain: bool) -> None:
+def write_csv(path: str | os.PathLike, rows: Iterable[str], *, has_strain: bool, has_deformation: bool = False) -> None:
     """The CSV of the module docstring from its rows, state by state (`csv_rows` of each state)."""
     with atomic_output(path) as tmp, open(tmp, "w") as out:
-        out.write(",".join(csv_columns(has_strain)) + "\n")
+        out.write(",".join(csv_columns(has_strain, has_deformation)) + "\n")
         for text in rows:
             out.write(text)
 
 
-def npz_keys(has_strain: bool) -> list[str]:
+def npz_keys(has_strain: bool, has_deformation: bool = False) -> list[str]:
     """The per-state arrays of dic.npz (and of the run folder's state files), in the file's order."""
     keys = ["state"] + [f"{c}_{k}" for c in ("left", "right") for k in ("u", "v", "zncc", "status")]
     keys += ["points", "displacement", "gap_mm", "converged"]
@@ -87,6 +93,8 @@ def npz_keys(has_strain: bool) -> list[str]:
     keys += [f"{c}_{k}" for c in ("left", "right") for k in ("x0", "y0", "noise_px")] + ["incremental"]
     if has_strain:
         keys += ["e_major", "e_minor", "e_angle", "e_vm"]
+    if has_deformation:
+        keys += ["deformation"]
     return keys
 
 
@@ -122,6 +130,8 @@ def state_arrays(st: StereoState) -> dict[str, np.ndarray]:
                incremental=st.incremental, status_code=_status_code(st))
     if st.measure is not None:
         out.update({key: getattr(st.measure, f) for key, f in _MEASURE.items()})
+    if st.deformation is not None:
+        out["deformation"] = st.deformation
     return out
 
 
@@ -137,28 +147,33 @@ def state_from_arrays(a, measure: str | None) -> StereoState:
     return StereoState(int(a["state"]), cam("left"), cam("right"), np.array(a["points"]),
                        np.array(a["displacement"]), np.array(a["gap_mm"]), np.array(a["converged"]),
                        _status_strings(np.array(a["status_code"]), np.array(a["left_status"]),
-                                       np.array(a["right_status"])), None, np.array(a["incremental"]), m)
+                                       np.array(a["right_status"])), None, np.array(a["incremental"]), m,
+                       np.array(a["deformation"]) if "deformation" in a else None)
 
 
 def write_npz(path: str | os.PathLike, grid: Grid, values: Callable[[str], Iterable[np.ndarray]], count: int,
-              has_strain: bool, settings: StereoSettings, info: dict) -> None:
+              has_strain: bool, settings: StereoSettings, info: dict, has_deformation: bool = False) -> None:
     """Arrays x (nx,), y (ny,), active (ny, nx); per state (S, ny, nx): left_u, left_v, left_zncc,
     left_status, right_* the same, gap_mm, converged [, exx, eyy, exy, strain_valid], left_x0, left_y0,
     left_noise_px, right_* the same, incremental [, e_major, e_minor, e_angle, e_vm]; points and
-    displacement (S, ny, nx, 3) mm; state (S,); meta: JSON with the settings, status names and `info`
-    (rig, dataset, world_from_rig, ...). `values(key)` iterates one array's per-state values."""
+    displacement (S, ny, nx, 3) mm [, deformation (S, ny, nx, 3) mm: the displacement less each state's
+    rigid motion]; state (S,); meta: JSON with the settings, status names and `info` (rig, dataset,
+    world_from_rig, frame, ...). `values(key)` iterates one array's per-state values."""
     meta = dict(format="stereodic.dic/1", status_names=list(STATUS_NAMES), units="pixels (rectified), mm",
                 settings={"dic": settings.dic.__dict__, **{k: v for k, v in settings.__dict__.items() if k != "dic"}},
                 **info)
     arrays = dict(meta=np.array(json.dumps(meta)), x=grid.xs, y=grid.ys, active=grid.active)
-    write_stacked_npz(path, arrays, {key: (lambda key=key: values(key)) for key in npz_keys(has_strain)}, count)
+    write_stacked_npz(path, arrays, {key: (lambda key=key: values(key)) for key in npz_keys(has_strain, has_deformation)},
+                      count)
 
 
 def state_maps(st: StereoState) -> dict[str, tuple[np.ndarray, str, int]]:
     """The quantities of a state's maps: name -> (values (ny, nx), unit, decimals): Z, dX, dY, dZ (mm)
-    [, exx, eyy, exy (microstrain)]."""
+    [, dX_def, dY_def, dZ_def (mm, rigid motion removed)] [, exx, eyy, exy (microstrain)]."""
     maps = {"Z": (st.points[..., 2], "mm", 3), "dX": (st.displacement[..., 0], "mm", 4),
             "dY": (st.displacement[..., 1], "mm", 4), "dZ": (st.displacement[..., 2], "mm", 4)}
+    if st.deformation is not None:
+        maps.update({f"{c}_def": (st.deformation[..., i], "mm", 4) for i, c in enumerate(("dX", "dY", "dZ"))})
     if st.measure is not None:
         maps.update({c: (getattr(st.measure, c) * 1e6, "microstrain", 0) for c in ("exx", "eyy", "exy")})
     return maps

@@ -78,8 +78,8 @@ def write_state_files(folder: str | Path, st: StereoState, *, vtk: bool, plot_ev
 
 
 def _framed_store(store: RunStore, folder: Path, frame: Callable[[StereoState], StereoState]) -> RunStore:
-    """A store over folder/.frame/ holding every state of `store` turned by `frame` (the specimen's
-    frame: `stereodic.dic3d.frame.SpecimenStates`), written one state at a time."""
+    """A store over folder/.frame/ holding every state of `store` turned by `frame` (the reporting frame:
+    `stereodic.dic3d.frame.ReportingFrame`), written one state at a time."""
     n = store.manifest["states"]
     view = RunStore(folder / ".frame")
     view.states_dir.mkdir(parents=True, exist_ok=True)
@@ -98,12 +98,13 @@ def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: Ste
     """The combined outputs from the store's state files (module docstring): folder/dic.csv (unless
     `dice` writes DICe's files instead, or not `csv`), folder/dic.npz, folder/vtk/ (with `vtk`),
     folder/maps/ (every `plot_every`-th state, 0 = none; titled by `labels`, one per state, default
-    "state k"). Not `state_files`: each state's VTK file and maps were written already
-    (`write_state_files`, by a cluster's tasks); the rest is written here. `frame`: every state turned
+    "state k"). Not `state_files`: each state's VTK file was written already (`write_state_files`, by a
+    cluster's tasks); the rest is written here, the maps always (they need the whole run's scales). `frame`: every state turned
     into another reporting frame first (the specimen's), its VTK files and maps written here, titled
     `frame_name`. The maps written here share the run's colour scales (`stereodic.dic.maps.RunScales`),
     and are also drawn over the state's original left image, `image_of(k)`, when it is given; `animate`:
-    the quantities (Z, dX, dY, dZ, exx, eyy, exy) whose maps also make folder/maps/<quantity>.mp4."""
+    the quantities (those of `output.state_maps`) whose maps also make folder/maps/<quantity>.mp4.
+    `info["frame"]["rigid_motion_removed"]`: the states carry their deformation (dic.csv's dX_def...)."""
     folder = Path(folder)
     options = dict(vtk=vtk, plot_every=plot_every, dice=dice, csv=csv, labels=labels, image_of=image_of,
                    frame_name=frame_name, animate=animate)
@@ -132,25 +133,27 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
                    animate) -> None:
     n = store.manifest["states"]
     has_strain = bool(settings.strain_window)
-    write_npz(folder / "dic.npz", grid, store.values, n, has_strain, settings, info)
+    has_def = bool(info.get("frame", {}).get("rigid_motion_removed"))
+    write_npz(folder / "dic.npz", grid, store.values, n, has_strain, settings, info, has_def)
     if csv:  # each state's rows as a cluster's task kept them, or formatted here
         write_csv(folder / "dic.csv", (store.read_rows(k) or csv_rows(grid, store.read_state(k)) for k in range(n)),
-                  has_strain=has_strain)
+                  has_strain=has_strain, has_deformation=has_def)
         store.remove_rows()
-    if (state_files and (vtk or plot_every)) or dice is not None:
+    vtk_here = vtk and state_files        # a cluster's tasks wrote the VTK files; the maps are drawn here
+    if vtk_here or plot_every or dice is not None:
         axes = None
         maps = {}
-        if state_files and plot_every:
+        if plot_every:
             maps = dict(scales=_run_scales(store, plot_every, grid.active), frame=frame_name,
                         movies={q: MapMovie(folder / "maps" / f"{q}.mp4") for q in animate})
         try:
             for st in progress(store.states(), "writing", total=n, unit="state"):
-                if state_files:
+                if vtk_here or plot_every:
                     if axes is None:  # state 0: the reference surface gives every map its mm axes
                         axes = surface_axes(grid.xs, grid.ys, st.points, grid.active)
                     image = image_of(st.state) if image_of is not None and plot_every and \
                         st.state % plot_every == 0 else None
-                    write_state_files(folder, st, vtk=vtk, plot_every=plot_every, axes=axes,
+                    write_state_files(folder, st, vtk=vtk_here, plot_every=plot_every, axes=axes,
                                       label=labels[st.state] if labels else f"state {st.state}", image=image,
                                       **maps)
                 if dice is not None:

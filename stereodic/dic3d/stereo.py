@@ -108,7 +108,9 @@ class StereoState:
     (ny, nx, 3) in the rig's reporting frame, mm; gap_mm (ny, nx) the rays' distance; converged (ny, nx);
     status (ny, nx) str (STATUS_NAMES, prefixed 'left:' or 'right:', or ray_gap, no_reference); strain (the
     fit, Green-Lagrange) and measure (the settings' strain measure, principal strains, von Mises), or None
-    without a strain window; incremental (ny, nx) bool: the points tracked state to state in this state."""
+    without a strain window; incremental (ny, nx) bool: the points tracked state to state in this state;
+    deformation (ny, nx, 3) mm: the displacement with the state's rigid motion taken out, where it is
+    (`stereodic.dic3d.frame.ReportingFrame`), else None."""
 
     state: int
     left: CameraMatch
@@ -121,6 +123,7 @@ class StereoState:
     strain: Strain | None
     incremental: np.ndarray
     measure: StrainMeasure | None = None
+    deformation: np.ndarray | None = None
 
 
 @dataclass

@@ -121,3 +121,21 @@ def test_stereo_dic_from_two_videos_and_a_side_by_side_stream(dic_sim, tmp_path)
                 assert np.array_equal(z["points"], ref["points"], equal_nan=True), run
                 meta = json.loads(str(z["meta"]))
                 assert np.allclose(meta["state_times_s"], np.arange(len(states)) / 10)
+
+
+def test_dic2d_of_a_cine_keeps_its_timestamps_for_the_load(tmp_path):
+    """A .cine's frame times go into the dic2d NPZ; `gauge --join time` joins a load logged on the same
+    clock without being told the frame rate."""
+    from tests.calib.sequence_files import write_cine
+    frames = np.stack(_speckle_frames()).astype(np.uint16) * 16
+    times = 1_750_000_000.0 + 0.5 * np.arange(len(frames))
+    write_cine(tmp_path / "a.cine", frames, times)
+    assert main(["dic2d", f"{tmp_path / 'a.cine'}::0", str(tmp_path / "a.cine"), "--subset", "21", "--step", "12",
+                 "-o", str(tmp_path / "r.csv"), "--npz", str(tmp_path / "r.npz")]) == 0
+    log = "time,force\n" + "".join(f"{t:.3f},{100 * (t - times[0]):.3f}\n" for t in times[0] + np.arange(0, 3, 0.1))
+    (tmp_path / "load.csv").write_text(log)
+    assert main(["gauge", str(tmp_path / "r.npz"), "--point", "48,36", "--load", str(tmp_path / "load.csv"),
+                 "--join", "time", "--no-plot", "-o", str(tmp_path / "g")]) == 0
+    with open(tmp_path / "g" / "load.csv") as f:
+        force = [float(r["force_n"]) for r in csv.DictReader(f)]
+    assert np.allclose(force, [0, 0, 50, 100, 150], atol=1e-3)     # the reference, then frames 0..3

@@ -147,3 +147,27 @@ def test_map_over_the_image_and_a_movie(tmp_path):
     movie.close()
     cap = cv2.VideoCapture(str(tmp_path / "exx.mp4"))
     assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 3
+
+
+def test_the_field_over_the_image_is_the_linear_interpolation_between_the_points():
+    """Backdrop.raster against scipy's griddata (an independent linear interpolation on the same
+    Delaunay points), a hole in the grid left blank, not bridged."""
+    from scipy.interpolate import griddata
+
+    from stereodic.dic.maps import Backdrop
+    x, y = np.meshgrid(XS, YS)
+    x, y = 1.1 * x + 0.05 * y + 3.0, 0.97 * y - 0.04 * x + 8.0          # seen slanted
+    values = np.sin(x / 40.0) + y / 100.0
+    hx, hy = x[10, 13], y[10, 13]
+    x[8:13, 10:16] = np.nan                                             # not seen: a hole
+    b = Backdrop(np.zeros((230, 340), np.uint8), x, y)
+    field, extent = b.raster(values)
+    ok = np.isfinite(x)
+    step = int(round(-2 * extent[0]))
+    gy, gx = np.mgrid[0:230:step, 0:340:step].astype(float)
+    ref = griddata(np.column_stack([x[ok], y[ok]]), values[ok], (gx, gy))
+    both = np.isfinite(field)
+    assert both.sum() > 0.5 * np.isfinite(ref).sum()
+    assert np.abs(field[both] - ref[both]).max() < 1e-9
+    hole = (np.abs(gx - hx) < 5) & (np.abs(gy - hy) < 5)
+    assert hole.any() and np.isnan(field[hole]).all()

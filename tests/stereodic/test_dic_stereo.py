@@ -114,6 +114,29 @@ def test_command_writes_csv_npz_vtk_png(small, tmp_path):
     assert (out / "maps" / "state2_exx.png").stat().st_size > 1000
 
 
+def test_specimen_frame_and_rigid_motion_removed(small, tmp_path):
+    """`dic --frame specimen --remove-rigid`: z along the plate's normal towards the rig, recorded in the
+    meta; the translation state's deformation-only displacement is zero where its full one is not; the
+    strains refitted in the specimen's axes still give the tension."""
+    out = tmp_path / "out"
+    assert main(["dic", str(small / "rig.npz"), str(small), "--step", "10", "--strain-window", "5", "--frame",
+                 "specimen", "--remove-rigid", "--no-vtk", "--no-plot", "--mat", "-o", str(out)]) == 0
+    truth = load_dic_truth(small)
+    with np.load(out / "dic.npz") as z:
+        meta = json.loads(str(z["meta"]))
+        assert meta["frame"]["frame"] == "specimen" and meta["frame"]["rigid_motion_removed"]
+        axes = np.array(meta["frame"]["axes"])
+        assert axes[2] @ truth.specimen.frame[:, 2] < -0.99999
+        full, deformation = z["displacement"][1], z["deformation"][1]
+        ok = z["converged"][1]
+        assert np.linalg.norm(np.median(full[ok], 0)) > 1.0                       # the translation, turned
+        assert np.abs(np.median(deformation[ok], 0)).max() < 0.005
+        assert np.nanmean(z["exx"][2]) == pytest.approx(0.5 * (1.01 ** 2 - 1), abs=100e-6)
+    rows = _rows(out / "dic.csv")
+    assert {"dX_def", "dY_def", "dZ_def"} <= set(rows[0])
+    assert (out / "dic.mat").is_file()
+
+
 def _copy(src, dst):
     shutil.copytree(src, dst)
     return dst
