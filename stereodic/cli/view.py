@@ -33,16 +33,17 @@ def run(args) -> int:
     from pathlib import Path
 
     from calib.errors import InputError
-    from stereodic.workspace.access import new_token
+    from stereodic.workspace.access import check_host, new_token
     from stereodic.workspace.app import kind_of
     from stereodic.workspace.server import open_browser, start
 
     if not 0 <= args.port <= 65535:
         raise InputError("--port", f"must be 0..65535, got {args.port}")
+    token = new_token() if args.token == "auto" else args.token
+    check_host(args.host, token)
     paths = [Path(p) for p in args.paths] or [Path.cwd()]
     if args.paths:
         kind_of(paths[0].resolve())       # a path it cannot show: refused here, not in the browser
-    token = new_token() if args.token == "auto" else args.token
     ws = start(paths, host=args.host, port=args.port, token=token)
     print(f"stereodic view: serving {', '.join(map(str, paths))} at {ws.url}", flush=True)
     if not args.no_browser and not open_browser(ws.url):

@@ -164,22 +164,22 @@ class DicSource:
         return int(np.argmin(np.hypot(self.x - x, self.y - y)))
 
     def limits(self, name: str) -> tuple[float, float]:
-        """Fixed colour limits of quantity `name` over the run, in its unit: the 1st and 99th percentiles
-        of its values in up to LIMIT_STATES states spread over the finished ones (symmetric about zero for
-        a signed quantity that takes both signs); the status codes' own range for `status`."""
+        """Fixed colour limits of quantity `name` over the run, in its unit: `stereodic.dic.maps.RunScales`
+        (what the run's PNG maps use: the widest of each state's 1st-99th percentiles, symmetric about
+        zero for a signed quantity, strains at least +-STRAIN_FLOOR) over up to LIMIT_STATES states spread
+        over the finished ones; the status codes' own range for `status`."""
         if name in self._limits:
             return self._limits[name]
         if name == "status":
             return (0.0, 4.0)
-        ks = np.unique(np.linspace(0, self.count - 1, min(self.count, LIMIT_STATES)).round().astype(int))
-        v = np.concatenate([self.values(int(k), name) for k in ks])
-        v = v[np.isfinite(v)]
-        if v.size == 0:
-            return (0.0, 1.0)
-        lo, hi = (float(p) for p in np.percentile(v, [1, 99]))
-        if self.quantity(name).signed and lo < 0 < hi:
-            hi = max(-lo, hi)
-            lo = -hi
+        from stereodic.dic.maps import RunScales
+        from stereodic.dic3d.output import STRAIN_FLOOR
+        q = self.quantity(name)
+        scales = RunScales(floor={c: STRAIN_FLOOR for c in ("exx", "eyy", "exy")})    # microstrain, as the maps
+        for k in np.unique(np.linspace(0, self.count - 1, min(self.count, LIMIT_STATES)).round().astype(int)):
+            scales.add(name, self.values(int(k), name), signed=q.signed)
+        scale = scales.scale(name)
+        lo, hi = (0.0, 1.0) if scale is None else (float(scale.lo), float(scale.hi))
         if hi - lo <= 1e-12 * max(1.0, abs(hi)):
             lo, hi = lo - 0.5, hi + 0.5
         self._limits[name] = (lo, hi)
