@@ -42,18 +42,41 @@ def dataset_of(path: Path) -> Path:
     return path.parent if path.name == "capture.json" else path
 
 
-def find_rigs(folders: list[Path], *, most: int = 200) -> list[Path]:
-    """RIG files (format stereodic.rig/1) in the served folders and their sub-folders two levels down."""
+def find_files(folders: list[Path], fmt: str, *, most: int = 200) -> list[Path]:
+    """The .npz files of format `fmt` ("stereodic.rig/1", "stereodic.prvm/1") in the served folders and
+    their sub-folders two levels down."""
     out = []
     for folder in folders:
         for p in sorted([*folder.glob("*.npz"), *folder.glob("*/*.npz"), *folder.glob("*/*/*.npz")])[:most]:
             try:
                 with np.load(p) as z:
-                    if "meta" in z.files and json.loads(str(z["meta"])).get("format") == "stereodic.rig/1":
+                    if "meta" in z.files and json.loads(str(z["meta"])).get("format") == fmt:
                         out.append(p)
-            except (OSError, ValueError):
+            except (OSError, ValueError, EOFError):
                 continue
     return out
+
+
+def rig_maker(dataset: Path, access: Access):
+    """The page where there is no rig yet: two calibrated cameras (PRVM files) picked, `stereodic rig`
+    run to make DATASET/rig.npz, then the set-up page; InputError when there are not two PRVM files."""
+    from dash import dcc, html
+    cams = [str(p) for p in find_files(access.folders, "stereodic.prvm/1")]
+    if len(cams) < 2:
+        raise InputError(dataset, "no rig file (stereodic.rig/1) and fewer than two calibrated cameras (PRVM "
+                                  "files) in the served folders: calibrate the cameras, or serve their folder too "
+                                  "(stereodic view DATASET CALIBRATION_FOLDER)")
+    return html.Div([
+        dcc.Store(id="rig-dataset", data=str(dataset)),
+        html.P("No rig yet: pick the left and the right camera's calibration; `stereodic rig` makes the rectified "
+               "pair (rig.npz in the dataset's folder)."),
+        html.Div(["left ", dcc.Dropdown(cams, cams[0], id="rig-left", clearable=False,
+                                        style={"width": "520px", "display": "inline-block"})]),
+        html.Div(["right ", dcc.Dropdown(cams, cams[1], id="rig-right", clearable=False,
+                                         style={"width": "520px", "display": "inline-block"})]),
+        html.Button("make the rig", id="make-rig", n_clicks=0),
+        html.Pre(id="rig-command"), html.Div(id="rig-message", style={"color": "#b00", "whiteSpace": "pre-wrap"}),
+    ])
 
 
 def shape_polygon(shape: dict) -> Polygon:
@@ -136,12 +159,10 @@ def reference_figure(ref: Path, shapes: list):
 def layout(path: Path, access: Access):
     from dash import dcc, html
     dataset = dataset_of(path)
-    rigs = find_rigs(access.folders)
+    rigs = find_files(access.folders, "stereodic.rig/1")
     default = next((r for r in rigs if r.parent == dataset), rigs[0] if rigs else None)
     if default is None:
-        raise InputError(dataset, "no rig file (stereodic.rig/1) in the served folders: make one with `stereodic "
-                                  "rig` or `stereodic import` there, or serve its folder too (stereodic view "
-                                  "DATASET RIG_FOLDER)")
+        return rig_maker(dataset, access)
     rig, data = _states(dataset, default)
     shapes = automatic_shapes(data.left[0])
     return html.Div([
@@ -326,6 +347,24 @@ def register(app, access: Access) -> None:
         except (InputError, TypeError, ValueError) as exc:
             return no_update, no_update, error_text(exc)
         return "the equivalent command:\n" + shlex.join(command), False, ""
+
+    @app.callback(Output("rig-command", "children"), Output("rig-message", "children"),
+                  Input("make-rig", "n_clicks"), State("rig-dataset", "data"), State("rig-left", "value"),
+                  State("rig-right", "value"), prevent_initial_call=True)
+    def make_rig(_, dataset, left, right):
+        from urllib.parse import quote
+        try:
+            out = access.resolve(Path(dataset) / "rig.npz")
+            command = ["stereodic", "rig", str(access.resolve(left)), str(access.resolve(right)), "-o", str(out)]
+        except InputError as exc:
+            return no_update, error_text(exc)
+        done = subprocess.run([sys.executable, "-m", "stereodic", *command[1:]], capture_output=True, text=True)
+        if done.returncode != 0:
+            lines = (done.stderr or done.stdout).strip().splitlines()
+            return shlex.join(command), lines[-1] if lines else f"exit status {done.returncode}"
+        return html.Span([shlex.join(command), "\n", done.stdout.strip(), "\n",
+                          dcc.Link("set up the run", href=f"/?path={quote(dataset)}", refresh=True,
+                                   id="open-setup")]), ""
 
     @app.callback(Output("progress", "children"), Output("run-poll", "disabled", allow_duplicate=True),
                   Input("run-poll", "n_intervals"), State("setup-output", "value"), prevent_initial_call=True)

@@ -397,3 +397,35 @@ def test_calibration_page_error_map_against_its_truth(dic_sim, tmp_path):
     error = next(f for f in figures if f.layout.title.text.startswith("ray error"))
     z = np.asarray(error.data[0].z, np.float64)
     assert np.nanmax(np.abs(z - 0.5)) < 0.02 and "RMS 0.5" in error.layout.title.text
+
+
+@pytest.mark.browser
+def test_from_image_pairs_and_two_calibrations(browser, dic_sim, tmp_path):
+    """A newcomer's folder: image pairs and the two cameras' PRVM files, no rig: the page makes the rig
+    with `stereodic rig` (the same rig as the command's, byte for byte in its arrays), then sets the run up."""
+    from selenium.webdriver.common.by import By
+
+    from stereodic.workspace.server import start
+    d = browser
+    folder = tmp_path / "lab"
+    folder.mkdir()
+    for k in range(3):
+        for cam, side in (("cam0", 0), ("cam1", 1)):
+            shutil.copy(dic_sim / f"s{k:03d}" / f"{cam}.png", folder / f"img_{k:04d}_{side}.png")
+    for cam in ("cam0", "cam1"):
+        shutil.copy(dic_sim / f"truth_{cam}.npz", folder / f"{cam}.npz")
+    ws = start([folder], background=True)
+    try:
+        d.get(ws.url)
+        _wait(lambda: d.find_elements(By.ID, "make-rig"), 60)
+        d.find_element(By.ID, "make-rig").click()
+        _wait(lambda: d.find_elements(By.ID, "open-setup") or d.find_element(By.ID, "rig-message").text, 120)
+        assert d.find_elements(By.ID, "open-setup"), d.find_element(By.ID, "rig-message").text
+        assert main(["rig", str(folder / "cam0.npz"), str(folder / "cam1.npz"), "-o", str(tmp_path / "rig.npz")]) == 0
+        with np.load(folder / "rig.npz") as a, np.load(tmp_path / "rig.npz") as b:
+            assert all(np.array_equal(a[k], b[k], equal_nan=True) for k in b.files if k != "meta")
+        d.find_element(By.ID, "open-setup").click()
+        _wait(lambda: _plot(d, "noise"), 90)
+        assert "3 states" in d.find_element(By.ID, "setup-about").text
+    finally:
+        ws.stop()
