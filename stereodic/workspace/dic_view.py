@@ -214,7 +214,7 @@ def register(app, access: Access) -> None:
                   State("dic-path", "data"), prevent_initial_call=True)
     def redraw(name, k, frame, path):
         try:
-            src = source(path, frame)
+            src = source(access.resolve(path), frame)
             k = int(k)
             values = src.values(k, name)
             lo, hi = src.limits(name)
@@ -245,7 +245,10 @@ def register(app, access: Access) -> None:
     @app.callback(Output("state", "max"), Output("run-size", "children"), Output("poll", "disabled"),
                   Input("poll", "n_intervals"), State("dic-path", "data"), prevent_initial_call=True)
     def grow(_, path):
-        src = source(path)
+        try:
+            src = source(access.resolve(path))
+        except InputError:
+            return no_update, no_update, True
         return max(src.count - 1, 0), f"  {src.x.size} points, {src.count} of {src.total} states", \
             src.count >= src.total
 
@@ -264,7 +267,7 @@ def register(app, access: Access) -> None:
         if tool_ != "point" or not click or not click.get("points"):
             return no_update, no_update, no_update
         try:
-            src = source(path, frame)
+            src = source(access.resolve(path), frame)
             p = click["points"][0]
             i = src.nearest(float(p["x"]), float(p["y"]))
             values = src.history(i, name)
@@ -284,7 +287,8 @@ def register(app, access: Access) -> None:
         if tool_ == "point" or not relayout or not relayout.get("shapes"):
             return no_update, no_update, no_update, no_update
         try:
-            figure, table, strain = gauge_curve(path, relayout["shapes"][-1], tool_, name, frame)
+            figure, table, strain = gauge_curve(str(access.resolve(path)), relayout["shapes"][-1], tool_, name,
+                                                frame)
         except (InputError, KeyError, TypeError, ValueError) as exc:
             return no_update, no_update, no_update, error_text(exc)
         return figure, table, strain, ""
@@ -305,7 +309,7 @@ def register(app, access: Access) -> None:
                   State("dic-path", "data"), prevent_initial_call=True)
     def health(_, path):
         try:
-            return rig_health(source(path))
+            return rig_health(source(access.resolve(path)))
         except InputError as exc:
             return no_update, error_text(exc)
 

@@ -181,6 +181,6 @@ def register(app, access: Access) -> None:
     def cloud(shape, path):
         from calib.errors import InputError
         try:
-            return cloud_figure(read_cloud(path), shape)
+            return cloud_figure(read_cloud(access.resolve(path)), shape)
         except (InputError, ValueError) as exc:
             return {}, error_text(exc)

@@ -297,7 +297,10 @@ def register(app, access: Access) -> None:
         if trigger == "clear-region":
             shapes = []
         elif trigger == "auto-region":
-            _, data = _states(Path(dataset), access.resolve(rig_path))
+            try:
+                _, data = _states(access.resolve(dataset), access.resolve(rig_path))
+            except InputError:
+                return no_update, no_update
             shapes = automatic_shapes(data.left[0])
         else:
             if not relayout or not any(k.startswith("shapes") for k in relayout):
@@ -314,7 +317,7 @@ def register(app, access: Access) -> None:
         from stereodic.dic.speckle_quality import SIZES, speckle_quality
         try:
             polygons = [shape_polygon(s) for s in shapes or []]
-            _, data = _states(Path(dataset), access.resolve(rig_path))
+            _, data = _states(access.resolve(dataset), access.resolve(rig_path))
             img = read_gray(data.left[0])
             h, w = img.shape
             mask = original_mask(polygons, (w, h)) if polygons else np.ones((h, w), bool)
@@ -370,7 +373,10 @@ def register(app, access: Access) -> None:
                   Input("run-poll", "n_intervals"), State("setup-output", "value"), prevent_initial_call=True)
     def follow(_, output):
         from urllib.parse import quote
-        out = access.resolve(output)
+        try:
+            out = access.resolve(output)
+        except InputError as exc:
+            return error_text(exc), True
         text, finished, ok = run_progress(out)
         if ok:
             return html.Span([text, " - ", dcc.Link("open the results", href=f"/?path={quote(str(out))}",

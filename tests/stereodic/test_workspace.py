@@ -35,6 +35,10 @@ def secret_dir(tmp_path_factory):
     served.mkdir()
     write_gray(served / "img.png", np.arange(64 * 48, dtype=np.uint16).reshape(48, 64).astype(np.uint8))
     (root / "secret.txt").write_text("the lab's secret\n")
+    import open3d as o3d
+    v = np.random.default_rng(0).normal(size=(200, 3))
+    o3d.io.write_point_cloud(str(root / "cloud.ply"), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(
+        10.0 * v / np.linalg.norm(v, axis=1)[:, None])))
     return served
 
 
@@ -79,6 +83,17 @@ def test_token_and_path_traversal_over_http(secret_dir):
         with urllib.request.urlopen(req, timeout=30) as r:
             answer = r.read().decode()
         assert "outside the folders" in answer and "the lab's secret" not in answer
+        # a callback's own path (a page's stored path, sent back by the browser) is checked the same way
+        payload = {"output": "..cloud.figure...about.children..", "outputs": [
+            {"id": "cloud", "property": "figure"}, {"id": "about", "property": "children"}],
+            "inputs": [{"id": "scan-shape", "property": "value", "value": "sphere"}],
+            "changedPropIds": ["scan-shape.value"],
+            "state": [{"id": "scan-path", "property": "data", "value": str(secret_dir.parent / "cloud.ply")}]}
+        req = urllib.request.Request(base + "_dash-update-component", data=json.dumps(payload).encode(),
+                                     headers={"Content-Type": "application/json", "Cookie": cookie})
+        with urllib.request.urlopen(req, timeout=30) as r:
+            answer = r.read().decode()
+        assert "outside the folders" in answer and "sphere of radius" not in answer
     finally:
         ws.stop()
 
