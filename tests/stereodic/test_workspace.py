@@ -10,6 +10,7 @@ import time
 import urllib.error
 import urllib.parse
 import urllib.request
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -444,3 +445,23 @@ def test_from_image_pairs_and_two_calibrations(browser, dic_sim, tmp_path):
         assert "3 states" in d.find_element(By.ID, "setup-about").text
     finally:
         ws.stop()
+
+
+REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "dice-stereo-list"
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason="the DICe stereo_list images are not present")
+def test_automatic_region_finds_the_real_specimen():
+    """On the real DICe stereo_list reference image the automatic region holds DICe's own ROI (the
+    rectangle (160, 300)-(1100, 540) of roi.dat) and leaves out the two grips above and below it."""
+    from matplotlib.path import Path as MPath
+
+    from stereodic.workspace.region import original_mask
+    from stereodic.workspace.setup_view import automatic_shapes, shape_polygon
+    polygons = [shape_polygon(s) for s in automatic_shapes(REAL / "images" / "img_0000_0.tif")]
+    assert len(polygons) == 1 and not polygons[0].hole
+    outline = MPath(polygons[0].points)
+    ys, xs = np.mgrid[300:541:20, 160:1101:20]
+    assert outline.contains_points(np.column_stack([xs.ravel(), ys.ravel()])).all()
+    mask = original_mask(polygons, (1280, 800))
+    assert not mask[:200].any() and not mask[650:].any()      # the grips' speckle is not the specimen's
