@@ -34,6 +34,9 @@ from stereodic.workspace.region import Polygon, automatic_region, from_json, ori
 HOLE_COLOUR = "#ff3030"
 PART_COLOUR = "#30ff30"
 RUN_FORMAT = "stereodic.workspace-run/1"
+# `stereodic dic` options the page passes on as typed (none names a file: the run reads only what it serves)
+EXTRA_OPTIONS = {"--vertical-search": 1, "--max-gap": 1, "--prefilter": 1, "--min-zncc": 1, "--disparity": 1,
+                 "--search": 1, "--switch-zncc": 1, "--shape": 1, "--measure": 1, "--incremental": 0}
 _RUNS: dict[str, dict] = {}     # output folder -> {"process", "started", "done0"}
 _LOCK = threading.Lock()
 
@@ -189,6 +192,10 @@ def layout(path: Path, access: Access):
                           " px, strain window ", dcc.Input(id="setup-window", type="number", value=5, min=0,
                                                            step=1, style={"width": "50px"}), " points"]),
                 dcc.Graph(id="noise", style={"height": "300px", "width": "480px"}, config={"displaylogo": False}),
+                html.Div(["further options ", dcc.Input(id="setup-options", value="", debounce=True,
+                                                        placeholder="e.g. --vertical-search 50 --max-gap 100",
+                                                        style={"width": "360px"})],
+                         title=", ".join(EXTRA_OPTIONS) + " (stereodic dic --help)"),
                 html.Div(["output folder ", dcc.Input(id="setup-output", value=str(default_output(dataset, access)),
                                                       style={"width": "380px"})]),
                 html.Button("start the run", id="start", n_clicks=0, style={"marginTop": "6px"}),
@@ -211,6 +218,26 @@ def noise_figure(sizes, median, p95, subset: int):
     return fig
 
 
+def extra_options(text: str | None) -> list[str]:
+    """The further `stereodic dic` options typed on the page, as arguments; InputError naming the first
+    that is not one of EXTRA_OPTIONS (with its value where it takes one)."""
+    try:
+        words = shlex.split(text or "")
+    except ValueError as exc:
+        raise InputError("further options", str(exc)) from None
+    out, i = [], 0
+    while i < len(words):
+        name = words[i].split("=", 1)[0]
+        if name not in EXTRA_OPTIONS:
+            raise InputError("further options", f"{words[i]!r} is not one of {', '.join(EXTRA_OPTIONS)}")
+        takes = 0 if "=" in words[i] else EXTRA_OPTIONS[name]
+        if i + takes >= len(words):
+            raise InputError("further options", f"{name} needs a value")
+        out += words[i:i + 1 + takes]
+        i += 1 + takes
+    return out
+
+
 def write_run_files(output: Path, rig_path: Path, dataset: Path, polygons: list[Polygon], settings: dict,
                     ) -> list[str]:
     """Write the region and settings into the output folder (module docstring); returns the command."""
@@ -226,7 +253,8 @@ def write_run_files(output: Path, rig_path: Path, dataset: Path, polygons: list[
     images = [str(dataset)] if (dataset / "capture.json").is_file() else ["--images", str(dataset)]
     command = ["stereodic", "dic", str(rig_path), *images, "-o", str(output),
                "--mask", str(output / "region_mask.png"), "--subset", str(settings["subset"]), "--step",
-               str(settings["step"]), "--strain-window", str(settings["strain_window"]), "--no-vtk"]
+               str(settings["step"]), "--strain-window", str(settings["strain_window"]), "--no-vtk",
+               *extra_options(settings.get("options"))]
     write_json(output / "workspace.json", {"format": RUN_FORMAT, "rig": str(rig_path), "dataset": str(dataset),
                                            "settings": settings, "region": to_json(polygons),
                                            "command": shlex.join(command), "left_images": [str(p) for p in data.left],
@@ -265,7 +293,9 @@ def run_progress(output: Path) -> tuple[str, bool, bool]:
     rc = run["process"].poll()
     if rc is not None:
         if rc == 0:
-            return f"finished: {total} states", True, True
+            said = [t for t in (output / "workspace.log").read_text().splitlines() if t.startswith(("state ",
+                                                                                                  "stereodic dic"))]
+            return f"finished: {total} states; {said[-1] if said else ''}", True, True
         lines = (output / "workspace.log").read_text().strip().splitlines()
         return f"the run stopped (exit status {rc}): {lines[-1] if lines else ''}", True, False
     text = f"{done} of {total or '?'} states done"
@@ -335,14 +365,16 @@ def register(app, access: Access) -> None:
                   Output("setup-message", "children", allow_duplicate=True),
                   Input("start", "n_clicks"), State("shapes", "data"), State("setup-dataset", "data"),
                   State("setup-rig", "value"), State("setup-output", "value"), State("setup-subset", "value"),
-                  State("setup-step", "value"), State("setup-window", "value"), prevent_initial_call=True)
-    def start(_, shapes, dataset, rig_path, output, subset, step, window):
+                  State("setup-step", "value"), State("setup-window", "value"), State("setup-options", "value"),
+                  prevent_initial_call=True)
+    def start(_, shapes, dataset, rig_path, output, subset, step, window, options):
         try:
             polygons = from_json(to_json([shape_polygon(s) for s in shapes or []]))   # checked: >= 3 vertices
             if not any(not p.hole for p in polygons):
                 raise InputError("region", "has no part: draw the specimen's outline first")
             out = access.resolve(output)
-            settings = {"subset": int(subset), "step": int(step), "strain_window": int(window)}
+            settings = {"subset": int(subset), "step": int(step), "strain_window": int(window),
+                        "options": " ".join(extra_options(options))}
             if settings["subset"] < 5 or settings["subset"] % 2 == 0 or settings["step"] < 1:
                 raise InputError("subset/step", f"subset must be odd and >= 5, step >= 1; got {subset}, {step}")
             command = write_run_files(out, access.resolve(rig_path), access.resolve(dataset), polygons, settings)

@@ -244,7 +244,9 @@ def test_workspace_in_a_browser(browser, dic_sim, tmp_path):
         field = d.find_element(By.ID, "setup-output")
         field.send_keys(Keys.CONTROL, "a")
         field.send_keys(str(out))
-        d.find_element(By.ID, "setup-step").send_keys(Keys.CONTROL, "a", "8")
+        step = d.find_element(By.ID, "setup-step")
+        step.send_keys(Keys.CONTROL, "a")
+        step.send_keys("8")
         d.find_element(By.ID, "start").click()
         _wait(lambda: "stereodic dic" in d.find_element(By.ID, "command").text, 30)
         _wait(lambda: d.find_elements(By.ID, "open-results") or "stopped" in d.find_element(By.ID, "progress").text,
@@ -262,6 +264,7 @@ def test_workspace_in_a_browser(browser, dic_sim, tmp_path):
                                               radius=1.5)
         assert len(ref_rows) > 50 and inside.mean() > 0.99      # the points are where the region was drawn
         assert record["command"].startswith("stereodic dic ") and "--mask" in record["command"]
+        assert record["settings"]["step"] == 8 and "--step 8" in record["command"]
 
         # -- the results: the state slider, a point's history against dic.csv
         d.find_element(By.ID, "open-results").click()
@@ -465,3 +468,15 @@ def test_automatic_region_finds_the_real_specimen():
     assert outline.contains_points(np.column_stack([xs.ravel(), ys.ravel()])).all()
     mask = original_mask(polygons, (1280, 800))
     assert not mask[:200].any() and not mask[650:].any()      # the grips' speckle is not the specimen's
+
+
+def test_further_options_name_no_file():
+    """The page's further options go to `stereodic dic` as typed, but none that names a file (the run
+    reads only what the workspace serves)."""
+    from calib.errors import InputError
+    from stereodic.workspace.setup_view import extra_options
+    assert extra_options("--vertical-search 50 --max-gap=100 --incremental") == \
+        ["--vertical-search", "50", "--max-gap=100", "--incremental"]
+    for bad, word in (("--mask /etc/x.png", "--mask"), ("-o /tmp/elsewhere", "-o"), ("--max-gap", "needs a value")):
+        with pytest.raises(InputError, match=word):
+            extra_options(bad)
