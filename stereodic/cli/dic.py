@@ -78,6 +78,9 @@ def register(sub):
     p.add_argument("--animate", metavar="Q[,Q...]", default="",
                    help="also write DIR/maps/<Q>.mp4, the maps of these quantities over the test (Z, dX, dY, dZ, "
                         "exx, eyy, exy)")
+    p.add_argument("--limits", action="append", default=[], metavar="Q=LO,HI",
+                   help="fix a map's colour limits (e.g. exx=-5000,5000 in microstrain, dZ=-0.1,0.1 in mm) instead "
+                        "of the run's 1st-99th percentiles; repeat for more quantities")
     p.add_argument("--plot-every", type=int, default=1, metavar="N",
                    help="PNG maps of every N-th state only (default 1: all)")
     add_scheduler_option(p, "states (a chain: one state after the other) and their maps")
@@ -106,6 +109,7 @@ def _settings(args):
     if unknown:
         raise InputError("--animate", f"no map of {', '.join(sorted(unknown))} ({', '.join(sorted(maps))})")
     frame_options(args)
+    _limits(args, maps)
     disparity = None
     if args.disparity:
         disparity = tuple(parse_ints(args.disparity, 2, "--disparity"))
@@ -116,6 +120,22 @@ def _settings(args):
     return StereoSettings(dic, disparity, args.strain_window or None, args.incremental, max_gap_px=args.max_gap,
                           switch_zncc=args.switch_zncc, strain_measure=args.measure,
                           vertical_search=args.vertical_search)
+
+
+def _limits(args, maps: set[str]) -> dict[str, tuple[float, float]]:
+    """--limits Q=LO,HI as {quantity: (lo, hi)}; InputError naming the option when one does not fit."""
+    from calib.errors import InputError
+    out = {}
+    for text in args.limits:
+        name, _, values = text.partition("=")
+        try:
+            lo, hi = (float(v) for v in values.split(","))
+        except ValueError:
+            raise InputError("--limits", f"{text!r}: needs Q=LO,HI (two numbers)") from None
+        if name not in maps or not lo < hi:
+            raise InputError("--limits", f"{text!r}: needs a map's quantity ({', '.join(sorted(maps))}) and LO < HI")
+        out[name] = (lo, hi)
+    return out
 
 
 def _states(args, rig):
@@ -198,7 +218,7 @@ def run(args) -> int:
     outputs = {"columns": args.columns, "vtk": not args.no_vtk, "plot_every": 0 if args.no_plot else args.plot_every,
                "mat": args.mat, "frame": [args.frame, args.origin, args.x_axis, args.remove_rigid],
                "overlay": not args.no_overlay,
-               "animate": args.animate}
+               "animate": args.animate, "limits": args.limits}
     if done == n and store.outputs_written(outputs):
         print(f"{out}: all {n} states are done and written; nothing to do (--restart to run again)")
         return 0
@@ -249,7 +269,8 @@ def run(args) -> int:
     write_outputs(store, grid, out, settings, info, vtk=not args.no_vtk, plot_every=plot_every,
                   dice=dice, csv=args.columns != "dice", state_files=not args.scheduler, labels=labels, frame=frame,
                   image_of=None if args.no_overlay else (lambda k: read_gray(data.left[k])),
-                  frame_name=f"{args.frame}'s frame", animate=tuple(filter(None, args.animate.split(","))))
+                  frame_name=f"{args.frame}'s frame", animate=tuple(filter(None, args.animate.split(","))),
+                  limits=_limits(args, {*"Z dX dY dZ exx eyy exy dX_def dY_def dZ_def".split()}))
     store.record_outputs(outputs)
     states = f"{active} points x {n} states"
     if args.columns == "dice":

@@ -41,7 +41,7 @@ def run(args) -> int:
     from calib.npz_stream import write_stacked_npz
     from calib.progress import progress
     from stereodic.cli.common import frame_options, wrote
-    from stereodic.dic.maps import save_map
+    from stereodic.dic.maps import RunScales, save_map
     from stereodic.dic.output import STRAIN_COLUMNS, fmt
     from stereodic.strain_results import map_axes, open_result, specimen_frame_of, state_labels, strains
 
@@ -60,6 +60,8 @@ def run(args) -> int:
     axes, titles = (map_axes(result, frame=frame), state_labels(result)) if not args.no_plot else (None, None)
     keys = [c for c, _, _ in STRAIN_COLUMNS] + ["strain_valid"]
     fields = {c: f for c, f, _ in STRAIN_COLUMNS} | {"strain_valid": "valid"}
+    MAPS = ("exx", "eyy", "exy", "e_vm")
+    scales = RunScales(floor={name: 100.0 for name in MAPS})
     tmp_dir = out / ".strain-states"
     tmp_dir.mkdir(parents=True, exist_ok=True)
     try:
@@ -72,13 +74,16 @@ def run(args) -> int:
                 cols += [m.valid.ravel()[act].astype(int).astype(str).tolist()]
                 csv.write("".join(",".join(row) + "\n" for row in zip(*cols)))
                 np.savez(tmp_dir / f"{k}.npz", **{key: getattr(m, fields[key]) for key in keys})
-                if not args.no_plot:
-                    for c in ("exx", "eyy", "exy", "von_mises"):
-                        name = "e_vm" if c == "von_mises" else c
-                        save_map(out / "maps" / f"{label}{k}_{name}.png", getattr(m, c) * 1e6, axes,
+                for name in MAPS:
+                    scales.add(name, getattr(m, fields[name]) * 1e6, signed=name != "e_vm", active=g.active)
+        if not args.no_plot:   # after every state: the maps share the run's colour scale per quantity
+            for k in progress(range(result.states), "maps", total=result.states, unit="state"):
+                with np.load(tmp_dir / f"{k}.npz") as z:
+                    for name in MAPS:
+                        save_map(out / "maps" / f"{label}{k}_{name}.png", z[name] * 1e6, axes,
                                  title=f"{titles[k]} - {name}, {args.measure} strain ({args.frame}'s frame)",
-                                 quantity=name,
-                                 unit="microstrain", decimals=0)
+                                 quantity=name, unit="microstrain", decimals=0, signed=name != "e_vm",
+                                 scale=scales.scale(name))
 
         def values(key):
             for k in range(result.states):
@@ -98,5 +103,5 @@ def run(args) -> int:
     wrote(out / "strain.csv", f"{what}: one row per point and {label}")
     wrote(out / "strain.npz", "the same as arrays")
     if not args.no_plot:
-        wrote(out / "maps", f"PNG maps of exx, eyy, exy and e_vm per {label}")
+        wrote(out / "maps", f"PNG maps of exx, eyy, exy and e_vm per {label}, one colour scale per quantity")
     return 0

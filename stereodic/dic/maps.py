@@ -107,7 +107,7 @@ class ColourScale:
 class RunScales:
     """The colour scales of a run's quantities (module docstring), gathered state by state: `add(name,
     values, signed=...)` for every state's map, then `scale(name)`. `given` fixes a quantity's limits
-    (name -> (lo, hi)) instead of the run's percentiles; `floor` (name -> half-width) is the least range
+    (name -> (lo, hi), used as they are) instead of the run's percentiles; `floor` (name -> half-width) is the least range
     (a quantity that stays at zero, such as the reference state's strain, still gets readable ticks)."""
 
     def __init__(self, given: dict[str, tuple[float, float]] | None = None, floor: dict[str, float] | None = None):
@@ -129,6 +129,7 @@ class RunScales:
         signed = self._signed.get(name, True)
         if name in self.given:
             lo, hi = self.given[name]
+            return ColourScale(lo, hi, "RdBu_r" if signed and lo < 0 < hi else "viridis")
         elif name in self._range:
             lo, hi = self._range[name]
         else:

@@ -94,7 +94,7 @@ def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: Ste
                   csv: bool = True, state_files: bool = True, labels: list[str] | None = None,
                   frame: Callable[[StereoState], StereoState] | None = None,
                   image_of: Callable[[int], np.ndarray] | None = None, frame_name: str = "rig's frame",
-                  animate: tuple[str, ...] = ()) -> None:
+                  animate: tuple[str, ...] = (), limits: dict[str, tuple[float, float]] | None = None) -> None:
     """The combined outputs from the store's state files (module docstring): folder/dic.csv (unless
     `dice` writes DICe's files instead, or not `csv`), folder/dic.npz, folder/vtk/ (with `vtk`),
     folder/maps/ (every `plot_every`-th state, 0 = none; titled by `labels`, one per state, default
@@ -103,11 +103,12 @@ def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: Ste
     into another reporting frame first (the specimen's), its VTK files and maps written here, titled
     `frame_name`. The maps written here share the run's colour scales (`stereodic.dic.maps.RunScales`),
     and are also drawn over the state's original left image, `image_of(k)`, when it is given; `animate`:
-    the quantities (those of `output.state_maps`) whose maps also make folder/maps/<quantity>.mp4.
+    the quantities (those of `output.state_maps`) whose maps also make folder/maps/<quantity>.mp4;
+    `limits`: quantity -> (lo, hi), colour limits given instead of the run's.
     `info["frame"]["rigid_motion_removed"]`: the states carry their deformation (dic.csv's dX_def...)."""
     folder = Path(folder)
     options = dict(vtk=vtk, plot_every=plot_every, dice=dice, csv=csv, labels=labels, image_of=image_of,
-                   frame_name=frame_name, animate=animate)
+                   frame_name=frame_name, animate=animate, limits=limits)
     if frame is None:
         _write_outputs(store, grid, folder, settings, info, state_files=state_files, **options)
         return
@@ -118,9 +119,10 @@ def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: Ste
         shutil.rmtree(folder / ".frame", ignore_errors=True)
 
 
-def _run_scales(store: RunStore, every: int, active) -> RunScales:
-    """The colour scales of the maps of every `every`-th state, read one state at a time."""
-    scales = RunScales(floor={c: STRAIN_FLOOR for c in ("exx", "eyy", "exy")})
+def _run_scales(store: RunStore, every: int, active, limits: dict | None = None) -> RunScales:
+    """The colour scales of the maps of every `every`-th state, read one state at a time (`limits`: those
+    given)."""
+    scales = RunScales(given=limits, floor={c: STRAIN_FLOOR for c in ("exx", "eyy", "exy")})
     for st in store.states():
         if st.state % every == 0:
             for name, (values, _, _) in state_maps(st).items():
@@ -130,7 +132,7 @@ def _run_scales(store: RunStore, every: int, active) -> RunScales:
 
 def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSettings, info: dict, *,
                    vtk: bool, plot_every: int, dice, csv: bool, state_files: bool, labels, image_of, frame_name,
-                   animate) -> None:
+                   animate, limits) -> None:
     n = store.manifest["states"]
     has_strain = bool(settings.strain_window)
     has_def = bool(info.get("frame", {}).get("rigid_motion_removed"))
@@ -144,7 +146,7 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
         axes = None
         maps = {}
         if plot_every:
-            maps = dict(scales=_run_scales(store, plot_every, grid.active), frame=frame_name,
+            maps = dict(scales=_run_scales(store, plot_every, grid.active, limits), frame=frame_name,
                         movies={q: MapMovie(folder / "maps" / f"{q}.mp4") for q in animate})
         try:
             for st in progress(store.states(), "writing", total=n, unit="state"):

@@ -112,7 +112,7 @@ def test_run_scales_fix_each_quantitys_colours_over_the_run():
     with a floor for a quantity at rest (the reference's strain), and a given range kept as it is."""
     from stereodic.dic.maps import RunScales, map_figure
     rng = np.random.default_rng(0)
-    scales = RunScales(floor={"exx": 100.0}, given={"dY": (-0.5, 0.5)})
+    scales = RunScales(floor={"exx": 100.0}, given={"dY": (-0.5, 0.8)})
     states = [np.zeros((len(YS), len(XS))), 3000 + 50 * rng.standard_normal((len(YS), len(XS))),
               9000 + 50 * rng.standard_normal((len(YS), len(XS)))]
     for v in states:
@@ -124,7 +124,7 @@ def test_run_scales_fix_each_quantitys_colours_over_the_run():
     rest = RunScales(floor={"exx": 100.0})
     rest.add("exx", states[0], signed=True)
     assert (rest.scale("exx").lo, rest.scale("exx").hi) == (-100.0, 100.0)
-    assert (scales.scale("dY").lo, scales.scale("dY").hi) == (-0.5, 0.5) and scales.scale("dZ") is None
+    assert (scales.scale("dY").lo, scales.scale("dY").hi) == (-0.5, 0.8) and scales.scale("dZ") is None
     for v in states:                                  # every state's map drawn with the run's limits
         fig = map_figure(v, pixel_axes(XS, YS), title="t", quantity="exx", unit="microstrain", decimals=0, scale=s)
         assert fig.axes[0].collections[0].get_clim() == (s.lo, s.hi)

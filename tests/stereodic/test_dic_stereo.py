@@ -137,6 +137,17 @@ def test_specimen_frame_and_rigid_motion_removed(small, tmp_path):
     assert (out / "dic.mat").is_file()
 
 
+@pytest.mark.parametrize("extra, message", [(["--limits", "foo=1,2"], "--limits: 'foo=1,2': needs a map's quantity"),
+                                            (["--limits", "exx=5,1"], "LO < HI"),
+                                            (["--animate", "dZ_def"], "--animate: no map of dZ_def"),
+                                            (["--origin", "3,4"], "--origin/--x-axis: go with --frame specimen")])
+def test_bad_map_and_frame_options(small, tmp_path, capsys, extra, message):
+    assert main(["dic", str(small / "rig.npz"), str(small), *extra, "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
+    assert not (tmp_path / "out").exists()
+
+
 def _copy(src, dst):
     shutil.copytree(src, dst)
     return dst
