@@ -50,14 +50,44 @@ def _chain(first, rest) -> Iterator:
     yield from rest
 
 
+def _stacked_header(f, name: str) -> tuple[tuple, np.dtype, int]:
+    """(shape, dtype, bytes per slice) of the stacked array whose `.npy` member `f` is open at its start."""
+    version = np.lib.format.read_magic(f)
+    read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+    shape, fortran, dtype = read(f)
+    if fortran or not shape:
+        raise ValueError(f"{name}: not a C-ordered stacked array")
+    return shape, dtype, int(np.prod(shape[1:], dtype=np.int64)) * dtype.itemsize
+
+
 def iter_slices(path: str | os.PathLike, name: str) -> Iterator[np.ndarray]:
     """The slices (along the first axis) of array `name` of an uncompressed `.npz`, one at a time."""
     with zipfile.ZipFile(path) as zf, zf.open(name + ".npy") as f:
-        version = np.lib.format.read_magic(f)
-        read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-        shape, fortran, dtype = read(f)
-        if fortran or not shape:
-            raise ValueError(f"{name}: not a C-ordered stacked array")
-        size = int(np.prod(shape[1:], dtype=np.int64)) * dtype.itemsize
+        shape, dtype, size = _stacked_header(f, name)
         for _ in range(shape[0]):
             yield np.frombuffer(f.read(size), dtype).reshape(shape[1:]).copy()
+
+
+def slice_count(path: str | os.PathLike, name: str) -> int:
+    """How many slices array `name` of an uncompressed `.npz` has (its header alone is read)."""
+    with zipfile.ZipFile(path) as zf, zf.open(name + ".npy") as f:
+        return int(_stacked_header(f, name)[0][0])
+
+
+def read_slice(path: str | os.PathLike, name: str, k: int) -> np.ndarray:
+    """Slice `k` (along the first axis) of array `name` of an uncompressed `.npz`, read alone (a seek
+    past the slices before it, not a read of them). IndexError if the array has no slice `k`."""
+    with zipfile.ZipFile(path) as zf:
+        info = zf.getinfo(name + ".npy")
+    if info.compress_type != zipfile.ZIP_STORED:
+        raise ValueError(f"{name}: compressed, not a stacked array")
+    with open(path, "rb") as f:
+        f.seek(info.header_offset)
+        local = f.read(30)                      # the member's local header: its name and extra field follow
+        f.seek(info.header_offset + 30 + int.from_bytes(local[26:28], "little") +
+               int.from_bytes(local[28:30], "little"))
+        shape, dtype, size = _stacked_header(f, name)
+        if not 0 <= k < shape[0]:
+            raise IndexError(f"{name}: slice {k} of {shape[0]}")
+        f.seek(k * size, os.SEEK_CUR)
+        return np.frombuffer(f.read(size), dtype).reshape(shape[1:]).copy()

@@ -4,8 +4,9 @@ inside functions included.
 - `calib` imports nothing of ours;
 - `scanners` (drivers, acquisition, the simulated rig) imports `calib` only;
 - `stereodic`'s processing modules import `calib` only (and each other);
-- `stereodic.cli`, `stereodic.bench`, `stereodic.demo` and `stereodic.__main__` (the top layer) may
-  import everything, and nothing below imports them;
+- `stereodic.cli`, `stereodic.bench`, `stereodic.demo`, `stereodic.workspace` (the browser workspace of
+  `stereodic view`) and `stereodic.__main__` (the top layer) may import everything, and nothing below
+  imports them;
 - and no module imports, through any chain of imports, a module that imports it back (no circles).
 """
 
@@ -16,7 +17,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("calib", "scanners", "stereodic")
-TOP = ("stereodic.cli", "stereodic.bench", "stereodic.demo", "stereodic.__main__")
+TOP = ("stereodic.cli", "stereodic.bench", "stereodic.demo", "stereodic.workspace", "stereodic.__main__")
 
 
 def _module_name(path: Path, root: Path) -> str:

@@ -94,6 +94,8 @@ PUBLIC = [
     "scanners.sim.camera.SimCamera.set_exposure",
     "scanners.sim.pose.DisplayPose.staged",
     "scanners.sim.dic.load_dic_truth",
+    # the browser workspace
+    "stereodic.workspace.server.start",
 ]
 
 

@@ -1,6 +1,6 @@
 """`stereodic bench`: speed, memory and accuracy figures, each beside the reference it is compared with.
 
-One module per group (`sim`, `calib`, `rectify`, `scan`, `dic`, `align`, `startup`, `cluster`), each with
+One module per group (`sim`, `calib`, `rectify`, `scan`, `dic`, `align`, `startup`, `cluster`, `view`), each with
 `run(quick: bool) -> list[Figure]`. Benchmarks generate their data with the simulated rig, so this
 package (like `stereodic.cli`) may import `scanners`.
 """
@@ -15,7 +15,7 @@ import time
 from dataclasses import asdict, dataclass
 from typing import Callable
 
-GROUPS = ["sim", "calib", "rectify", "scan", "dic", "align", "startup", "cluster"]
+GROUPS = ["sim", "calib", "rectify", "scan", "dic", "align", "startup", "cluster", "view"]
 
 
 @dataclass

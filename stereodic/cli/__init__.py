@@ -23,7 +23,7 @@ from calib.errors import InputError
 
 # In the order `stereodic --help` lists them.
 COMMANDS = ["demo", "simulate", "patterns", "calibrate", "undistort", "rig", "rectify", "scan", "dic2d",
-            "dic", "strain", "gauge", "speckle", "import", "export", "bench", "acquire", "align", "show"]
+            "dic", "strain", "gauge", "speckle", "import", "export", "bench", "acquire", "align", "show", "view"]
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:

@@ -214,6 +214,7 @@ def _summary(st, n, active, search_px) -> str:
 
 def run(args) -> int:
     import functools
+    import os
     import sys
     from pathlib import Path
 
@@ -309,7 +310,8 @@ def run(args) -> int:
                   f"{report.p95:.3f} px) is larger than its calibration allows (p95 {report.expected_p95:.3f} px): "
                   f"has a camera moved since the calibration?", file=sys.stderr)
     info = {"rig": str(rig_path), "dataset": data.source, "world_from_rig": rig.world_from_rig.tolist(),
-            "state_labels": labels, "rig_notes": geometry.notes}
+            "state_labels": labels, "rig_notes": geometry.notes,
+            "left_images": [os.path.abspath(p) for p in data.left]}
     frame = None
     info["frame"] = {"frame": "rig", "rigid_motion_removed": False}
     if args.frame == "specimen" or args.remove_rigid:

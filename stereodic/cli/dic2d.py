@@ -185,7 +185,8 @@ def run(args) -> int:
 
             npz = args.npz or Path(tmp) / "result.npz"
             write_npz(npz, grid, values, len(defs), has_strain, settings, [str(p) for p in defs],
-                      args.measure if has_strain else None, frame_times([args.ref, *defs]))
+                      args.measure if has_strain else None, frame_times([args.ref, *defs]),
+                      reference=str(args.ref))
             if args.mat:
                 from stereodic.dic.matfile import write_mat
                 write_mat(npz, args.mat)

@@ -93,13 +93,14 @@ def image_arrays(f: DicField, m: StrainMeasure | None) -> dict[str, np.ndarray]:
 
 def write_npz(path: str | os.PathLike, grid, values: Callable[[str], Iterable[np.ndarray]], count: int,
               has_strain: bool, settings: DicSettings, images: list[str], measure: str | None,
-              times_s: list[float] | None = None) -> None:
+              times_s: list[float] | None = None, reference: str | None = None) -> None:
     """Arrays x (nx,), y (ny,), active (ny, nx) and u, v, zncc, status, noise_px (n_images, ny, nx)
     [+ exx, eyy, exy, strain_valid, e_major, e_minor, e_angle, e_vm]; meta: JSON with the settings, image
-    names, strain measure and status names [, state_times_s: the reference's and each deformed image's
-    timestamp, seconds, where the files record them (`calib.sequences`)]. `values(key)` iterates one
-    array's per-image values."""
-    meta = dict(format="stereodic.dic2d/1", images=list(images), status_names=list(STATUS_NAMES),
+    names (the deformed ones; `reference`: the reference image's), strain measure and status names [,
+    state_times_s: the reference's and each deformed image's timestamp, seconds, where the files record
+    them (`calib.sequences`)]. `values(key)` iterates one array's per-image values."""
+    meta = dict(format="stereodic.dic2d/1", images=list(images), reference=reference,
+                status_names=list(STATUS_NAMES),
                 settings=settings.__dict__, strain_measure=measure)
     if times_s is not None:
         meta["state_times_s"] = list(times_s)

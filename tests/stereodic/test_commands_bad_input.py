@@ -119,6 +119,7 @@ COMMANDS: dict[str, list[list]] = {
                Out("output", "dir", "align", new=True)]],
     "show": [["show", In("prvm", "PRVM", "cam"), "--truth", In("truth", "PRVM", "cam", "prvm_other_size"), "-o",
               Out("output", "dir", "pictures")]],
+    "view": [["view", In("paths", "workspace path", "result"), "--no-browser"]],   # a good one would serve
 }
 
 
@@ -287,6 +288,12 @@ def _bad_inputs(slot: In, paths) -> list[tuple[str, str, Path, str]]:
         return cases + [("empty file", "empty", bad / "empty.json", "empty.json"),
                         ("corrupt", "random bytes", bad / "random.json", "random.json"),
                         ("wrong size", "a polygon outside the image", bad / "outside.json", "outside.json")]
+    if slot.kind == "workspace path":     # any result, dataset, PRVM, rig or PLY is good: no wrong kind
+        return cases + [("empty file", "empty", bad / "empty.npz", "empty.npz"),
+                        ("corrupt", "random bytes", bad / "random.npz", "random.npz"),
+                        ("wrong kind", "an .npz without meta", bad / "no_meta.npz", "no_meta.npz"),
+                        ("wrong kind", "a zip that is not an .npz", bad / "not_numpy.npz", "not_numpy.npz"),
+                        ("wrong kind", "a JSON file", bad / "other.json", "other.json")]
     if slot.kind in ("gauge file", "load file", "timestamps file"):
         suffix = ".json" if slot.kind == "gauge file" else ".csv"
         cases += [("empty file", "empty", bad / f"empty{suffix}", f"empty{suffix}"),

@@ -1,0 +1,482 @@
+"""`stereodic view`: the workspace's access rules over plain HTTP, its result reader against dic.csv, and
+the whole path in a real headless Chromium (marked `browser`): a simulated DIC dataset, a polygon region
+drawn on the original image, the run started and followed, the state slider, a clicked point's history
+against dic.csv, an extensometer against `stereodic gauge`, a load CSV's stress-strain, a calibration and a scan."""
+
+import csv
+import json
+import shutil
+import time
+import urllib.error
+import urllib.parse
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stereodic.cli import main
+
+
+def _get(url, cookie=None):
+    req = urllib.request.Request(url, headers={"Cookie": cookie} if cookie else {})
+    try:
+        with urllib.request.urlopen(req, timeout=30) as r:
+            return r.status, r.read().decode("latin-1"), r.headers
+    except urllib.error.HTTPError as e:
+        return e.code, e.read().decode("latin-1"), e.headers
+
+
+@pytest.fixture(scope="module")
+def secret_dir(tmp_path_factory):
+    """A served folder with an image, and a file beside it that must not be served."""
+    from calib.imageio import write_gray
+    root = tmp_path_factory.mktemp("served")
+    served = root / "served"
+    served.mkdir()
+    write_gray(served / "img.png", np.arange(64 * 48, dtype=np.uint16).reshape(48, 64).astype(np.uint8))
+    (root / "secret.txt").write_text("the lab's secret\n")
+    import open3d as o3d
+    v = np.random.default_rng(0).normal(size=(200, 3))
+    o3d.io.write_point_cloud(str(root / "cloud.ply"), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(
+        10.0 * v / np.linalg.norm(v, axis=1)[:, None])))
+    return served
+
+
+def test_other_host_needs_a_token(capsys):
+    assert main(["view", "--host", "0.0.0.0", "--no-browser", "."]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--host" in err and "--token" in err
+    assert main(["view", "--host", "0.0.0.0", "--token", "short", "--no-browser", "."]) == 2
+    assert "--token" in capsys.readouterr().err
+
+
+def test_token_and_path_traversal_over_http(secret_dir):
+    from stereodic.workspace.server import start
+    token = "0123456789abcdef0123"
+    ws = start([secret_dir], host="127.0.0.1", token=token, background=True)
+    try:
+        base = ws.url.split("?")[0]
+        assert _get(base)[0] == 403                                  # no token: refused
+        assert _get(base + "?token=wrong-wrong-wrong-wrong")[0] == 403
+        status, body, headers = _get(ws.url)
+        assert status == 200 and "stereodic view" in body
+        cookie = headers["Set-Cookie"].split(";")[0]
+        img = urllib.parse.quote(str(secret_dir / "img.png"))
+        status, body, _ = _get(f"{base}image?path={img}", cookie)    # the token's cookie: served
+        assert status == 200 and body.startswith("\x89PNG")
+        assert _get(f"{base}image?path={img}")[0] == 403              # no cookie, no token
+        for crafted in ("../secret.txt", "img.png/../../secret.txt", str(secret_dir / ".." / "secret.txt"),
+                        "%2e%2e/secret.txt", "/etc/passwd"):
+            status, body, _ = _get(f"{base}image?path={crafted if '%' in crafted else urllib.parse.quote(crafted)}",
+                                   cookie)
+            assert status == 403 and "secret" not in body.replace("secret.txt", "") and "root:" not in body
+            assert "outside the folders" in body and len(body.strip().splitlines()) == 1
+        status, body, _ = _get(f"{base}image", cookie)                 # a bad parameter: one line, no traceback
+        assert status == 400 and "Traceback" not in body and len(body.strip().splitlines()) == 1
+        # the page asked for a path outside (the same check in the page's own callback)
+        payload = {"output": "..page.children...page-path.children..", "outputs": [
+            {"id": "page", "property": "children"}, {"id": "page-path", "property": "children"}],
+            "inputs": [{"id": "url", "property": "search", "value": "?path=../secret.txt"}],
+            "changedPropIds": ["url.search"], "state": []}
+        req = urllib.request.Request(base + "_dash-update-component", data=json.dumps(payload).encode(),
+                                     headers={"Content-Type": "application/json", "Cookie": cookie})
+        with urllib.request.urlopen(req, timeout=30) as r:
+            answer = r.read().decode()
+        assert "outside the folders" in answer and "the lab's secret" not in answer
+        # a callback's own path (a page's stored path, sent back by the browser) is checked the same way
+        payload = {"output": "..cloud.figure...about.children..", "outputs": [
+            {"id": "cloud", "property": "figure"}, {"id": "about", "property": "children"}],
+            "inputs": [{"id": "scan-shape", "property": "value", "value": "sphere"}],
+            "changedPropIds": ["scan-shape.value"],
+            "state": [{"id": "scan-path", "property": "data", "value": str(secret_dir.parent / "cloud.ply")}]}
+        req = urllib.request.Request(base + "_dash-update-component", data=json.dumps(payload).encode(),
+                                     headers={"Content-Type": "application/json", "Cookie": cookie})
+        with urllib.request.urlopen(req, timeout=30) as r:
+            answer = r.read().decode()
+        assert "outside the folders" in answer and "sphere of radius" not in answer
+    finally:
+        ws.stop()
+
+
+def _csv(path):
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.fixture(scope="module")
+def dic_run(dic_sim, tmp_path_factory):
+    """`stereodic dic` on the shared simulated dataset (3 states); its printed lines in out/printed.txt."""
+    import contextlib
+    import io
+    out = tmp_path_factory.mktemp("ws_run") / "run"
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main(["dic", str(dic_sim / "rig.npz"), str(dic_sim), "-o", str(out), "--step", "8", "--no-vtk",
+                     "--no-plot"]) == 0
+    (out / "printed.txt").write_text(printed.getvalue())
+    return out
+
+
+def test_rig_health_is_what_dic_reported(dic_run):
+    from stereodic.workspace.dic_view import rig_health, source
+    figure, line = rig_health(source(dic_run))
+    said = next(t for t in (dic_run / "printed.txt").read_text().splitlines() if t.startswith("epipolar error"))
+    assert line.startswith(said) and "within what the calibration allows" in line
+    assert figure.data[0].x.size == int(said.split(" over ")[1].split()[0])
+
+
+def test_result_reader_against_dic_csv(dic_run):
+    from stereodic.workspace.results import DicSource
+    rows = [r for r in _csv(dic_run / "dic.csv") if r["converged"] == "1"]
+    for src in (DicSource(dic_run), DicSource(dic_run / "dic.npz")):     # the run folder and dic.npz
+        assert src.count == 3 and src.reference_image().name == "cam0.png"
+        by_state = {}
+        for r in rows:
+            by_state.setdefault(int(r["state"]), []).append(r)
+        r = by_state[2][len(by_state[2]) // 2]
+        ref = next(q for q in by_state[0] if q["x"] == r["x"] and q["y"] == r["y"])
+        i = src.nearest(float(ref["left_x0"]), float(ref["left_y0"]))
+        assert abs(src.x[i] - float(ref["left_x0"])) < 1e-5
+        hist = src.history(i, "dX")
+        want = [float(next(q for q in by_state[k] if q["x"] == r["x"] and q["y"] == r["y"])["dX"]) for k in range(3)]
+        np.testing.assert_allclose(hist, want, atol=2e-6)
+        exx = src.values(2, "exx")
+        assert abs(np.nanmedian(exx) - 1e6 * np.median([float(q["exx"]) for q in by_state[2]
+                                                        if q["strain_valid"] == "1"])) < 1.0
+        lo, hi = src.limits("exx")
+        assert lo == -hi and hi > 9000          # fixed, symmetric, covering the 1 % tension
+
+
+# ---------------------------------------------------------------------------------------- the browser
+
+CHROMIUM, DRIVER = shutil.which("chromium"), shutil.which("chromedriver")
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if not (CHROMIUM and DRIVER):
+        pytest.fail("Debian's chromium and chromium-driver are needed (./run test installs them)")
+    from stereodic.bench.view import headless_chromium
+    driver, profile = headless_chromium()
+    yield driver
+    driver.quit()
+    shutil.rmtree(profile, ignore_errors=True)
+
+
+def _wait(what, timeout=60.0, every=0.2):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        got = what()
+        if got:
+            return got
+        time.sleep(every)
+    raise AssertionError(f"timed out after {timeout} s")
+
+
+def _plot(driver, graph_id, attr="data"):
+    return driver.execute_script(f"var g = document.querySelector('#{graph_id} .js-plotly-plot');"
+                                 f"return g && g.{attr} ? JSON.parse(JSON.stringify(g.{attr})) : null;")
+
+
+def _array(driver, graph_id, trace, key):
+    """A trace's array as plotted (typed arrays too), float64."""
+    return np.array(driver.execute_script(
+        f"var g = document.querySelector('#{graph_id} .js-plotly-plot');"
+        f"return Array.from(g._fullData[{trace}].{key});"), np.float64)
+
+
+def _to_screen(driver, graph_id, x, y):
+    """Page pixel offsets from the graph's drag layer's top-left corner of data point (x, y)."""
+    return driver.execute_script(
+        f"var g = document.querySelector('#{graph_id} .js-plotly-plot'); var l = g._fullLayout;"
+        "return [l.xaxis.l2p(arguments[0]), l.yaxis.l2p(arguments[1])];", x, y)
+
+
+def _draw(driver, graph_id, points, closed=False):
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+    drag = driver.find_element(By.CSS_SELECTOR, f"#{graph_id} .nsewdrag")
+    w, h = drag.size["width"], drag.size["height"]
+    px = [_to_screen(driver, graph_id, x, y) for x, y in points]
+    chain = ActionChains(driver, duration=50).move_to_element_with_offset(drag, px[0][0] - w / 2, px[0][1] - h / 2)
+    chain.click_and_hold()
+    prev = px[0]
+    for p in px[1:] + ([px[0]] if closed else []):
+        steps = 6
+        for s in range(1, steps + 1):
+            target = (prev[0] + (p[0] - prev[0]) * s / steps, prev[1] + (p[1] - prev[1]) * s / steps)
+            chain.move_to_element_with_offset(drag, target[0] - w / 2, target[1] - h / 2)
+        prev = p
+    chain.release().perform()
+
+
+def _gauge_strain(result, ends, out):
+    """The extensometer's strain (microstrain) per state as the `stereodic gauge` command writes it."""
+    assert main(["gauge", str(result), "--extensometer", ends, "-o", str(out)]) == 0
+    return [float(r["strain"]) * 1e6 for r in _csv(out / "extensometers.csv")]
+
+
+@pytest.mark.browser
+def test_workspace_in_a_browser(browser, dic_sim, tmp_path):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+
+    from stereodic.workspace.server import start
+    d = browser
+    shots = tmp_path / "shots"
+    shots.mkdir()
+    work = tmp_path / "work"
+    work.mkdir()
+    ws = start([dic_sim, work], background=True)
+    try:
+        base = ws.url
+        # -- set up a run: the dataset's page, a polygon drawn on the original left image
+        d.get(base + "?path=" + urllib.parse.quote(str(dic_sim)))
+        _wait(lambda: _plot(d, "noise"), 90)
+        d.find_element(By.ID, "clear-region").click()
+        _wait(lambda: not (_plot(d, "ref-image", "layout") or {}).get("shapes"))
+        polygon = [(40, 40), (190, 45), (185, 150), (45, 150)]
+        _draw(d, "ref-image", polygon, closed=True)
+        _wait(lambda: (_plot(d, "ref-image", "layout") or {}).get("shapes"))
+        d.save_screenshot(str(shots / "1-setup.png"))
+        out = work / "run"
+        field = d.find_element(By.ID, "setup-output")
+        field.send_keys(Keys.CONTROL, "a")
+        field.send_keys(str(out))
+        step = d.find_element(By.ID, "setup-step")
+        step.send_keys(Keys.CONTROL, "a")
+        step.send_keys("8")
+        d.find_element(By.ID, "start").click()
+        _wait(lambda: "stereodic dic" in d.find_element(By.ID, "command").text, 30)
+        _wait(lambda: d.find_elements(By.ID, "open-results") or "stopped" in d.find_element(By.ID, "progress").text,
+              240, 1.0)
+        d.save_screenshot(str(shots / "2-run-done.png"))
+        assert d.find_elements(By.ID, "open-results"), d.find_element(By.ID, "progress").text
+        record = json.loads((out / "workspace.json").read_text())
+        drawn = np.array(record["region"][0]["points"])
+        assert len(record["region"]) == 1 and len(drawn) >= 4
+        assert np.abs(drawn.min(0) - [40, 40]).max() < 3 and np.abs(drawn.max(0) - [190, 150]).max() < 3
+        rows = _csv(out / "dic.csv")
+        from matplotlib.path import Path as MPath
+        ref_rows = [r for r in rows if r["state"] == "0" and r["converged"] == "1"]
+        inside = MPath(drawn).contains_points([(float(r["left_x0"]), float(r["left_y0"])) for r in ref_rows],
+                                              radius=1.5)
+        assert len(ref_rows) > 50 and inside.mean() > 0.99      # the points are where the region was drawn
+        assert record["command"].startswith("stereodic dic ") and "--mask" in record["command"]
+        assert record["settings"]["step"] == 8 and "--step 8" in record["command"]
+
+        # -- the results: the state slider, a point's history against dic.csv
+        d.find_element(By.ID, "open-results").click()
+        _wait(lambda: _plot(d, "field"), 60)
+        handle = d.find_element(By.CSS_SELECTOR, "#state [role=slider]")
+        handle.click()
+        handle.send_keys(Keys.END)
+        _wait(lambda: "tension" in (_plot(d, "field", "layout") or {}).get("title", {}).get("text", ""))
+        d.save_screenshot(str(shots / "3-results-state2.png"))
+        target = ref_rows[len(ref_rows) // 2]           # click on a measured point, where it is in the image
+        tx, ty = float(target["left_x0"]), float(target["left_y0"])
+        from selenium.webdriver.common.action_chains import ActionChains
+        drag = d.find_element(By.CSS_SELECTOR, "#field .nsewdrag")
+        px = _to_screen(d, "field", tx, ty)
+        ActionChains(d).move_to_element_with_offset(drag, px[0] - drag.size["width"] / 2,
+                                                    px[1] - drag.size["height"] / 2).click().perform()
+        _wait(lambda: _plot(d, "curve"))
+        title = _plot(d, "curve", "layout")["title"]["text"]
+        at = [float(v) for v in title.split("(")[1].split(")")[0].split(",")]
+        row0 = min(ref_rows, key=lambda r: np.hypot(float(r["left_x0"]) - at[0], float(r["left_y0"]) - at[1]))
+        assert np.hypot(float(row0["left_x0"]) - at[0], float(row0["left_y0"]) - at[1]) < 0.06
+        assert np.hypot(at[0] - tx, at[1] - ty) < 8.0       # the clicked point or a neighbour (a cell is a step)
+        truth = [float(next(r for r in rows if r["state"] == str(k) and r["x"] == row0["x"] and r["y"] == row0["y"])
+                       ["exx"]) * 1e6 for k in range(3)]
+        np.testing.assert_allclose(_array(d, "curve", 0, "y"), truth, atol=0.06)   # dic.csv's %.7f: 0.05 microstrain
+        d.save_screenshot(str(shots / "4-history.png"))
+
+        # -- an extensometer drawn on the image against `stereodic gauge`
+        d.find_element(By.CSS_SELECTOR, "#tool input[value=extensometer]").click()
+        _wait(lambda: (_plot(d, "field", "layout") or {}).get("dragmode") == "drawline")
+        _draw(d, "field", [(70, 80), (160, 85)])
+        _wait(lambda: _plot(d, "curve") if "extensometer" in
+                    (_plot(d, "curve", "layout") or {}).get("title", {}).get("text", "") else None, 60)
+        shape = _plot(d, "field", "layout")["shapes"][-1]
+        ends = ",".join(f"{shape[k]:.6f}" for k in ("x0", "y0", "x1", "y1"))
+        want = _gauge_strain(out, ends, tmp_path / "gauge")
+        np.testing.assert_allclose(_array(d, "curve", 0, "y"), want, atol=0.01)
+        assert abs(want[2] - 1e4) < 500          # the simulated 1 % stretch along x
+        # -- the testing machine's load (its own image index column) against the extensometer: stress-strain
+        load = work / "machine.csv"
+        load.write_text("Image,Force [N]\n0,0\n1,120.5\n2,2410\n3,2500\n")
+        d.find_element(By.CSS_SELECTOR, "#load-upload input[type=file]").send_keys(str(load))
+        d.find_element(By.ID, "load-area").send_keys("12.5")
+        _wait(lambda: _plot(d, "stress-strain") and "stress-strain" in
+              (_plot(d, "stress-strain", "layout") or {}).get("title", {}).get("text", ""), 30)
+        np.testing.assert_allclose(_array(d, "stress-strain", 0, "y"), [0.0, 120.5 / 12.5, 2410 / 12.5], rtol=1e-9)
+        np.testing.assert_allclose(_array(d, "stress-strain", 0, "x"), want, atol=0.01)
+        d.save_screenshot(str(shots / "5-extensometer.png"))
+
+        # -- a calibration (a PRVM file) and a scan (a PLY cloud of a known sphere)
+        d.get(base + "?path=" + urllib.parse.quote(str(dic_sim / "truth_cam0.npz")))
+        about = _wait(lambda: d.find_elements(By.ID, "about") and d.find_element(By.ID, "about").text, 60)
+        assert "PRVM of camera" in about
+        _wait(lambda: len(d.find_elements(By.CSS_SELECTOR, ".map .js-plotly-plot")) >= 1)
+        d.save_screenshot(str(shots / "6-calibration.png"))
+        import open3d as o3d
+        rng = np.random.default_rng(3)
+        v = rng.normal(size=(3000, 3))
+        pts = np.array([5.0, -2.0, 300.0]) + 20.0 * v / np.linalg.norm(v, axis=1)[:, None]
+        pts += rng.normal(scale=0.01, size=pts.shape)
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+        o3d.io.write_point_cloud(str(work / "sphere.ply"), cloud)
+        d.get(base + "?path=" + urllib.parse.quote(str(work / "sphere.ply")))
+        _wait(lambda: d.find_elements(By.CSS_SELECTOR, "#scan-shape input[value=sphere]"), 60)
+        d.find_element(By.CSS_SELECTOR, "#scan-shape input[value=sphere]").click()
+        about = _wait(lambda: "sphere of radius" in d.find_element(By.ID, "about").text
+                      and d.find_element(By.ID, "about").text, 60)
+        radius = float(about.split("sphere of radius ")[1].split(" mm")[0])
+        rms = float(about.split("RMS ")[1].split(" mm")[0])
+        assert abs(radius - 20.0) < 0.005 and abs(rms - 0.01) < 0.001     # the simulated 0.01 mm noise
+        assert _plot(d, "cloud")[0]["type"] == "scatter3d"
+        d.save_screenshot(str(shots / "7-scan.png"))
+    finally:
+        ws.stop()
+
+
+def test_region_on_image_pairs_goes_to_the_rectified_mask(dic_sim, tmp_path):
+    """A folder of image pairs (DICe's naming) is set up like a dataset; the polygon drawn on the original
+    left image becomes the rectified mask whose pixels sample the original inside it (checked through the
+    rig's own maps, pixel by pixel), with the hole left out."""
+    from matplotlib.path import Path as MPath
+
+    from stereodic.stereo.rig import load_rig
+    from stereodic.workspace.app import kind_of
+    from stereodic.workspace.region import Polygon
+    from stereodic.workspace.setup_view import write_run_files
+    pairs = tmp_path / "pairs"
+    pairs.mkdir()
+    for k in range(3):
+        for cam, side in (("cam0", 0), ("cam1", 1)):
+            shutil.copy(dic_sim / f"s{k:03d}" / f"{cam}.png", pairs / f"img_{k:04d}_{side}.png")
+    assert kind_of(pairs) == "setup"
+    outline = np.array([[40.0, 40.0], [190.0, 45.0], [185.0, 150.0], [45.0, 150.0]])
+    hole = np.array([[100.0, 80.0], [130.0, 80.0], [130.0, 110.0], [100.0, 110.0]])
+    out = tmp_path / "run"
+    command = write_run_files(out, dic_sim / "rig.npz", pairs, [Polygon(outline), Polygon(hole, hole=True)],
+                              {"subset": 21, "step": 8, "strain_window": 5})
+    assert command[3:5] == ["--images", str(pairs)] and "--mask" in command
+    from calib.imageio import read_gray
+    mask = read_gray(out / "region_mask.png") > 0
+    imm = load_rig(dic_sim / "rig.npz").left.imm
+    assert mask.shape == imm.shape
+    sampled = np.column_stack([imm.map_x[imm.valid], imm.map_y[imm.valid]])
+    m = mask[imm.valid]
+    deep = MPath(outline).contains_points(sampled, radius=-2.0) & ~MPath(hole).contains_points(sampled, radius=2.0)
+    near = MPath(outline).contains_points(sampled, radius=2.0) & ~MPath(hole).contains_points(sampled, radius=-2.0)
+    assert m[deep].all() and not m[~near].any() and m.sum() > 1000
+    record = json.loads((out / "workspace.json").read_text())
+    assert [p["hole"] for p in record["region"]] == [False, True] and len(record["left_images"]) == 3
+
+
+def test_map_in_the_specimen_frame(dic_run):
+    """dX, dY, dZ in the specimen's frame: the same vectors turned (their lengths kept), dZ along the normal
+    of the plane fitted to state 0's points (an SVD here, not the frame's own fit)."""
+    from stereodic.workspace.dic_view import source
+    rig, spec = source(dic_run, "rig"), source(dic_run, "specimen")
+    d_rig = np.stack([rig.values(1, q) for q in ("dX", "dY", "dZ")], 1)
+    d_spec = np.stack([spec.values(1, q) for q in ("dX", "dY", "dZ")], 1)
+    ok = np.isfinite(d_rig).all(1)
+    assert ok.sum() > 100
+    np.testing.assert_allclose(np.linalg.norm(d_spec[ok], axis=1), np.linalg.norm(d_rig[ok], axis=1), atol=1e-9)
+    with np.load(dic_run / "dic.npz") as z:
+        p0 = z["points"][0].reshape(-1, 3)[rig.index]
+    p0 = p0[np.isfinite(p0).all(1)]
+    normal = np.linalg.svd(p0 - p0.mean(0))[2][2]
+    np.testing.assert_allclose(np.abs(d_spec[ok, 2]), np.abs(d_rig[ok] @ normal), atol=2e-4)
+
+
+def test_calibration_page_error_map_against_its_truth(dic_sim, tmp_path):
+    """A PRVM whose dataset holds a truth.npz gets the ray error map: rays moved by half a footprint along
+    x on every plane show 0.5 camera px everywhere."""
+    from calib.evaluate import footprint_mm, working_plane
+    from calib.prvm_file import load_prvm
+    from stereodic.workspace.access import Access
+    from stereodic.workspace.other_views import prvm_layout
+    data = tmp_path / "dataset"
+    data.mkdir()
+    shutil.copy(dic_sim / "truth_cam0.npz", data / "truth.npz")
+    truth = load_prvm(data / "truth.npz")
+    with np.load(data / "truth.npz") as z:
+        arrays = {k: z[k] for k in z.files}
+    meta = json.loads(str(arrays["meta"]))
+    meta["dataset"] = str(data)
+    arrays["meta"] = np.array(json.dumps(meta))
+    arrays["origin"] = arrays["origin"] + [0.5 * footprint_mm(truth, working_plane(truth)), 0.0, 0.0]
+    np.savez(tmp_path / "cam.npz", **arrays)
+    page = prvm_layout(tmp_path / "cam.npz", Access([tmp_path]))
+    figures = [g.children.figure for g in page.children[1].children]
+    error = next(f for f in figures if f.layout.title.text.startswith("ray error"))
+    z = np.asarray(error.data[0].z, np.float64)
+    assert np.nanmax(np.abs(z - 0.5)) < 0.02 and "RMS 0.5" in error.layout.title.text
+
+
+@pytest.mark.browser
+def test_from_image_pairs_and_two_calibrations(browser, dic_sim, tmp_path):
+    """A newcomer's folder: image pairs and the two cameras' PRVM files, no rig: the page makes the rig
+    with `stereodic rig` (the same rig as the command's, byte for byte in its arrays), then sets the run up."""
+    from selenium.webdriver.common.by import By
+
+    from stereodic.workspace.server import start
+    d = browser
+    folder = tmp_path / "lab"
+    folder.mkdir()
+    for k in range(3):
+        for cam, side in (("cam0", 0), ("cam1", 1)):
+            shutil.copy(dic_sim / f"s{k:03d}" / f"{cam}.png", folder / f"img_{k:04d}_{side}.png")
+    for cam in ("cam0", "cam1"):
+        shutil.copy(dic_sim / f"truth_{cam}.npz", folder / f"{cam}.npz")
+    ws = start([folder], background=True)
+    try:
+        d.get(ws.url)
+        _wait(lambda: d.find_elements(By.ID, "make-rig"), 60)
+        d.find_element(By.ID, "make-rig").click()
+        _wait(lambda: d.find_elements(By.ID, "open-setup") or d.find_element(By.ID, "rig-message").text, 120)
+        assert d.find_elements(By.ID, "open-setup"), d.find_element(By.ID, "rig-message").text
+        assert main(["rig", str(folder / "cam0.npz"), str(folder / "cam1.npz"), "-o", str(tmp_path / "rig.npz")]) == 0
+        with np.load(folder / "rig.npz") as a, np.load(tmp_path / "rig.npz") as b:
+            assert all(np.array_equal(a[k], b[k], equal_nan=True) for k in b.files if k != "meta")
+        d.find_element(By.ID, "open-setup").click()
+        _wait(lambda: _plot(d, "noise"), 90)
+        assert "3 states" in d.find_element(By.ID, "setup-about").text
+    finally:
+        ws.stop()
+
+
+REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "dice-stereo-list"
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason="the DICe stereo_list images are not present")
+def test_automatic_region_finds_the_real_specimen():
+    """On the real DICe stereo_list reference image the automatic region holds DICe's own ROI (the
+    rectangle (160, 300)-(1100, 540) of roi.dat) and leaves out the two grips above and below it."""
+    from matplotlib.path import Path as MPath
+
+    from stereodic.workspace.region import original_mask
+    from stereodic.workspace.setup_view import automatic_shapes, shape_polygon
+    polygons = [shape_polygon(s) for s in automatic_shapes(REAL / "images" / "img_0000_0.tif")]
+    assert len(polygons) == 1 and not polygons[0].hole
+    outline = MPath(polygons[0].points)
+    ys, xs = np.mgrid[300:541:20, 160:1101:20]
+    assert outline.contains_points(np.column_stack([xs.ravel(), ys.ravel()])).all()
+    mask = original_mask(polygons, (1280, 800))
+    assert not mask[:200].any() and not mask[650:].any()      # the grips' speckle is not the specimen's
+
+
+def test_further_options_name_no_file():
+    """The page's further options go to `stereodic dic` as typed, but none that names a file (the run
+    reads only what the workspace serves)."""
+    from calib.errors import InputError
+    from stereodic.workspace.setup_view import extra_options
+    assert extra_options("--vertical-search 50 --max-gap=100 --incremental") == \
+        ["--vertical-search", "50", "--max-gap=100", "--incremental"]
+    for bad, word in (("--mask /etc/x.png", "--mask"), ("-o /tmp/elsewhere", "-o"), ("--max-gap", "needs a value")):
+        with pytest.raises(InputError, match=word):
+            extra_options(bad)
