@@ -16,6 +16,9 @@ from dataclasses import asdict, dataclass
 from typing import Callable
 
 GROUPS = ["sim", "calib", "rectify", "scan", "dic", "align", "startup", "cluster", "view"]
+# fringe periods (display px) per lens family where the default (60, 360, 1920) is not the right choice
+# (their pixels see ~0.35 display px): the calibration and hand-held groups' simulated benches
+PERIODS = {"telecentric": (30, 240, 1920), "scheimpflug": (30, 240, 1920)}
 
 
 @dataclass

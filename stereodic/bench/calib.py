@@ -25,11 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from stereodic.bench import Figure, best_time, run_isolated
+from stereodic.bench import PERIODS, Figure, best_time, run_isolated
 
 LENSES = ("brown", "freeform", "noncentral", "telecentric", "scheimpflug")
-# fringe periods (display px) per lens family where the default (60, 360, 1920) is not the right choice
-PERIODS = {"telecentric": (30, 240, 1920), "scheimpflug": (30, 240, 1920)}
 
 
 def phase_noise_bound_px(capture, cal, truth) -> float:

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stereodic.bench import Figure, run_isolated
+from stereodic.bench import PERIODS, Figure, run_isolated
 
 HANDHELD_LENSES = ("brown", "noncentral", "freeform")
 STAGE_LENSES = ("brown", "freeform", "noncentral", "telecentric", "scheimpflug")
@@ -121,7 +121,6 @@ def staged_accuracy(lens: str, width: int, height: int, root: Path, positions, s
     from calib.opencv_baseline import calibrate_opencv, dense_correspondences
     from calib.prvm_file import PRVM, load_prvm
     from scanners.sim.calibration import simulate_calibration
-    from stereodic.bench.calib import PERIODS
     out = root / name
     simulate_calibration(out, lens=lens, width=width, height=height, z_positions=positions, **stage,
                          **({"periods": PERIODS[lens]} if lens in PERIODS else {}), **_field(width))

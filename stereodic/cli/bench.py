@@ -11,10 +11,11 @@ def register(sub):
     from stereodic.bench import GROUPS
     p = sub.add_parser("bench", help="speed, memory and accuracy figures beside their references",
                        description="Run the benchmarks and print each figure beside its reference.")
-    p.add_argument("group", nargs="?", default="all", choices=GROUPS + ["all"])
+    p.add_argument("group", nargs="?", default="all", choices=GROUPS + ["all"], metavar="GROUP",
+                   help=f"the group to run: {', '.join(GROUPS)} or all (default all)")
     out = p.add_mutually_exclusive_group()
     out.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    out.add_argument("--markdown", action="store_true", help="print a Markdown table (as in the README)")
+    out.add_argument("--markdown", action="store_true", help="print a Markdown table (as in docs/figures.md)")
     p.add_argument("--quick", action="store_true", help="smaller inputs (for a smoke test)")
     p.set_defaults(func=run)
 

@@ -27,13 +27,13 @@ def calibrate_task(dataset: str, camera: str, smoother, output: str, report_dir:
     from calib.calibration import calibrate_camera
     from calib.capture import load_capture
     from stereodic.cluster.batch import Done
-    from stereodic.cli.calibrate import report, summary
+    from stereodic.cli.calibrate_report import report, summary
     capture = load_capture(dataset)
     cal = calibrate_camera(capture, camera=camera, smoother=smoother, refine=refine and not capture.posed)
     cal.prvm.save(output)
     outputs = [(output, summary(cal))]
     if report_dir is not None:
-        outputs += [(p, "") for p in report(report_dir, cal)]
+        outputs += report(report_dir, cal)
     return Done(outputs, [f"{dataset}, {camera}: {note}" for note in cal.notes])
 
 

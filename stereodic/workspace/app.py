@@ -91,9 +91,3 @@ def make_app(access: Access):
     setup_view.register(app, access)
     other_views.register(app, access)
     return app
-
-
-def error_text(exc: Exception) -> str:
-    """The one line a callback shows for a bad request (an InputError's own text; another error's type
-    and text)."""
-    return f"{exc}" if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"

@@ -22,11 +22,11 @@ import numpy as np
 
 from calib.errors import InputError
 from stereodic.workspace.access import Access
+from stereodic.workspace.page import GRAPH_WIDTH_PX, error_text, image_url
 from stereodic.workspace.results import DicSource
 
 _SOURCES: dict[tuple[str, str], DicSource] = {}
 _LOCK = threading.Lock()
-GRAPH_WIDTH_PX = 900   # the field's plot width, screen pixels
 TOOLS = {"point": "pan", "extensometer": "drawline", "line": "drawline", "area": "drawclosedpath"}
 
 
@@ -45,11 +45,6 @@ def source(path: str | Path, frame: str = "rig") -> DicSource:
         src = _SOURCES[key]
     src.refresh()
     return src
-
-
-def image_url(path: Path | None) -> str | None:
-    from urllib.parse import quote
-    return None if path is None else f"/image?path={quote(str(path))}"
 
 
 def colour_scale(src: DicSource, name: str) -> str:
@@ -206,7 +201,6 @@ def layout(path: Path, access: Access):
 def register(app, access: Access) -> None:
     from dash import Input, Output, Patch, State, ctx, dcc, no_update
 
-    from stereodic.workspace.app import error_text
 
     @app.callback(Output("field", "figure"), Output("state-label", "children"), Output("message", "children",
                                                                                        allow_duplicate=True),
@@ -381,7 +375,7 @@ def gauge_curve(path: str, shape: dict, tool: str, name: str, frame: str):
     (extensometer, line, area), measured by `stereodic.gauge.measure_gauges` (what `stereodic gauge`
     writes)."""
     from stereodic.gauge.gauges import AreaGauge, Extensometer, Gauges, LineGauge, measure_gauges
-    from stereodic.workspace.setup_view import shape_polygon
+    from stereodic.workspace.region import shape_polygon
     res = gauge_result(path, frame or "rig")
     if tool in ("extensometer", "line"):
         if shape.get("type") != "line":

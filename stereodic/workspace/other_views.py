@@ -174,7 +174,7 @@ def read_cloud(path: str | Path) -> np.ndarray:
 def register(app, access: Access) -> None:
     from dash import Input, Output, State
 
-    from stereodic.workspace.app import error_text
+    from stereodic.workspace.page import error_text
 
     @app.callback(Output("cloud", "figure"), Output("about", "children"), Input("scan-shape", "value"),
                   State("scan-path", "data"))

@@ -17,12 +17,16 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 from calib.errors import InputError
+
+HOLE_COLOUR = "#ff3030"     # a drawn shape in this colour is a hole
+PART_COLOUR = "#30ff30"
 
 
 @dataclass
@@ -96,3 +100,21 @@ def from_json(data, where: str | os.PathLike = "region") -> list[Polygon]:
             raise InputError(where, f"polygon {i} needs at least three finite vertices, has {len(pts)}")
         out.append(Polygon(pts, bool(item.get("hole", False))))
     return out
+
+
+def shape_polygon(shape: dict) -> Polygon:
+    """The polygon of a plotly shape (a rectangle, or a path "M x,y L x,y ... Z"); a hole when drawn in
+    HOLE_COLOUR."""
+    hole = (shape.get("line") or {}).get("color") == HOLE_COLOUR
+    if shape.get("type") == "rect":
+        x0, y0, x1, y1 = (float(shape[k]) for k in ("x0", "y0", "x1", "y1"))
+        return Polygon(np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]]), hole)
+    numbers = [float(v) for v in re.findall(r"-?\d+(?:\.\d+)?(?:[eE]-?\d+)?", shape.get("path", ""))]
+    return Polygon(np.array(numbers).reshape(-1, 2), hole)
+
+
+def polygon_shape(p: Polygon) -> dict:
+    path = "M" + "L".join(f"{x:.1f},{y:.1f}" for x, y in p.points) + "Z"
+    colour = HOLE_COLOUR if p.hole else PART_COLOUR
+    return dict(type="path", path=path, line=dict(color=colour, width=2), fillcolor=colour, opacity=0.25,
+                editable=True, layer="above")

@@ -29,10 +29,10 @@ import numpy as np
 
 from calib.errors import InputError
 from stereodic.workspace.access import Access
-from stereodic.workspace.region import Polygon, automatic_region, from_json, original_mask, rectified_mask, to_json
+from stereodic.workspace.page import GRAPH_WIDTH_PX, error_text, image_url
+from stereodic.workspace.region import (HOLE_COLOUR, PART_COLOUR, Polygon, automatic_region, from_json, original_mask,
+                                        polygon_shape, rectified_mask, shape_polygon, to_json)
 
-HOLE_COLOUR = "#ff3030"
-PART_COLOUR = "#30ff30"
 RUN_FORMAT = "stereodic.workspace-run/1"
 # `stereodic dic` options the page passes on as typed (none names a file: the run reads only what it serves)
 EXTRA_OPTIONS = {"--vertical-search": 1, "--max-gap": 1, "--prefilter": 1, "--min-zncc": 1, "--disparity": 1,
@@ -82,24 +82,6 @@ def rig_maker(dataset: Path, access: Access):
     ])
 
 
-def shape_polygon(shape: dict) -> Polygon:
-    """The polygon of a plotly shape (a rectangle, or a path "M x,y L x,y ... Z"); a hole when drawn in
-    HOLE_COLOUR."""
-    hole = (shape.get("line") or {}).get("color") == HOLE_COLOUR
-    if shape.get("type") == "rect":
-        x0, y0, x1, y1 = (float(shape[k]) for k in ("x0", "y0", "x1", "y1"))
-        return Polygon(np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]]), hole)
-    numbers = [float(v) for v in re.findall(r"-?\d+(?:\.\d+)?(?:[eE]-?\d+)?", shape.get("path", ""))]
-    return Polygon(np.array(numbers).reshape(-1, 2), hole)
-
-
-def polygon_shape(p: Polygon) -> dict:
-    path = "M" + "L".join(f"{x:.1f},{y:.1f}" for x, y in p.points) + "Z"
-    colour = HOLE_COLOUR if p.hole else PART_COLOUR
-    return dict(type="path", path=path, line=dict(color=colour, width=2), fillcolor=colour, opacity=0.25,
-                editable=True, layer="above")
-
-
 def apply_relayout(shapes: list, relayout: dict) -> list:
     """The shapes after a plotly relayout event: a new list ("shapes"), or one shape's key edited
     ("shapes[2].path", "shapes[0].x0")."""
@@ -145,7 +127,6 @@ def reference_figure(ref: Path, shapes: list):
     import plotly.graph_objects as go
 
     from calib.imageio import image_size
-    from stereodic.workspace.dic_view import GRAPH_WIDTH_PX, image_url
     w, h = image_size(ref)
     fig = go.Figure()
     fig.update_layout(images=[dict(source=image_url(ref), xref="x", yref="y", x=-0.5, y=-0.5, sizex=w, sizey=h,
@@ -308,7 +289,6 @@ def run_progress(output: Path) -> tuple[str, bool, bool]:
 def register(app, access: Access) -> None:
     from dash import Input, Output, State, ctx, dcc, html, no_update
 
-    from stereodic.workspace.app import error_text
 
     @app.callback(Output("ref-image", "figure"), Output("shapes", "data"), Input("region-tool", "value"),
                   Input("auto-region", "n_clicks"), Input("clear-region", "n_clicks"),

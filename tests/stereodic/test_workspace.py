@@ -460,7 +460,8 @@ def test_automatic_region_finds_the_real_specimen():
     from matplotlib.path import Path as MPath
 
     from stereodic.workspace.region import original_mask
-    from stereodic.workspace.setup_view import automatic_shapes, shape_polygon
+    from stereodic.workspace.region import shape_polygon
+    from stereodic.workspace.setup_view import automatic_shapes
     polygons = [shape_polygon(s) for s in automatic_shapes(REAL / "images" / "img_0000_0.tif")]
     assert len(polygons) == 1 and not polygons[0].hole
     outline = MPath(polygons[0].points)
