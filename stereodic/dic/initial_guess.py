@@ -1,6 +1,13 @@
-"""Integer-pixel initial guesses by zero-normalised cross-correlation (ZNCC) search.
+"""Initial guesses: feature matches with a robust local affine fit, and zero-normalised cross-correlation
+(ZNCC) search.
 
-`search_integer` finds where the subset around one reference point went in the deformed image, within a
+`image_features` and `feature_guess` give every point of a grid a starting warp at once, whatever the
+motion: ORB features (Rublee et al., ICCV 2011: oriented FAST corners with rotated BRIEF descriptors,
+found over an 8-level scale pyramid, so they follow rotations of any angle and scale changes far beyond
+20 %) matched with Lowe's ratio test (IJCV 60, 2004), outliers removed by RANSAC affine fits
+(cv2.estimateAffine2D) over overlapping cells of the image, then an affine fitted per point to its
+nearest surviving matches (least squares, once more without the matches it leaves off by more than the
+RANSAC tolerance). `search_integer` finds where the subset around one reference point went in the deformed image, within a
 square search window (OpenCV's matchTemplate, FFT-based for large windows): the seeds of propagation.
 `row_search` does the same along the row only (rectified stereo: the match lies on the same row), and
 `row_seed_search` wraps it as a seed search of the propagation.
@@ -9,8 +16,149 @@ Positions in pixels, (x, y) = (column, row) of the reference image.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
+
+MAX_FEATURES = 8000   # ORB features kept per image (the strongest corners)
+RATIO = 0.8           # Lowe's ratio test: best match distance below RATIO times the second best
+CELL_MATCHES = 40     # matches per RANSAC cell, on average
+RANSAC_TOL_PX = 3.0   # a match off the local affine by more than this is an outlier, pixels
+NEIGHBOURS = 12       # matches per point's local affine fit
+MIN_INLIERS = 6       # fewer matches in a cell or a point's fit: no model there
+
+
+@dataclass(frozen=True)
+class Features:
+    """ORB features of an image: pts (M, 2) float64 their positions, pixels (x = column, y = row);
+    desc (M, 32) uint8 their binary descriptors."""
+
+    pts: np.ndarray
+    desc: np.ndarray
+
+
+def image_features(img: np.ndarray, *, max_features: int = MAX_FEATURES) -> Features:
+    """ORB features of an image (any real dtype; grey levels stretched between its 0.5 and 99.5
+    percentiles to 8 bits first).
+
+    Parameters
+    ----------
+    img : (H, W) array
+        The image.
+    max_features : int
+        At most this many features, the strongest corners.
+
+    Returns
+    -------
+    features : Features
+        Positions (pixels, x = column, y = row) and descriptors; none on a blank image.
+    """
+    img = np.asarray(img)
+    lo, hi = np.percentile(img, (0.5, 99.5))
+    u8 = np.clip((img.astype(np.float32) - lo) * (255.0 / max(float(hi - lo), 1e-12)), 0, 255).astype(np.uint8)
+    kps, desc = cv2.ORB_create(max_features).detectAndCompute(u8, None)
+    if desc is None:
+        return Features(np.zeros((0, 2)), np.zeros((0, 32), np.uint8))
+    return Features(np.array([k.pt for k in kps], np.float64), desc)
+
+
+def _matches(ref: Features, dfm: Features) -> tuple[np.ndarray, np.ndarray]:
+    """Matched positions (K, 2) in the reference and deformed images that pass the ratio test."""
+    if len(ref.pts) < 2 or len(dfm.pts) < 2:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    pairs = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(ref.desc, dfm.desc, k=2)
+    good = [m[0] for m in pairs if len(m) == 2 and m[0].distance < RATIO * m[1].distance]
+    qi = np.array([m.queryIdx for m in good], np.int64)
+    ti = np.array([m.trainIdx for m in good], np.int64)
+    return ref.pts[qi].reshape(-1, 2), dfm.pts[ti].reshape(-1, 2)
+
+
+def _inliers(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """(K,) bool: the matches p -> q that some cell's RANSAC affine (cells of about CELL_MATCHES matches,
+    each fitted to the matches within half a cell of it) keeps within RANSAC_TOL_PX."""
+    keep = np.zeros(len(p), bool)
+    g = int(np.clip(round(np.sqrt(len(p) / CELL_MATCHES)), 1, 16))
+    lo, hi = p.min(0), p.max(0) + 1e-9
+    size = (hi - lo) / g
+    for i in range(g):
+        for j in range(g):
+            a = lo + size * (i - 0.5, j - 0.5)
+            b = lo + size * (i + 1.5, j + 1.5)
+            sel = np.flatnonzero(np.all((p >= a) & (p <= b), axis=1))
+            if sel.size < MIN_INLIERS:
+                continue
+            model, mask = cv2.estimateAffine2D(p[sel], q[sel], method=cv2.RANSAC,
+                                               ransacReprojThreshold=RANSAC_TOL_PX, maxIters=500)
+            if model is None or mask.sum() < MIN_INLIERS:
+                continue
+            keep[sel[mask.ravel() > 0]] = True
+    return keep
+
+
+def _local_affine(p: np.ndarray, q: np.ndarray, xs: np.ndarray, ys: np.ndarray, nbr: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares affine displacement about each point (xs, ys) from the matches nbr (N, k) (indices
+    into p -> q, -1 = none): (N, 6) (u, ux, uy, v, vx, vy) and (N,) bool (at least MIN_INLIERS matches
+    and a full-rank fit)."""
+    have = nbr >= 0
+    idx = np.where(have, nbr, 0)
+    dx = p[idx, 0] - xs[:, None]
+    dy = p[idx, 1] - ys[:, None]
+    w = have.astype(np.float64)
+    A = np.stack([np.ones_like(dx), dx, dy], -1) * w[..., None]
+    ata = np.einsum("nki,nkj->nij", A, A)
+    rhs = np.stack([np.einsum("nki,nk->ni", A, q[idx, 0] - p[idx, 0]),
+                    np.einsum("nki,nk->ni", A, q[idx, 1] - p[idx, 1])], -1)
+    ok = (have.sum(1) >= MIN_INLIERS) & (np.linalg.cond(ata) < 1e8)
+    sol = np.zeros((len(xs), 3, 2))
+    if ok.any():
+        sol[ok] = np.linalg.solve(ata[ok], rhs[ok])
+    return np.concatenate([sol[:, :, 0], sol[:, :, 1]], 1), ok
+
+
+def feature_guess(ref: Features, dfm: Features, xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Starting affine warps of the points (xs, ys) of the reference image, from the features of the
+    reference and deformed images (module docstring).
+
+    Parameters
+    ----------
+    ref, dfm : Features
+        The two images' features (`image_features`).
+    xs, ys : (N,) float
+        The points, reference pixels (x = column, y = row).
+
+    Returns
+    -------
+    warp : (N, 6) float64
+        (u, ux, uy, v, vx, vy): the displacement at the point, pixels, and its gradient (the affine shape
+        function of `stereodic.dic.icgn`).
+    ok : (N,) bool
+        Whether the point got a guess (at least MIN_INLIERS consistent matches around it).
+    """
+    from scipy.spatial import cKDTree
+
+    xs = np.asarray(xs, np.float64)
+    ys = np.asarray(ys, np.float64)
+    p, q = _matches(ref, dfm)
+    if len(p) < MIN_INLIERS:
+        return np.zeros((xs.size, 6)), np.zeros(xs.size, bool)
+    keep = _inliers(p, q)
+    p, q = p[keep], q[keep]
+    if len(p) < MIN_INLIERS:
+        return np.zeros((xs.size, 6)), np.zeros(xs.size, bool)
+    k = min(NEIGHBOURS, len(p))
+    _, nbr = cKDTree(p).query(np.stack([xs, ys], 1), k=k)
+    nbr = nbr.reshape(xs.size, k)
+    warp, ok = _local_affine(p, q, xs, ys, nbr)
+    # once more without the matches the fit leaves off by more than the tolerance
+    dx = p[nbr, 0] - xs[:, None]
+    dy = p[nbr, 1] - ys[:, None]
+    ru = warp[:, [0]] + warp[:, [1]] * dx + warp[:, [2]] * dy - (q[nbr, 0] - p[nbr, 0])
+    rv = warp[:, [3]] + warp[:, [4]] * dx + warp[:, [5]] * dy - (q[nbr, 1] - p[nbr, 1])
+    nbr = np.where(np.hypot(ru, rv) <= RANSAC_TOL_PX, nbr, -1)
+    warp2, ok2 = _local_affine(p, q, xs, ys, nbr)
+    return np.where(ok2[:, None], warp2, warp), ok & ok2
 
 
 def _as_f32(img: np.ndarray) -> np.ndarray:
