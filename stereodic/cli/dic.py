@@ -45,8 +45,7 @@ def register(sub):
     p.add_argument("--max-gap", type=float, default=1.0, metavar="PITCHES",
                    help="largest distance between the two rays of a trusted point, in virtual pixel pitches "
                         "(default 1; points beyond are flagged ray_gap)")
-    p.add_argument("--search", type=int, default=40, metavar="PIXELS",
-                   help="search range of the temporal seeds (default 40)")
+    add_search_option(p, "temporal seeds")
     add_prefilter_option(p)
     p.add_argument("--min-zncc", type=float, default=0.8, help="points below are flagged (default 0.8)")
     p.add_argument("--strain-window", type=int, default=5, metavar="N",
@@ -94,7 +93,7 @@ def _settings(args):
         disparity = tuple(parse_ints(args.disparity, 2, "--disparity"))
         if disparity[0] > disparity[1]:
             raise InputError("--disparity", f"DMIN must not exceed DMAX, got {args.disparity}")
-    dic = DicSettings(subset=args.subset, shape=args.shape, min_zncc=args.min_zncc, search_radius=args.search,
+    dic = DicSettings(subset=args.subset, shape=args.shape, min_zncc=args.min_zncc, **search_settings(args),
                       prefilter_sigma=args.prefilter)
     return StereoSettings(dic, disparity, args.strain_window or None, args.incremental, max_gap_px=args.max_gap,
                           switch_zncc=args.switch_zncc, strain_measure=args.measure,

@@ -13,7 +13,7 @@ strain_valid is 0. Results are written image by image: memory holds one image's 
 from __future__ import annotations
 
 from stereodic.cli.common import (add_grid_options, add_input, add_output, add_prefilter_option, add_scheduler_option,
-                                  check_prefilter)
+                                  add_search_option, check_prefilter, search_settings)
 
 
 def register(sub):
@@ -31,8 +31,7 @@ def register(sub):
     p.add_argument("--interp", choices=["cubic", "quintic"], default="cubic",
                    help="B-spline interpolation (default cubic)")
     add_prefilter_option(p)
-    p.add_argument("--search", type=int, default=40, metavar="PIXELS",
-                   help="search range of the seeds' integer displacement (default 40)")
+    add_search_option(p, "seeds' integer displacement")
     p.add_argument("--min-zncc", type=float, default=0.8, help="points below are flagged (default 0.8)")
     p.add_argument("--switch-zncc", type=float, default=SWITCH_ZNCC, metavar="ZNCC",
                    help=f"a point whose ZNCC against the reference falls below this switches to incremental "
@@ -59,8 +58,7 @@ def _check_args(args) -> None:
     for name, value in (("--min-zncc", args.min_zncc), ("--switch-zncc", args.switch_zncc)):
         if not 0 <= value <= 1:
             raise InputError(name, f"must be between 0 and 1, got {value}")
-    if args.search < 1:
-        raise InputError("--search", f"must be >= 1 pixel, got {args.search}")
+    search_settings(args)
     check_prefilter(args)
 
 
@@ -114,7 +112,7 @@ def run(args) -> int:
         check_size(path, (width, height), f"the reference {args.ref}")
     grid, seeds = dic_grid(args, width, height, "reference", args.ref)
     settings = DicSettings(subset=args.subset, shape=args.shape, order=3 if args.interp == "cubic" else 5,
-                           prefilter_sigma=args.prefilter, min_zncc=args.min_zncc, search_radius=args.search)
+                           prefilter_sigma=args.prefilter, min_zncc=args.min_zncc, **search_settings(args))
     out = Path(args.output)
 
     has_strain = bool(args.strain_window)
