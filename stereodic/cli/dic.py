@@ -11,7 +11,7 @@ Z, displacements and strains per state).
 from __future__ import annotations
 
 from stereodic.cli.common import (add_grid_options, add_input, add_output, add_prefilter_option, add_scheduler_option,
-                                  check_prefilter, dic_grid, parse_ints)
+                                  add_search_option, check_prefilter, dic_grid, parse_ints, search_settings)
 
 
 def register(sub):

@@ -76,3 +76,39 @@ def test_dic2d_defaults_measure_large_motion_as_well_as_a_small_one(tmp_path, an
         assert abs(np.mean(large)) <= abs(np.mean(small)) + 0.002
         assert np.std(large) <= np.std(small) + 0.002
         assert np.abs(large).max() < 0.05
+
+
+def test_stereo_dic_defaults_follow_80px_and_10_percent_strain(tmp_path):
+    """A simulated stereo sequence: a small motion (2 px, 1 % tension) and a large one (80 px of image
+    motion, 10 % tension), through `stereodic dic` with the defaults: every point of the reference
+    measured in both, the large one as accurately as the small (mean displacement error within 0.002 px,
+    strain within 50 microstrain)."""
+    from scanners.sim.dic import DicState, dic_lenses, load_dic_truth, mm_per_pixel, truth_at_pixels
+    from stereodic.rig import load_rig
+    from tests.stereodic.dic_cases import simulate_dic_with_rig
+
+    mm = mm_per_pixel(dic_lenses(320, 256)[0])
+    states = [DicState("reference"), DicState("small", stretch=(1.01, 0.997), translation_mm=(2 * mm, -mm, 0.0)),
+              DicState("large", stretch=(1.10, 0.97), translation_mm=(80 * mm, 0.0, 0.0))]
+    simulate_dic_with_rig(tmp_path, states, width=320, height=256, supersample=2)
+    # the points whose subsets stay in view after 80 px and 10 % along x
+    assert main(["dic", str(tmp_path / "rig.npz"), str(tmp_path), "--roi", "20,20,190,235", "--no-vtk", "--no-plot",
+                 "-o", str(tmp_path / "out")]) == 0
+    z = np.load(tmp_path / "out" / "dic.npz")
+    X, Y = np.meshgrid(z["x"], z["y"])
+    rig = load_rig(tmp_path / "rig.npz")
+    truth = truth_at_pixels(load_dic_truth(tmp_path), rig.left.imm.real_position(X.ravel(), Y.ravel()))
+    ref_ok = z["converged"][0].astype(bool)
+    assert ref_ok.sum() > 0.9 * z["active"].sum()
+    err = {}
+    for k in (1, 2):
+        c = z["converged"][k].astype(bool)
+        assert c[ref_ok].all(), f"state {k}: {c[ref_ok].mean():.1%} of the reference's points"
+        d = z["displacement"][k].reshape(-1, 3)[c.ravel()] - truth["displacement"][k][c.ravel()]
+        err[k] = d.mean(0) / mm                            # pixels (out of plane: at the plate's scale)
+        sv = z["strain_valid"][k].ravel().astype(bool)
+        for e in ("exx", "eyy", "exy"):
+            assert abs(np.mean(z[e][k].ravel()[sv] - truth[e][k][sv])) < 50e-6
+    assert (np.abs(err[2][:2]) <= np.abs(err[1][:2]) + 0.002).all(), err
+    # depth: the triangulation scales an image error by distance / baseline (400 / 200 mm)
+    assert abs(err[2][2]) <= abs(err[1][2]) + 2 * 0.002, err
