@@ -21,7 +21,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-MAX_FEATURES = 8000   # ORB features kept per image (the strongest corners)
+MAX_FEATURES = 4000   # ORB features kept per image (the strongest corners)
+DETECT_SIDE = 1024    # features are found on the image shrunk until its longer side is at most this (pixels)
 RATIO = 0.8           # Lowe's ratio test: best match distance below RATIO times the second best
 CELL_MATCHES = 40     # matches per RANSAC cell, on average
 RANSAC_TOL_PX = 3.0   # a match off the local affine by more than this is an outlier, pixels
@@ -40,7 +41,9 @@ class Features:
 
 def image_features(img: np.ndarray, *, max_features: int = MAX_FEATURES) -> Features:
     """ORB features of an image (any real dtype; grey levels stretched between its 0.5 and 99.5
-    percentiles to 8 bits first).
+    percentiles to 8 bits first; found on the image shrunk by a power of 2 until its longer side is at most
+    DETECT_SIDE, so that their cost does not grow with the image: a match is then good to about a pixel,
+    what IC-GN needs to converge).
 
     Parameters
     ----------
@@ -55,12 +58,18 @@ def image_features(img: np.ndarray, *, max_features: int = MAX_FEATURES) -> Feat
         Positions (pixels, x = column, y = row) and descriptors; none on a blank image.
     """
     img = np.asarray(img)
+    shrink = 1
+    while max(img.shape) > DETECT_SIDE * shrink:
+        shrink *= 2
+    if shrink > 1:
+        img = cv2.resize(img.astype(np.float32), None, fx=1 / shrink, fy=1 / shrink, interpolation=cv2.INTER_AREA)
     lo, hi = np.percentile(img, (0.5, 99.5))
     u8 = np.clip((img.astype(np.float32) - lo) * (255.0 / max(float(hi - lo), 1e-12)), 0, 255).astype(np.uint8)
     kps, desc = cv2.ORB_create(max_features).detectAndCompute(u8, None)
     if desc is None:
         return Features(np.zeros((0, 2)), np.zeros((0, 32), np.uint8))
-    return Features(np.array([k.pt for k in kps], np.float64), desc)
+    # INTER_AREA: pixel i of the shrunk image covers pixels shrink i .. shrink (i + 1) - 1
+    return Features((np.array([k.pt for k in kps], np.float64) + 0.5) * shrink - 0.5, desc)
 
 
 def _matches(ref: Features, dfm: Features) -> tuple[np.ndarray, np.ndarray]:
@@ -110,7 +119,9 @@ def _local_affine(p: np.ndarray, q: np.ndarray, xs: np.ndarray, ys: np.ndarray, 
     ata = np.einsum("nki,nkj->nij", A, A)
     rhs = np.stack([np.einsum("nki,nk->ni", A, q[idx, 0] - p[idx, 0]),
                     np.einsum("nki,nk->ni", A, q[idx, 1] - p[idx, 1])], -1)
-    ok = (have.sum(1) >= MIN_INLIERS) & (np.linalg.cond(ata) < 1e8)
+    # Hadamard's ratio det / product of the diagonal (1 for orthogonal columns, 0 for collinear matches)
+    diag = np.einsum("nii->ni", ata).prod(1)
+    ok = (have.sum(1) >= MIN_INLIERS) & (np.linalg.det(ata) > 1e-6 * diag)
     sol = np.zeros((len(xs), 3, 2))
     if ok.any():
         sol[ok] = np.linalg.solve(ata[ok], rhs[ok])
@@ -147,11 +158,42 @@ def feature_guess(ref: Features, dfm: Features, xs: np.ndarray, ys: np.ndarray) 
     p, q = p[keep], q[keep]
     if len(p) < MIN_INLIERS:
         return np.zeros((xs.size, 6)), np.zeros(xs.size, bool)
+    if xs.size <= 4 * len(p):
+        return _robust_affine(p, q, xs, ys, cKDTree(p))
+    # more points than matches: fit on a lattice of about one node per match over the points' extent,
+    # then the bilinear blend of the four nodes around each point (the displacement and its gradient)
+    x0, y0, x1, y1 = xs.min(), ys.min(), xs.max(), ys.max()
+    spacing = max(np.sqrt((x1 - x0 + 1) * (y1 - y0 + 1) / len(p)), 1.0)
+    nx, ny = int(np.ceil((x1 - x0) / spacing)) + 1, int(np.ceil((y1 - y0) / spacing)) + 1
+    gx, gy = np.meshgrid(x0 + spacing * np.arange(nx), y0 + spacing * np.arange(ny))
+    node, node_ok = _robust_affine(p, q, gx.ravel(), gy.ravel(), cKDTree(p))
+    node = node.reshape(ny, nx, 6)
+    node_ok = node_ok.reshape(ny, nx)
+    fx, fy = (xs - x0) / spacing, (ys - y0) / spacing
+    c, r = np.minimum(fx.astype(np.int64), max(nx - 2, 0)), np.minimum(fy.astype(np.int64), max(ny - 2, 0))
+    c1, r1 = np.minimum(c + 1, nx - 1), np.minimum(r + 1, ny - 1)
+    tx, ty = (fx - c)[:, None], (fy - r)[:, None]
+    warp = ((1 - ty) * ((1 - tx) * node[r, c] + tx * node[r, c1]) + ty * ((1 - tx) * node[r1, c] + tx * node[r1, c1]))
+    # each node's warp is about the node: move it to the point (u += ux dx + uy dy, v likewise)
+    ok = node_ok[r, c] & node_ok[r, c1] & node_ok[r1, c] & node_ok[r1, c1]
+    for corner_r, corner_c, weight in ((r, c, (1 - tx) * (1 - ty)), (r, c1, tx * (1 - ty)), (r1, c, (1 - tx) * ty),
+                                       (r1, c1, tx * ty)):
+        dx = (xs - gx[corner_r, corner_c])[:, None]
+        dy = (ys - gy[corner_r, corner_c])[:, None]
+        nd = node[corner_r, corner_c]
+        warp[:, [0]] += weight * (nd[:, [1]] * dx + nd[:, [2]] * dy)
+        warp[:, [3]] += weight * (nd[:, [4]] * dx + nd[:, [5]] * dy)
+    return warp, ok
+
+
+def _robust_affine(p: np.ndarray, q: np.ndarray, xs: np.ndarray, ys: np.ndarray, tree) -> tuple[np.ndarray, np.ndarray]:
+    """The local affine of each point (xs, ys) from its NEIGHBOURS nearest matches p -> q (`tree`: a
+    cKDTree of p), fitted again without the matches it leaves off by more than RANSAC_TOL_PX;
+    (N, 6) and (N,) bool as `_local_affine`."""
     k = min(NEIGHBOURS, len(p))
-    _, nbr = cKDTree(p).query(np.stack([xs, ys], 1), k=k)
+    _, nbr = tree.query(np.stack([xs, ys], 1), k=k)
     nbr = nbr.reshape(xs.size, k)
     warp, ok = _local_affine(p, q, xs, ys, nbr)
-    # once more without the matches the fit leaves off by more than the tolerance
     dx = p[nbr, 0] - xs[:, None]
     dy = p[nbr, 1] - ys[:, None]
     ru = warp[:, [0]] + warp[:, [1]] * dx + warp[:, [2]] * dy - (q[nbr, 0] - p[nbr, 0])
