@@ -147,8 +147,6 @@ def feature_guess(ref: Features, dfm: Features, xs: np.ndarray, ys: np.ndarray) 
     ok : (N,) bool
         Whether the point got a guess (at least MIN_INLIERS consistent matches around it).
     """
-    from scipy.spatial import cKDTree
-
     xs = np.asarray(xs, np.float64)
     ys = np.asarray(ys, np.float64)
     p, q = _matches(ref, dfm)
@@ -159,14 +157,14 @@ def feature_guess(ref: Features, dfm: Features, xs: np.ndarray, ys: np.ndarray) 
     if len(p) < MIN_INLIERS:
         return np.zeros((xs.size, 6)), np.zeros(xs.size, bool)
     if xs.size <= 4 * len(p):
-        return _robust_affine(p, q, xs, ys, cKDTree(p))
+        return _robust_affine(p, q, xs, ys)
     # more points than matches: fit on a lattice of about one node per match over the points' extent,
     # then the bilinear blend of the four nodes around each point (the displacement and its gradient)
     x0, y0, x1, y1 = xs.min(), ys.min(), xs.max(), ys.max()
     spacing = max(np.sqrt((x1 - x0 + 1) * (y1 - y0 + 1) / len(p)), 1.0)
     nx, ny = int(np.ceil((x1 - x0) / spacing)) + 1, int(np.ceil((y1 - y0) / spacing)) + 1
     gx, gy = np.meshgrid(x0 + spacing * np.arange(nx), y0 + spacing * np.arange(ny))
-    node, node_ok = _robust_affine(p, q, gx.ravel(), gy.ravel(), cKDTree(p))
+    node, node_ok = _robust_affine(p, q, gx.ravel(), gy.ravel())
     node = node.reshape(ny, nx, 6)
     node_ok = node_ok.reshape(ny, nx)
     fx, fy = (xs - x0) / spacing, (ys - y0) / spacing
@@ -186,13 +184,21 @@ def feature_guess(ref: Features, dfm: Features, xs: np.ndarray, ys: np.ndarray) 
     return warp, ok
 
 
-def _robust_affine(p: np.ndarray, q: np.ndarray, xs: np.ndarray, ys: np.ndarray, tree) -> tuple[np.ndarray, np.ndarray]:
-    """The local affine of each point (xs, ys) from its NEIGHBOURS nearest matches p -> q (`tree`: a
-    cKDTree of p), fitted again without the matches it leaves off by more than RANSAC_TOL_PX;
-    (N, 6) and (N,) bool as `_local_affine`."""
-    k = min(NEIGHBOURS, len(p))
-    _, nbr = tree.query(np.stack([xs, ys], 1), k=k)
-    nbr = nbr.reshape(xs.size, k)
+def _nearest(p: np.ndarray, xs: np.ndarray, ys: np.ndarray, k: int) -> np.ndarray:
+    """(N, k) indices of the k points of p (M, 2) nearest to each (xs, ys), by blocks of rows of the
+    distance matrix (at most 2^22 distances at a time)."""
+    out = np.empty((xs.size, k), np.int64)
+    block = max(1, 2 ** 22 // len(p))
+    for a in range(0, xs.size, block):
+        d = (xs[a:a + block, None] - p[:, 0]) ** 2 + (ys[a:a + block, None] - p[:, 1]) ** 2
+        out[a:a + block] = np.argpartition(d, k - 1, axis=1)[:, :k] if k < len(p) else np.arange(k)
+    return out
+
+
+def _robust_affine(p: np.ndarray, q: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The local affine of each point (xs, ys) from its NEIGHBOURS nearest matches p -> q, fitted again
+    without the matches it leaves off by more than RANSAC_TOL_PX; (N, 6) and (N,) bool as `_local_affine`."""
+    nbr = _nearest(p, xs, ys, min(NEIGHBOURS, len(p)))
     warp, ok = _local_affine(p, q, xs, ys, nbr)
     dx = p[nbr, 0] - xs[:, None]
     dy = p[nbr, 1] - ys[:, None]
