@@ -1,7 +1,8 @@
 """A stereo DIC experiment run through its run folder (`store.RunStore`): the states solved one after the
 other (`stereo.solve_state`), each saved as soon as it is done, an interrupted run resumed after its
 last finished state, and the combined outputs (CSV, NPZ, VTK, PNG, DICe's files) written at the end
-from the state files, one state in memory at a time.
+from the state files, one state in memory at a time, the files side by side on every thread
+(`stereodic.dic.background`).
 
 Per run the reference pair (state 0) is read and prepared once (on a resumed run too); per state the
 next pair is read, rectified and prepared in a worker thread while the current one is solved. Memory
@@ -11,10 +12,12 @@ whatever the length of the sequence.
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Callable
 
 from calib.progress import progress
+from stereodic.dic.background import Background, threads
 from stereodic.dic.grid import Grid
 from stereodic.dic.maps import MapAxes, surface_axes
 from stereodic.dic.sequence import prefetch
@@ -82,20 +85,24 @@ def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: Ste
     folder = Path(folder)
     n = store.manifest["states"]
     has_strain = bool(settings.strain_window)
-    write_npz(folder / "dic.npz", grid, store.values, n, has_strain, settings, info)
-    if csv:  # each state's rows as a cluster's task kept them, or formatted here
-        write_csv(folder / "dic.csv", (store.read_rows(k) or csv_rows(grid, store.read_state(k)) for k in range(n)),
-                  has_strain=has_strain)
+    # the files are independent: written side by side by the caller and threads() - 1 forked children
+    with Background(threads() - 1) as bg:
+        if csv:  # each state's rows as a cluster's task kept them, or formatted here
+            bg.submit(lambda: write_csv(folder / "dic.csv", (store.read_rows(k) or csv_rows(grid, store.read_state(k))
+                                                             for k in range(n)), has_strain=has_strain), "dic.csv")
+        bg.submit(lambda: write_npz(folder / "dic.npz", grid, store.values, n, has_strain, settings, info), "dic.npz")
+        if (state_files and (vtk or plot_every)) or dice is not None:
+            axes = None
+            for st in progress(store.states(), "writing", total=n, unit="state"):
+                if state_files:
+                    if axes is None:  # state 0: the reference surface gives every map its mm axes
+                        axes = surface_axes(grid.xs, grid.ys, st.points, grid.active)
+                    bg.submit(functools.partial(write_state_files, folder, st, vtk=vtk, plot_every=plot_every, axes=axes,
+                                                label=labels[st.state] if labels else f"state {st.state}"),
+                              f"the files of state {st.state}")
+                if dice is not None:
+                    dice(st)
+    if csv:
         store.remove_rows()
-    if (state_files and (vtk or plot_every)) or dice is not None:
-        axes = None
-        for st in progress(store.states(), "writing", total=n, unit="state"):
-            if state_files:
-                if axes is None:  # state 0: the reference surface gives every map its mm axes
-                    axes = surface_axes(grid.xs, grid.ys, st.points, grid.active)
-                write_state_files(folder, st, vtk=vtk, plot_every=plot_every, axes=axes,
-                                  label=labels[st.state] if labels else f"state {st.state}")
-            if dice is not None:
-                dice(st)
     if vtk:
         write_collection(folder / "vtk", range(n))
