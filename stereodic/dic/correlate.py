@@ -9,6 +9,7 @@ Displacements in pixels, u along x (columns), v along y (rows), at points of the
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable, Iterable, Sequence
 
@@ -212,18 +213,39 @@ class _PairSolver:
         self.done[idx] = 1
 
     def start_from_features(self, ref_features: Features, dfm_features: Features) -> None:
-        """Solve every pending point from its feature guess (`feature_guess`), all in one batch; those
-        that fail or end below the seed ZNCC stay pending (for propagation from their neighbours)."""
+        """Solve every pending point from the feature guess (`feature_guess`) in a few parallel batches:
+        on large grids the points of the lattice (every LATTICE-th row and column) first, then every other
+        point from the blend of its solved lattice corners (`guesses_from_lattice`: a start within a
+        small fraction of a pixel where the field is smooth, so that IC-GN needs fewer iterations than from
+        the features), then the points no solved corner reaches from their own feature guess. Points that
+        fail or end below the seed ZNCC stay pending (for propagation from their neighbours)."""
         idx = np.flatnonzero(self.done == 0)
         if idx.size == 0:
             return
         guess, ok = feature_guess(ref_features, dfm_features, self.xs[idx], self.ys[idx])
-        idx, guess = idx[ok], guess[ok]
-        nb = self.s.nparams // 2
-        self.guess[idx] = guess[:, [0, 3]]
-        self.warp[idx] = 0.0
-        self.warp[idx, 0:3] = guess[:, 0:3]
-        self.warp[idx, nb:nb + 3] = guess[:, 3:6]
+        self.guess[idx[ok]] = guess[ok][:, [0, 3]]
+        ny, nx = self.grid.shape
+        first = np.ones(idx.size, bool)
+        if min(ny, nx) >= 4 * LATTICE:
+            r, c = np.divmod(idx, nx)
+            first = (r % LATTICE == 0) & (c % LATTICE == 0)
+            self._solve_from(idx[ok & first], guess[ok & first])
+            blended = guesses_from_lattice(self.xs, self.ys, nx, LATTICE, self.warp, self.zncc, self.status,
+                                           self.done)
+            self._solve_from(blended, None)
+        rest = (self.done[idx] == 0) & ok & (~first | (self.status[idx] == UNREACHED))
+        self._solve_from(idx[rest], guess[rest])
+
+    def _solve_from(self, idx: np.ndarray, guess: np.ndarray | None) -> None:
+        """Solve points `idx` from affine guesses (K, 6) (`feature_guess`; None: from self.warp); those that
+        fail or end below the seed ZNCC return to pending."""
+        if idx.size == 0:
+            return
+        if guess is not None:
+            nb = self.s.nparams // 2
+            self.warp[idx] = 0.0
+            self.warp[idx, 0:3] = guess[:, 0:3]
+            self.warp[idx, nb:nb + 3] = guess[:, 3:6]
         self.solve(idx)
         self.done[idx[(self.status[idx] != OK) | ~(self.zncc[idx] >= self.s.seed_zncc)]] = 0
 
@@ -472,7 +494,9 @@ def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid
         redo = carry[(solver.status[carry] != OK) | ~(solver.zncc[carry] >= s.seed_zncc)]
         solver.done[redo] = 0
     if s.feature_guess and (start is None or carry.size == 0 or redo.size > JUMP_SHARE * carry.size):
-        solver.start_from_features(ref.features(), image_features(def_img))
+        with ThreadPoolExecutor(1) as pool:   # both images' features at once (OpenCV releases the GIL)
+            dfm_features = pool.submit(image_features, def_img)
+            solver.start_from_features(ref.features(), dfm_features.result())
     solver.fill(seeds)
     noise = ref.noise(xs, ys, s.half)
     solver.screen(noise)

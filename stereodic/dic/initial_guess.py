@@ -28,6 +28,7 @@ CELL_MATCHES = 40     # matches per RANSAC cell, on average
 RANSAC_TOL_PX = 3.0   # a match off the local affine by more than this is an outlier, pixels
 NEIGHBOURS = 12       # matches per point's local affine fit
 MIN_INLIERS = 6       # fewer matches in a cell or a point's fit: no model there
+MAX_NODES = 1024      # nodes of the lattice the local affines are fitted on, at most
 
 
 @dataclass(frozen=True)
@@ -158,10 +159,11 @@ def feature_guess(ref: Features, dfm: Features, xs: np.ndarray, ys: np.ndarray) 
         return np.zeros((xs.size, 6)), np.zeros(xs.size, bool)
     if xs.size <= 4 * len(p):
         return _robust_affine(p, q, xs, ys)
-    # more points than matches: fit on a lattice of about one node per match over the points' extent,
+    # more points than matches: fit on a lattice of about one node per match (at most MAX_NODES) over the
+    # points' extent,
     # then the bilinear blend of the four nodes around each point (the displacement and its gradient)
     x0, y0, x1, y1 = xs.min(), ys.min(), xs.max(), ys.max()
-    spacing = max(np.sqrt((x1 - x0 + 1) * (y1 - y0 + 1) / len(p)), 1.0)
+    spacing = max(np.sqrt((x1 - x0 + 1) * (y1 - y0 + 1) / min(len(p), MAX_NODES)), 1.0)
     nx, ny = int(np.ceil((x1 - x0) / spacing)) + 1, int(np.ceil((y1 - y0) / spacing)) + 1
     gx, gy = np.meshgrid(x0 + spacing * np.arange(nx), y0 + spacing * np.arange(ny))
     node, node_ok = _robust_affine(p, q, gx.ravel(), gy.ravel())
