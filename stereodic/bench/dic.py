@@ -19,11 +19,12 @@ its (unrectified, epipolar-constrained) stereo matching.
 from __future__ import annotations
 
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
 
-from stereodic.bench import Figure, best_time, stereodic_command, time_command, time_process
+from stereodic.bench import Figure, best_time, time_command, time_process
 
 SAMPLE5 = Path(__file__).resolve().parents[3] / "shared" / "data" / "dic-challenge-sample5"
 OPENCORR_MEAN = {21: 0.1025, 35: 0.1023}  # 35: OpenCorr's figure is for 33 x 33 subsets
@@ -168,11 +169,21 @@ def _whole_command(ref: np.ndarray, dfm: np.ndarray, points: int, kernel_rate: f
                    start, "s")]
 
 
+def _timed(argv: list[str], threads: int, record: str) -> tuple[float, float, float]:
+    """(wall s, CPU s of the process and its children, CPU s of its main thread) of `stereodic ARGV` with
+    OMP_NUM_THREADS=threads, in a fresh process that writes its main thread's CPU time to `record` on exit."""
+    code = (f"import atexit, sys, time; atexit.register(lambda: open({record!r}, 'w').write(repr(time.thread_time())));"
+            f" from stereodic.cli import main; sys.exit(main({argv!r}))")
+    wall, cpu = time_process([sys.executable, "-c", code], env={"OMP_NUM_THREADS": str(threads)})
+    return wall, cpu, float(Path(record).read_text())
+
+
 def _scaling(quick: bool) -> list[Figure]:
     """Whole processes at 1 and 2 threads (module docstring). The serial share s follows from the speedup
     S on 2 threads by Amdahl's law, S = 1 / (s + (1 - s) / 2): s = 2 / S - 1. Both wall and CPU seconds
     are given: on a machine shared with other work the wall time is the noisier, and CPU seconds that
-    grow with the threads show overhead (spinning, duplicated work) rather than waiting."""
+    grow with the threads show overhead (spinning, duplicated work) rather than waiting; the CPU seconds of
+    the main thread give a speedup that the load does not change (`_timed`)."""
     import statistics
     import tempfile
 
@@ -201,24 +212,33 @@ def _scaling(quick: bool) -> list[Figure]:
                 (f"dic {w}x{h} pair, {motion} px of motion, subset 33, step 5",
                  ["dic", f"{tmp}/pair/rig.npz", f"{tmp}/pair", "--subset", "33", "--step", "5", "-o", f"{tmp}/out"])]
         for label, argv in work:
-            wall, cpu = {}, {}
+            wall, cpu, main = {}, {}, {}
             for threads in (1, 2):
                 runs = []
                 for _ in range(repeat):
                     shutil.rmtree(f"{tmp}/out", ignore_errors=True)
-                    runs.append(time_process(stereodic_command(argv), env={"OMP_NUM_THREADS": str(threads)}))
-                wall[threads] = statistics.median(r[0] for r in runs)
-                cpu[threads] = statistics.median(r[1] for r in runs)
-                figures.append(Figure("dic", f"scaling: {label}, whole process, {threads} thread(s): wall", wall[threads],
-                                      "s", **({"goal": f"<= {GOAL_STEREO_PAIR_S:g}", "ok": wall[2] <= GOAL_STEREO_PAIR_S}
-                                              if threads == 2 and argv[0] == "dic" and not quick else {})))
-                figures.append(Figure("dic", f"scaling: {label}, {threads} thread(s): CPU (user + system)", cpu[threads],
-                                      "s"))
+                    runs.append(_timed(argv, threads, f"{tmp}/main_cpu"))
+                wall[threads], cpu[threads], main[threads] = (statistics.median(r[i] for r in runs) for i in range(3))
+                goal = ({"goal": f"<= {GOAL_STEREO_PAIR_S:g}", "ok": wall[2] <= GOAL_STEREO_PAIR_S}
+                        if threads == 2 and argv[0] == "dic" and not quick else {})
+                figures += [Figure("dic", f"scaling: {label}, {threads} thread(s): wall", wall[threads], "s", **goal),
+                            Figure("dic", f"scaling: {label}, {threads} thread(s): CPU, all threads and children",
+                                   cpu[threads], "s"),
+                            Figure("dic", f"scaling: {label}, {threads} thread(s): CPU of the main thread",
+                                   main[threads], "s")]
             speedup = wall[1] / wall[2]
-            figures.append(Figure("dic", f"scaling: {label}: speedup 1 -> 2 threads (wall)", speedup, "x",
-                                  goal=f">= {GOAL_SPEEDUP_2}", ok=speedup >= GOAL_SPEEDUP_2))
-            figures.append(Figure("dic", f"scaling: {label}: serial share (Amdahl, 2 / speedup - 1)",
-                                  max(0.0, 2 / speedup - 1) * 100, "%"))
+            # what an idle machine would give: the main thread is the critical path (it runs the serial
+            # work and its share of the parallel work), the rest spreads over the other core
+            estimate = cpu[1] / max(main[2], cpu[2] / 2)
+            figures += [Figure("dic", f"scaling: {label}: speedup 1 -> 2 threads, wall", speedup, "x",
+                               goal=f">= {GOAL_SPEEDUP_2}", ok=speedup >= GOAL_SPEEDUP_2),
+                        Figure("dic", f"scaling: {label}: serial share, wall (Amdahl: 2 / speedup - 1)",
+                               max(0.0, 2 / speedup - 1) * 100, "%"),
+                        Figure("dic", f"scaling: {label}: speedup 1 -> 2 threads from CPU seconds (all CPU at 1 "
+                               f"thread / the larger of the main thread's and half of all at 2)", estimate, "x",
+                               goal=f">= {GOAL_SPEEDUP_2}", ok=estimate >= GOAL_SPEEDUP_2),
+                        Figure("dic", f"scaling: {label}: serial share from CPU seconds",
+                               max(0.0, 2 / estimate - 1) * 100, "%")]
     return figures
 
 
