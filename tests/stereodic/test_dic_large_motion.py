@@ -112,3 +112,13 @@ def test_stereo_dic_defaults_follow_80px_and_10_percent_strain(tmp_path):
     assert (np.abs(err[2][:2]) <= np.abs(err[1][:2]) + 0.002).all(), err
     # depth: the triangulation scales an image error by distance / baseline (400 / 200 mm)
     assert abs(err[2][2]) <= abs(err[1][2]) + 2 * 0.002, err
+
+
+def test_search_below_one_pixel_is_bad_input(tmp_path, capsys):
+    ref = read_gray(DATA / "reference.tif")
+    write_gray(tmp_path / "ref.png", ref)
+    assert main(["dic2d", str(tmp_path / "ref.png"), str(tmp_path / "ref.png"), "--search", "0",
+                 "-o", str(tmp_path / "o.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "--search" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o.csv").exists()
