@@ -18,7 +18,7 @@ import numpy as np
 from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import (INCONSISTENT, LOW_TEXTURE, LOW_ZNCC, OK, SHAPE_PARAMS, UNREACHED,
                                 quadratic_fit_matrix, reference_status, reference_width, shift_warp, solve_points)
-from stereodic.dic.initial_guess import Features, feature_guess, image_features, search_integer
+from stereodic.dic.initial_guess import Features, consistent_matches, feature_guess, image_features, search_integer
 from stereodic.dic.interpolation import BSplineImage
 from stereodic.dic.outliers import inconsistent
 from stereodic.dic.propagation import guesses_from_lattice, propagate
@@ -222,27 +222,26 @@ class _PairSolver:
         idx = np.flatnonzero(self.done == 0)
         if idx.size == 0:
             return
-        guess, ok = feature_guess(ref_features, dfm_features, self.xs[idx], self.ys[idx])
-        self.guess[idx[ok]] = guess[ok][:, [0, 3]]
+        matches = consistent_matches(ref_features, dfm_features)
         ny, nx = self.grid.shape
-        first = np.ones(idx.size, bool)
         if min(ny, nx) >= 4 * LATTICE:
             r, c = np.divmod(idx, nx)
-            first = (r % LATTICE == 0) & (c % LATTICE == 0)
-            self._solve_from(idx[ok & first], guess[ok & first])
+            self._solve_from(idx[(r % LATTICE == 0) & (c % LATTICE == 0)], matches)
             blended = guesses_from_lattice(self.xs, self.ys, nx, LATTICE, self.warp, self.zncc, self.status,
                                            self.done)
             self._solve_from(blended, None)
-        rest = (self.done[idx] == 0) & ok & (~first | (self.status[idx] == UNREACHED))
-        self._solve_from(idx[rest], guess[rest])
+        self._solve_from(idx[(self.done[idx] == 0) & (self.status[idx] == UNREACHED)], matches)
 
-    def _solve_from(self, idx: np.ndarray, guess: np.ndarray | None) -> None:
-        """Solve points `idx` from affine guesses (K, 6) (`feature_guess`; None: from self.warp); those that
-        fail or end below the seed ZNCC return to pending."""
+    def _solve_from(self, idx: np.ndarray, matches: tuple[np.ndarray, np.ndarray] | None) -> None:
+        """Solve points `idx` from their feature guess (`feature_guess` of `matches`; None: from
+        self.warp); those that fail or end below the seed ZNCC return to pending."""
         if idx.size == 0:
             return
-        if guess is not None:
+        if matches is not None:
+            guess, ok = feature_guess(matches, self.xs[idx], self.ys[idx])
+            idx, guess = idx[ok], guess[ok]
             nb = self.s.nparams // 2
+            self.guess[idx] = guess[:, [0, 3]]
             self.warp[idx] = 0.0
             self.warp[idx, 0:3] = guess[:, 0:3]
             self.warp[idx, nb:nb + 3] = guess[:, 3:6]

@@ -1,7 +1,7 @@
 """Initial guesses: feature matches with a robust local affine fit, and zero-normalised cross-correlation
 (ZNCC) search.
 
-`image_features` and `feature_guess` give every point of a grid a starting warp at once, whatever the
+`image_features`, `consistent_matches` and `feature_guess` give every point of a grid a starting warp at once, whatever the
 motion: ORB features (Rublee et al., ICCV 2011: oriented FAST corners with rotated BRIEF descriptors,
 found over an 8-level scale pyramid, so they follow rotations of any angle and scale changes far beyond
 20 %) matched with Lowe's ratio test (IJCV 60, 2004), outliers removed by RANSAC affine fits
@@ -129,14 +129,36 @@ def _local_affine(p: np.ndarray, q: np.ndarray, xs: np.ndarray, ys: np.ndarray, 
     return np.concatenate([sol[:, :, 0], sol[:, :, 1]], 1), ok
 
 
-def feature_guess(ref: Features, dfm: Features, xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Starting affine warps of the points (xs, ys) of the reference image, from the features of the
-    reference and deformed images (module docstring).
+def consistent_matches(ref: Features, dfm: Features) -> tuple[np.ndarray, np.ndarray]:
+    """The feature matches between two images that pass the ratio test and some cell's RANSAC affine
+    (module docstring).
 
     Parameters
     ----------
     ref, dfm : Features
-        The two images' features (`image_features`).
+        The reference and deformed images' features (`image_features`).
+
+    Returns
+    -------
+    p, q : (K, 2) float64
+        Matched positions in the reference and the deformed image, pixels (x = column, y = row); K may be 0.
+    """
+    p, q = _matches(ref, dfm)
+    if len(p) < MIN_INLIERS:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    keep = _inliers(p, q)
+    return p[keep], q[keep]
+
+
+def feature_guess(matches: tuple[np.ndarray, np.ndarray], xs: np.ndarray, ys: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Starting affine warps of the points (xs, ys) of the reference image from consistent feature
+    matches (module docstring).
+
+    Parameters
+    ----------
+    matches : ((K, 2), (K, 2)) float64
+        Matched positions in the reference and deformed images, pixels (`consistent_matches`).
     xs, ys : (N,) float
         The points, reference pixels (x = column, y = row).
 
@@ -150,18 +172,14 @@ def feature_guess(ref: Features, dfm: Features, xs: np.ndarray, ys: np.ndarray) 
     """
     xs = np.asarray(xs, np.float64)
     ys = np.asarray(ys, np.float64)
-    p, q = _matches(ref, dfm)
-    if len(p) < MIN_INLIERS:
-        return np.zeros((xs.size, 6)), np.zeros(xs.size, bool)
-    keep = _inliers(p, q)
-    p, q = p[keep], q[keep]
-    if len(p) < MIN_INLIERS:
+    p, q = matches
+    if len(p) < MIN_INLIERS or xs.size == 0:
         return np.zeros((xs.size, 6)), np.zeros(xs.size, bool)
     if xs.size <= 4 * len(p):
         return _robust_affine(p, q, xs, ys)
     # more points than matches: fit on a lattice of about one node per match (at most MAX_NODES) over the
-    # points' extent,
-    # then the bilinear blend of the four nodes around each point (the displacement and its gradient)
+    # points' extent, then the bilinear blend of the four nodes around each point (the displacement and
+    # its gradient)
     x0, y0, x1, y1 = xs.min(), ys.min(), xs.max(), ys.max()
     spacing = max(np.sqrt((x1 - x0 + 1) * (y1 - y0 + 1) / min(len(p), MAX_NODES)), 1.0)
     nx, ny = int(np.ceil((x1 - x0) / spacing)) + 1, int(np.ceil((y1 - y0) / spacing)) + 1
