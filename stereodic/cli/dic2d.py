@@ -65,11 +65,12 @@ def _check_args(args) -> None:
 PRELOAD_BYTES = 64 * 2 ** 20  # deformed images read before the work, at most this much memory
 
 
-def read_checked(path, shape: tuple[int, int], reference: str):
-    """A deformed image; InputError naming it unless it has the reference's `shape` (rows, columns)."""
+def read_checked(path, shape: tuple[int, int], reference: str, image=None):
+    """A deformed image (`image`, if it was read already); InputError naming it unless it has the
+    reference's `shape` (rows, columns)."""
     from calib.errors import InputError
     from calib.imageio import read_gray
-    img = read_gray(path)
+    img = read_gray(path) if image is None else image
     if img.shape != shape:
         raise InputError(path, f"image is {img.shape[1]}x{img.shape[0]} but the reference {reference} is "
                                f"{shape[1]}x{shape[0]}")
@@ -81,6 +82,7 @@ def run(args) -> int:
     import functools
     import itertools
     import tempfile
+    from concurrent.futures import ThreadPoolExecutor
     from pathlib import Path
 
     import numpy as np
@@ -100,14 +102,17 @@ def run(args) -> int:
         from stereodic.dice_columns import gauge_px, header, numbered, sigma_gamma, strain_columns, write_solution
 
     _check_args(args)
-    ref = read_gray(args.ref)
-    height, width = ref.shape
-    defs = [p for pattern in args.defs for p in expand(pattern)]
-    read = functools.partial(read_checked, shape=ref.shape, reference=str(args.ref))
-    # every file checked before the (long) work starts: in-process, the first images are read whole
-    # while they fit in PRELOAD_BYTES (reading is their check: a single pair needs no header reader),
-    # the others by their headers
-    preloaded = [] if args.scheduler else [read(p) for p in defs[:PRELOAD_BYTES // ref.nbytes]]
+    with ThreadPoolExecutor(1) as pool:   # the first deformed image read while the reference is
+        first = None if args.scheduler else pool.submit(lambda: read_gray(expand(args.defs[0])[0]))
+        ref = read_gray(args.ref)
+        height, width = ref.shape
+        defs = [p for pattern in args.defs for p in expand(pattern)]
+        read = functools.partial(read_checked, shape=ref.shape, reference=str(args.ref))
+        # every file checked before the (long) work starts: in-process, the first images are read whole
+        # while they fit in PRELOAD_BYTES (reading is their check: a single pair needs no header reader),
+        # the others by their headers
+        preloaded = [] if args.scheduler else [read(p, image=first.result() if k == 0 else None)
+                                               for k, p in enumerate(defs[:PRELOAD_BYTES // ref.nbytes])]
     for path in defs[len(preloaded):]:
         check_size(path, (width, height), f"the reference {args.ref}")
     grid, seeds = dic_grid(args, width, height, "reference", args.ref)

@@ -493,8 +493,11 @@ def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid
         redo = carry[(solver.status[carry] != OK) | ~(solver.zncc[carry] >= s.seed_zncc)]
         solver.done[redo] = 0
     if s.feature_guess and (start is None or carry.size == 0 or redo.size > JUMP_SHARE * carry.size):
-        with ThreadPoolExecutor(1) as pool:   # both images' features at once (OpenCV releases the GIL)
+        # both images' features at once, and the reference's noise estimate (needed after the solve)
+        # meanwhile: OpenCV and numpy's loops release the GIL
+        with ThreadPoolExecutor(2) as pool:
             dfm_features = pool.submit(image_features, def_img)
+            pool.submit(lambda: ref.sigma)
             solver.start_from_features(ref.features(), dfm_features.result())
     solver.fill(seeds)
     noise = ref.noise(xs, ys, s.half)
