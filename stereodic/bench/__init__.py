@@ -56,12 +56,13 @@ def best_time(fn: Callable[[], object], repeat: int = 3, warmup: int = 1) -> flo
     return best
 
 
-def time_process(cmd: list[str], *, cwd: str | None = None) -> tuple[float, float]:
-    """(wall seconds, user + system CPU seconds) of one run of the program `cmd` (its input empty);
-    RuntimeError if it fails."""
+def time_process(cmd: list[str], *, cwd: str | None = None, env: dict | None = None) -> tuple[float, float]:
+    """(wall seconds, user + system CPU seconds) of one run of the program `cmd` (its input empty), with
+    the variables `env` added to this process's environment; RuntimeError if it fails."""
     before = os.times()
     t0 = time.perf_counter()
-    done = subprocess.run(cmd, capture_output=True, text=True, stdin=subprocess.DEVNULL, cwd=cwd)
+    done = subprocess.run(cmd, capture_output=True, text=True, stdin=subprocess.DEVNULL, cwd=cwd,
+                          env=None if env is None else {**os.environ, **env})
     dt = time.perf_counter() - t0
     after = os.times()
     if done.returncode != 0:

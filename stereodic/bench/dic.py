@@ -4,6 +4,10 @@ Stereo: on a simulated experiment (`scanners.sim.dic`, the rig built from the tr
 mean strain error for 1 % uniaxial tension, the out-of-plane displacement error against the field of
 view, and the stereo matching throughput on the rectified pair.
 
+Scaling (`_scaling`): the whole `stereodic dic2d` (2048 x 2048, subset 21, step 5) and `stereodic dic` (a
+simulated 1920x1200 pair with about 70 px of motion, subset 33, step 5) processes at OMP_NUM_THREADS=1
+and 2: wall and CPU seconds (medians), the speedup and the serial share it implies (Amdahl).
+
 Long sequences (speed at 1920x1200, memory over 2,000 states, resumed-run identity):
 `stereodic.bench.dic_sequence`.
 
@@ -14,11 +18,13 @@ its (unrectified, epipolar-constrained) stereo matching.
 
 from __future__ import annotations
 
+import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
 
-from stereodic.bench import Figure, best_time, time_command
+from stereodic.bench import Figure, best_time, time_command, time_process
 
 SAMPLE5 = Path(__file__).resolve().parents[3] / "shared" / "data" / "dic-challenge-sample5"
 OPENCORR_MEAN = {21: 0.1025, 35: 0.1023}  # 35: OpenCorr's figure is for 33 x 33 subsets
@@ -29,6 +35,8 @@ OPENCORR_STEREO_POINTS_PER_S = 1_450
 GOAL_STEREO_POINTS_PER_S = 10_000
 GOAL_STRAIN_ERROR = 50e-6
 GOAL_OUT_OF_PLANE = 1 / 20000
+GOAL_SPEEDUP_2 = 1.85          # whole process, 1 -> 2 threads
+GOAL_STEREO_PAIR_S = 6.0       # the 1920x1200 pair with 60-80 px of motion, 2 threads
 
 
 def _real_images(quick: bool) -> list[Figure]:
@@ -161,6 +169,79 @@ def _whole_command(ref: np.ndarray, dfm: np.ndarray, points: int, kernel_rate: f
                    start, "s")]
 
 
+def _timed(argv: list[str], threads: int, record: str) -> tuple[float, float, float]:
+    """(wall s, CPU s of the process and its children, CPU s of its main thread) of `stereodic ARGV` with
+    OMP_NUM_THREADS=threads, in a fresh process that writes its main thread's CPU time to `record` on exit."""
+    code = (f"import atexit, sys, time; atexit.register(lambda: open({record!r}, 'w').write(repr(time.thread_time())));"
+            f" from stereodic.cli import main; sys.exit(main({argv!r}))")
+    wall, cpu = time_process([sys.executable, "-c", code], env={"OMP_NUM_THREADS": str(threads)})
+    return wall, cpu, float(Path(record).read_text())
+
+
+def _scaling(quick: bool) -> list[Figure]:
+    """Whole processes at 1 and 2 threads (module docstring). The serial share s follows from the speedup
+    S on 2 threads by Amdahl's law, S = 1 / (s + (1 - s) / 2): s = 2 / S - 1. Both wall and CPU seconds
+    are given: on a machine shared with other work the wall time is the noisier, and CPU seconds that
+    grow with the threads show overhead (spinning, duplicated work) rather than waiting; the CPU seconds of
+    the main thread give a speedup that the load does not change (`_timed`)."""
+    import statistics
+    import tempfile
+
+    from calib.imageio import write_gray
+    from scanners.sim.dic import DicState, dic_lenses, mm_per_pixel, simulate_dic
+    from scanners.sim.speckle import make_speckle, render
+    from stereodic.stereo.rig import rig_from_files, save_rig
+
+    n, (w, h) = (1024, (960, 600)) if quick else (2048, (1920, 1200))
+    motion = 35 if quick else 70
+    repeat = 1 if quick else 3
+    figures = []
+    with tempfile.TemporaryDirectory() as tmp:
+        sp = make_speckle(n, n, seed=2)
+        c = n / 2
+        write_gray(f"{tmp}/ref.png", render(sp, noise_sigma=2.0, seed=1))
+        write_gray(f"{tmp}/def.png", render(sp, lambda x, y: (2.3 + 0.002 * (x - c), -1.6 + 0.001 * (y - c)),
+                                            noise_sigma=2.0, seed=2, supersample=4))
+        mm = mm_per_pixel(dic_lenses(w, h)[0])
+        simulate_dic(f"{tmp}/pair", [DicState("reference"), DicState("load", stretch=(1.02, 0.994),
+                                                                      translation_mm=(motion * mm, 0.0, 1.0))],
+                     width=w, height=h, supersample=1)
+        save_rig(f"{tmp}/pair/rig.npz", rig_from_files(f"{tmp}/pair/truth_cam0.npz", f"{tmp}/pair/truth_cam1.npz"))
+        work = [(f"dic2d {n}x{n}, subset 21, step 5", ["dic2d", f"{tmp}/ref.png", f"{tmp}/def.png", "--subset", "21",
+                                                       "--step", "5", "-o", f"{tmp}/r.csv"]),
+                (f"dic {w}x{h} pair, {motion} px of motion, subset 33, step 5",
+                 ["dic", f"{tmp}/pair/rig.npz", f"{tmp}/pair", "--subset", "33", "--step", "5", "-o", f"{tmp}/out"])]
+        for label, argv in work:
+            wall, cpu, main = {}, {}, {}
+            for threads in (1, 2):
+                runs = []
+                for _ in range(repeat):
+                    shutil.rmtree(f"{tmp}/out", ignore_errors=True)
+                    runs.append(_timed(argv, threads, f"{tmp}/main_cpu"))
+                wall[threads], cpu[threads], main[threads] = (statistics.median(r[i] for r in runs) for i in range(3))
+                goal = ({"goal": f"<= {GOAL_STEREO_PAIR_S:g}", "ok": wall[2] <= GOAL_STEREO_PAIR_S}
+                        if threads == 2 and argv[0] == "dic" and not quick else {})
+                figures += [Figure("dic", f"scaling: {label}, {threads} thread(s): wall", wall[threads], "s", **goal),
+                            Figure("dic", f"scaling: {label}, {threads} thread(s): CPU, all threads and children",
+                                   cpu[threads], "s"),
+                            Figure("dic", f"scaling: {label}, {threads} thread(s): CPU of the main thread",
+                                   main[threads], "s")]
+            speedup = wall[1] / wall[2]
+            # what an idle machine would give: the main thread is the critical path (it runs the serial
+            # work and its share of the parallel work), the rest spreads over the other core
+            estimate = cpu[1] / max(main[2], cpu[2] / 2)
+            figures += [Figure("dic", f"scaling: {label}: speedup 1 -> 2 threads, wall", speedup, "x",
+                               goal=f">= {GOAL_SPEEDUP_2}", ok=speedup >= GOAL_SPEEDUP_2),
+                        Figure("dic", f"scaling: {label}: serial share, wall (Amdahl: 2 / speedup - 1)",
+                               max(0.0, 2 / speedup - 1) * 100, "%"),
+                        Figure("dic", f"scaling: {label}: speedup 1 -> 2 threads from CPU seconds (all CPU at 1 "
+                               f"thread / the larger of the main thread's and half of all at 2)", estimate, "x",
+                               goal=f">= {GOAL_SPEEDUP_2}", ok=estimate >= GOAL_SPEEDUP_2),
+                        Figure("dic", f"scaling: {label}: serial share from CPU seconds",
+                               max(0.0, 2 / estimate - 1) * 100, "%")]
+    return figures
+
+
 def _stereo(quick: bool) -> list[Figure]:
     import tempfile
 
@@ -220,5 +301,5 @@ def _stereo(quick: bool) -> list[Figure]:
 
 def run(quick: bool = False) -> list[Figure]:
     from stereodic.bench import dic_sequence, sequences
-    return (_real_images(quick) + _synthetic_errors(quick) + _speed(quick) + _stereo(quick) + dic_sequence.figures(quick)
-            + sequences.figures(quick))
+    return (_real_images(quick) + _synthetic_errors(quick) + _speed(quick) + _scaling(quick) + _stereo(quick)
+            + dic_sequence.figures(quick) + sequences.figures(quick))

@@ -385,6 +385,26 @@ def add_prefilter_option(p: argparse.ArgumentParser) -> None:
                         "none); lowers the interpolation bias")
 
 
+def add_search_option(p: argparse.ArgumentParser, seeds: str) -> None:
+    """--search PIXELS: an override of the automatic initial guess (stereodic.dic.DicSettings.feature_guess),
+    checked and turned into settings by `search_settings`."""
+    p.add_argument("--search", type=int, default=None, metavar="PIXELS",
+                   help=f"override: search the {seeds} within this many pixels of no motion instead of "
+                        "guessing every point's motion from feature matches (default: the guess, which finds "
+                        "any motion the images allow)")
+
+
+def search_settings(args) -> dict:
+    """The DicSettings fields that --search sets: none by default, else the seeds' ZNCC search radius
+    and no feature guess; an InputError for a radius below 1 pixel."""
+    from calib.errors import InputError
+    if args.search is None:
+        return {}
+    if args.search < 1:
+        raise InputError("--search", f"must be >= 1 pixel, got {args.search}")
+    return {"search_radius": args.search, "feature_guess": False}
+
+
 def check_prefilter(args) -> None:
     """InputError naming --prefilter unless it is >= 0."""
     from calib.errors import InputError

@@ -11,7 +11,8 @@ Z, displacements and strains per state).
 from __future__ import annotations
 
 from stereodic.cli.common import (add_grid_options, add_input, add_output, add_prefilter_option, add_scheduler_option,
-                                  add_frame_options, check_prefilter, dic_grid, frame_options, parse_ints)
+                                  add_frame_options, add_search_option, check_prefilter, dic_grid, frame_options,
+                                  parse_ints, search_settings)
 
 
 def register(sub):
@@ -60,8 +61,7 @@ def register(sub):
                         "more than it allows, its right camera is re-oriented from the speckle and the corrected "
                         "rig written to DIR/rig_refit.npz); refused for a rig whose rows are off by more than "
                         "--max-gap")
-    p.add_argument("--search", type=int, default=40, metavar="PIXELS",
-                   help="search range of the temporal seeds (default 40)")
+    add_search_option(p, "temporal seeds")
     add_prefilter_option(p)
     p.add_argument("--min-zncc", type=float, default=0.8, help="points below are flagged (default 0.8)")
     p.add_argument("--strain-window", type=int, default=5, metavar="N",
@@ -128,7 +128,7 @@ def _settings(args):
         disparity = tuple(parse_ints(args.disparity, 2, "--disparity"))
         if disparity[0] > disparity[1]:
             raise InputError("--disparity", f"DMIN must not exceed DMAX, got {args.disparity}")
-    dic = DicSettings(subset=args.subset, shape=args.shape, min_zncc=args.min_zncc, search_radius=args.search,
+    dic = DicSettings(subset=args.subset, shape=args.shape, min_zncc=args.min_zncc, **search_settings(args),
                       prefilter_sigma=args.prefilter)
     return StereoSettings(dic, disparity, args.strain_window or None, args.incremental, max_gap_px=args.max_gap,
                           switch_zncc=args.switch_zncc, strain_measure=args.measure)

@@ -13,7 +13,7 @@ strain_valid is 0. Results are written image by image: memory holds one image's 
 from __future__ import annotations
 
 from stereodic.cli.common import (add_grid_options, add_input, add_output, add_prefilter_option, add_scheduler_option,
-                                  check_prefilter)
+                                  add_search_option, check_prefilter, search_settings)
 
 
 def register(sub):
@@ -32,8 +32,7 @@ def register(sub):
     p.add_argument("--interp", choices=["cubic", "quintic"], default="cubic",
                    help="B-spline interpolation (default cubic)")
     add_prefilter_option(p)
-    p.add_argument("--search", type=int, default=40, metavar="PIXELS",
-                   help="search range of the seeds' integer displacement (default 40)")
+    add_search_option(p, "seeds' integer displacement")
     p.add_argument("--min-zncc", type=float, default=0.8, help="points below are flagged (default 0.8)")
     p.add_argument("--switch-zncc", type=float, default=SWITCH_ZNCC, metavar="ZNCC",
                    help=f"a point whose ZNCC against the reference falls below this switches to incremental "
@@ -61,19 +60,19 @@ def _check_args(args) -> None:
     for name, value in (("--min-zncc", args.min_zncc), ("--switch-zncc", args.switch_zncc)):
         if not 0 <= value <= 1:
             raise InputError(name, f"must be between 0 and 1, got {value}")
-    if args.search < 1:
-        raise InputError("--search", f"must be >= 1 pixel, got {args.search}")
+    search_settings(args)
     check_prefilter(args)
 
 
 PRELOAD_BYTES = 64 * 2 ** 20  # deformed images read before the work, at most this much memory
 
 
-def read_checked(path, shape: tuple[int, int], reference: str):
-    """A deformed image; InputError naming it unless it has the reference's `shape` (rows, columns)."""
+def read_checked(path, shape: tuple[int, int], reference: str, image=None):
+    """A deformed image (`image`, if it was read already); InputError naming it unless it has the
+    reference's `shape` (rows, columns)."""
     from calib.errors import InputError
     from calib.imageio import read_gray
-    img = read_gray(path)
+    img = read_gray(path) if image is None else image
     if img.shape != shape:
         raise InputError(path, f"image is {img.shape[1]}x{img.shape[0]} but the reference {reference} is "
                                f"{shape[1]}x{shape[0]}")
@@ -85,6 +84,7 @@ def run(args) -> int:
     import functools
     import itertools
     import tempfile
+    from concurrent.futures import ThreadPoolExecutor
     from pathlib import Path
 
     import numpy as np
@@ -107,19 +107,22 @@ def run(args) -> int:
         from stereodic.formats.dice_columns import gauge_px, header, numbered, sigma_gamma, strain_columns, write_solution
 
     _check_args(args)
-    ref = read_gray(args.ref)
-    height, width = ref.shape
-    defs = [p for pattern in args.defs for p in expand(pattern)]
-    read = functools.partial(read_checked, shape=ref.shape, reference=str(args.ref))
-    # every file checked before the (long) work starts: in-process, the first images are read whole
-    # while they fit in PRELOAD_BYTES (reading is their check: a single pair needs no header reader),
-    # the others by their headers
-    preloaded = [] if args.scheduler else [read(p) for p in defs[:PRELOAD_BYTES // ref.nbytes]]
+    with ThreadPoolExecutor(1) as pool:   # the first deformed image read while the reference is
+        first = None if args.scheduler else pool.submit(lambda: read_gray(expand(args.defs[0])[0]))
+        ref = read_gray(args.ref)
+        height, width = ref.shape
+        defs = [p for pattern in args.defs for p in expand(pattern)]
+        read = functools.partial(read_checked, shape=ref.shape, reference=str(args.ref))
+        # every file checked before the (long) work starts: in-process, the first images are read whole
+        # while they fit in PRELOAD_BYTES (reading is their check: a single pair needs no header reader),
+        # the others by their headers
+        preloaded = [] if args.scheduler else [read(p, image=first.result() if k == 0 else None)
+                                               for k, p in enumerate(defs[:PRELOAD_BYTES // ref.nbytes])]
     for path in defs[len(preloaded):]:
         check_size(path, (width, height), f"the reference {args.ref}")
     grid, seeds = dic_grid(args, width, height, "reference", args.ref, reference=lambda: ref)
     settings = DicSettings(subset=args.subset, shape=args.shape, order=3 if args.interp == "cubic" else 5,
-                           prefilter_sigma=args.prefilter, min_zncc=args.min_zncc, search_radius=args.search)
+                           prefilter_sigma=args.prefilter, min_zncc=args.min_zncc, **search_settings(args))
     out = Path(args.output)
 
     has_strain = bool(args.strain_window)

@@ -9,6 +9,7 @@ Displacements in pixels, u along x (columns), v along y (rows), at points of the
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable, Iterable, Sequence
 
@@ -17,7 +18,7 @@ import numpy as np
 from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import (INCONSISTENT, LOW_TEXTURE, LOW_ZNCC, OK, SHAPE_PARAMS, UNREACHED,
                                 quadratic_fit_matrix, reference_status, reference_width, shift_warp, solve_points)
-from stereodic.dic.initial_guess import search_integer
+from stereodic.dic.initial_guess import Features, consistent_matches, feature_guess, image_features, search_integer
 from stereodic.dic.interpolation import BSplineImage
 from stereodic.dic.outliers import inconsistent
 from stereodic.dic.propagation import guesses_from_lattice, propagate
@@ -29,8 +30,11 @@ class DicSettings:
     """subset: side in pixels (odd); shape: 'affine' or 'quadratic'; order: B-spline order (3 or 5);
     prefilter_sigma: Gaussian low-pass of both images before interpolation (pixels, 0 = none; lowers
     the interpolation bias); tol: convergence bound on the warp update (pixels at the subset edge);
-    min_zncc: points below are flagged; seed_zncc: a seed needs at least this; search_radius: ZNCC
-    search range of seeds (pixels); max_seeds: seed attempts per image; max_noise_px: points whose
+    min_zncc: points below are flagged; seed_zncc: a seed needs at least this; feature_guess: every point
+    starts from a local affine of feature matches (`initial_guess.feature_guess`) where nothing better
+    is known, so that any motion the images allow is found, and the seeds' ZNCC search is centred on it;
+    search_radius: ZNCC search range of seeds (pixels, about the feature guess, or about zero without
+    one); max_seeds: seed attempts per image; max_noise_px: points whose
     predicted random error (`texture.predicted_noise`) exceeds it are flagged low_texture; max_jump_px:
     points whose displacement departs from their neighbours' median by more than this are solved again
     from their neighbours, and flagged inconsistent if they still do (`outliers`)."""
@@ -43,6 +47,7 @@ class DicSettings:
     tol: float = 1e-3
     min_zncc: float = 0.8
     seed_zncc: float = 0.9
+    feature_guess: bool = True
     search_radius: int = 40
     max_seeds: int = 20
     max_noise_px: float = 0.1
@@ -178,6 +183,7 @@ def reference_subsets(ref: BSplineImage, xs: np.ndarray, ys: np.ndarray, setting
     return data
 
 
+JUMP_SHARE = 0.1  # a start that fails on more than this share of its points: the motion jumped, guess again
 LATTICE = 4  # stride of the coarse lattice that large grids are propagated on first
 
 
@@ -195,6 +201,7 @@ class _PairSolver:
         self.done = (~grid.active.ravel()).astype(np.int8)
         self.fit = quadratic_fit_matrix(settings.half)
         self.seedable = np.ones(xs.size, bool)  # where automatic seeds may be tried
+        self.guess = np.full((xs.size, 2), np.nan)  # the feature guess's (u, v), pixels, where there is one
 
     def solve(self, idx: np.ndarray) -> None:
         """Solve points `idx` from the warps already in self.warp."""
@@ -204,6 +211,42 @@ class _PairSolver:
         self.warp[idx], self.zncc[idx], self.iters[idx], self.status[idx] = (
             res.warp, res.zncc, res.iterations, res.status)
         self.done[idx] = 1
+
+    def start_from_features(self, ref_features: Features, dfm_features: Features) -> None:
+        """Solve every pending point from the feature guess (`feature_guess`) in a few parallel batches:
+        on large grids the points of the lattice (every LATTICE-th row and column) first, then every other
+        point from the blend of its solved lattice corners (`guesses_from_lattice`: a start within a
+        small fraction of a pixel where the field is smooth, so that IC-GN needs fewer iterations than from
+        the features), then the points no solved corner reaches from their own feature guess. Points that
+        fail or end below the seed ZNCC stay pending (for propagation from their neighbours)."""
+        idx = np.flatnonzero(self.done == 0)
+        if idx.size == 0:
+            return
+        matches = consistent_matches(ref_features, dfm_features)
+        ny, nx = self.grid.shape
+        if min(ny, nx) >= 4 * LATTICE:
+            r, c = np.divmod(idx, nx)
+            self._solve_from(idx[(r % LATTICE == 0) & (c % LATTICE == 0)], matches)
+            blended = guesses_from_lattice(self.xs, self.ys, nx, LATTICE, self.warp, self.zncc, self.status,
+                                           self.done)
+            self._solve_from(blended, None)
+        self._solve_from(idx[(self.done[idx] == 0) & (self.status[idx] == UNREACHED)], matches)
+
+    def _solve_from(self, idx: np.ndarray, matches: tuple[np.ndarray, np.ndarray] | None) -> None:
+        """Solve points `idx` from their feature guess (`feature_guess` of `matches`; None: from
+        self.warp); those that fail or end below the seed ZNCC return to pending."""
+        if idx.size == 0:
+            return
+        if matches is not None:
+            guess, ok = feature_guess(matches, self.xs[idx], self.ys[idx])
+            idx, guess = idx[ok], guess[ok]
+            nb = self.s.nparams // 2
+            self.guess[idx] = guess[:, [0, 3]]
+            self.warp[idx] = 0.0
+            self.warp[idx, 0:3] = guess[:, 0:3]
+            self.warp[idx, nb:nb + 3] = guess[:, 3:6]
+        self.solve(idx)
+        self.done[idx[(self.status[idx] != OK) | ~(self.zncc[idx] >= self.s.seed_zncc)]] = 0
 
     def propagate(self, stride: int) -> None:
         s = self.s
@@ -229,7 +272,9 @@ class _PairSolver:
         nb = s.nparams // 2
         good = (self.done == 1) & (self.status == OK)
         centre = (0, 0)
-        if good.any():
+        if np.isfinite(self.guess[k]).all():
+            centre = (int(round(self.guess[k, 0])), int(round(self.guess[k, 1])))
+        elif good.any():
             centre = (int(round(np.median(self.warp[good, 0]))), int(round(np.median(self.warp[good, nb]))))
         x, y = int(round(self.xs[k])), int(round(self.ys[k]))
         du, dv, _ = self.search(self.ref_img, self.def_img, x, y, s.half, s.search_radius, centre)
@@ -359,6 +404,7 @@ class ImageRef:
     _sigma: float | None = field(default=None, repr=False, compare=False)
     _sssig: dict = field(default_factory=dict, repr=False, compare=False)
     _subsets: dict = field(default_factory=dict, repr=False, compare=False)
+    _features: Features | None = field(default=None, repr=False, compare=False)
 
     @classmethod
     def prepare(cls, image: np.ndarray, settings: DicSettings = DicSettings(),
@@ -374,6 +420,12 @@ class ImageRef:
         if self._sigma is None:
             self._sigma = estimate_noise(self.image)
         return self._sigma
+
+    def features(self) -> Features:
+        """`initial_guess.image_features` of the image (computed on first use)."""
+        if self._features is None:
+            self._features = image_features(self.image)
+        return self._features
 
     def noise(self, xs: np.ndarray, ys: np.ndarray, half: int) -> np.ndarray:
         """`texture.predicted_noise` of subsets at (xs, ys) in this image (its SSSIG maps kept per size)."""
@@ -410,7 +462,9 @@ def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid
 
     start: warps to start from (points with status OK), e.g. the previous image's result (only its
     translations with `translation_only`); points that fail from there, or end below the seed ZNCC,
-    start again from their neighbours. The others are reached by reliability-guided propagation from
+    start again from their neighbours. Without a start (or one that measured nothing), or when it fails
+    on more than JUMP_SHARE of its points (the motion jumped), every pending point is first solved from its feature guess
+    (`settings.feature_guess`: `initial_guess.feature_guess`), all in one batch. The others are reached by reliability-guided propagation from
     these and from seeds (`seeds`: flat grid indices; `search`: the seeds' integer search, see
     `correlate_sequence`); with a start that measured points, automatic seeds are tried only at those
     (a point that failed in the previous image is reached from its neighbours, not searched for again at
@@ -438,6 +492,13 @@ def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid
         # ZNCC: a stale start (a larger motion than the last image's) can end in a false optimum
         redo = carry[(solver.status[carry] != OK) | ~(solver.zncc[carry] >= s.seed_zncc)]
         solver.done[redo] = 0
+    if s.feature_guess and (start is None or carry.size == 0 or redo.size > JUMP_SHARE * carry.size):
+        # both images' features at once, and the reference's noise estimate (needed after the solve)
+        # meanwhile: OpenCV and numpy's loops release the GIL
+        with ThreadPoolExecutor(2) as pool:
+            dfm_features = pool.submit(image_features, def_img)
+            pool.submit(lambda: ref.sigma)
+            solver.start_from_features(ref.features(), dfm_features.result())
     solver.fill(seeds)
     noise = ref.noise(xs, ys, s.half)
     solver.screen(noise)

@@ -18,12 +18,14 @@ import numpy as np
 
 from calib.atomic import atomic_output
 from calib.npz_stream import write_stacked_npz
+from stereodic.dic.background import Background, threads
 from stereodic.dic.correlate import DicField, DicSettings
 from stereodic.dic.icgn import STATUS_NAMES
 
 if TYPE_CHECKING:  # strain measures (and scipy) are loaded only by the commands that compute strain
     from stereodic.strain.measures import StrainMeasure
 
+SPLIT_ROWS = 20_000  # an image with more rows has them formatted in two processes at once
 STRAIN_COLUMNS = (("exx", "exx", "%.7f"), ("eyy", "eyy", "%.7f"), ("exy", "exy", "%.7f"),
                   ("e_major", "major", "%.7f"), ("e_minor", "minor", "%.7f"), ("e_angle", "angle_deg", "%.4f"),
                   ("e_vm", "von_mises", "%.7f"))
@@ -41,8 +43,9 @@ def csv_header(has_strain: bool) -> str:
     return cols + "\n"
 
 
-def csv_rows(k: int, f: DicField, m: StrainMeasure | None) -> str:
-    """The rows of deformed image k (its field and strain measure), newline-terminated."""
+def csv_rows(k: int, f: DicField, m: StrainMeasure | None, part: slice = slice(None)) -> str:
+    """The rows of deformed image k (its field and strain measure), newline-terminated; `part`: those
+    rows only (a slice of the active points, in grid order)."""
     row = "%d,%g,%g,%.6f,%.6f,%.6f,%d,%s,%d,%.5f"
     names = np.array(STATUS_NAMES)
     act = f.grid.active.ravel()
@@ -55,7 +58,7 @@ def csv_rows(k: int, f: DicField, m: StrainMeasure | None) -> str:
         columns += [getattr(m, field).ravel()[act] for _, field, _ in STRAIN_COLUMNS]
         columns += [m.valid.ravel()[act].astype(int)]
     # one %-format per row of Python values: 4x faster than numpy's per-column string arrays
-    return "".join(row % r + "\n" for r in zip(*(c.tolist() for c in columns)))
+    return "".join(row % r + "\n" for r in zip(*(c[part].tolist() for c in columns)))
 
 
 class CsvWriter:
@@ -64,11 +67,26 @@ class CsvWriter:
 
     def __init__(self, path: str | os.PathLike, has_strain: bool):
         self._ctx = atomic_output(path)
-        self._file = open(self._ctx.__enter__(), "w")
+        self._tmp = Path(self._ctx.__enter__())
+        self._file = open(self._tmp, "w")
         self._file.write(csv_header(has_strain))
 
     def write(self, k: int, f: DicField, m: StrainMeasure | None) -> None:
-        self._file.write(csv_rows(k, f, m))
+        """Image k's rows; with more than one thread (`background.threads`), the first half of them
+        formatted by a forked child meanwhile (formatting is Python work that holds the GIL)."""
+        n = int(f.grid.active.sum())
+        if threads() < 2 or n < SPLIT_ROWS:
+            self._file.write(csv_rows(k, f, m))
+            return
+        half = self._tmp.with_name(self._tmp.name + ".part")
+        try:
+            with Background(1) as bg:
+                bg.submit(lambda: half.write_text(csv_rows(k, f, m, slice(0, n // 2))), "the CSV rows")
+                rest = csv_rows(k, f, m, slice(n // 2, n))
+            self._file.write(half.read_text())
+            self._file.write(rest)
+        finally:
+            half.unlink(missing_ok=True)
 
     def __enter__(self) -> "CsvWriter":
         return self

@@ -1,7 +1,8 @@
 """A stereo DIC experiment run through its run folder (`store.RunStore`): the states solved one after the
 other (`stereo.solve_state`), each saved as soon as it is done, an interrupted run resumed after its
 last finished state, and the combined outputs (CSV, NPZ, VTK, PNG, DICe's files) written at the end
-from the state files, one state in memory at a time.
+from the state files, one state in memory at a time, the files side by side on every thread
+(`stereodic.dic.background`).
 
 Per run the reference pair (state 0) is read and prepared once (on a resumed run too); per state the
 next pair is read, rectified and prepared in a worker thread while the current one is solved. Memory
@@ -11,6 +12,7 @@ whatever the length of the sequence.
 
 from __future__ import annotations
 
+import functools
 import shutil
 from pathlib import Path
 from typing import Callable
@@ -19,6 +21,7 @@ import numpy as np
 
 from calib.atomic import write_npz as save_npz
 from calib.progress import progress
+from stereodic.dic.background import Background, threads
 from stereodic.dic.grid import Grid
 from stereodic.dic.maps import MapAxes, MapMovie, RunScales, surface_axes
 from stereodic.dic.sequence import prefetch
@@ -136,32 +139,41 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
     n = store.manifest["states"]
     has_strain = bool(settings.strain_window)
     has_def = bool(info.get("frame", {}).get("rigid_motion_removed"))
-    write_npz(folder / "dic.npz", grid, store.values, n, has_strain, settings, info, has_def)
-    if csv:  # each state's rows as a cluster's task kept them, or formatted here
-        write_csv(folder / "dic.csv", (store.read_rows(k) or csv_rows(grid, store.read_state(k)) for k in range(n)),
-                  has_strain=has_strain, has_deformation=has_def)
+    # the files are independent: written side by side by the caller and threads() - 1 forked children
+    with Background(threads() - 1) as bg:
+        if csv:  # each state's rows as a cluster's task kept them, or formatted here
+            bg.submit(lambda: write_csv(folder / "dic.csv", (store.read_rows(k) or csv_rows(grid, store.read_state(k))
+                                                             for k in range(n)),
+                                        has_strain=has_strain, has_deformation=has_def), "dic.csv")
+        bg.submit(lambda: write_npz(folder / "dic.npz", grid, store.values, n, has_strain, settings, info, has_def),
+                  "dic.npz")
+        vtk_here = vtk and state_files        # a cluster's tasks wrote the VTK files; the maps are drawn here
+        if vtk_here or plot_every or dice is not None:
+            axes = None
+            maps = {}
+            if plot_every:
+                maps = dict(scales=_run_scales(store, plot_every, grid.active, limits), frame=frame_name,
+                            movies={q: MapMovie(folder / "maps" / f"{q}.mp4") for q in animate})
+            try:
+                for st in progress(store.states(), "writing", total=n, unit="state"):
+                    if vtk_here or plot_every:
+                        if axes is None:  # state 0: the reference surface gives every map its mm axes
+                            axes = surface_axes(grid.xs, grid.ys, st.points, grid.active)
+                        image = image_of(st.state) if image_of is not None and plot_every and \
+                            st.state % plot_every == 0 else None
+                        write = functools.partial(write_state_files, folder, st, vtk=vtk_here, plot_every=plot_every,
+                                                  axes=axes, image=image, **maps,
+                                                  label=labels[st.state] if labels else f"state {st.state}")
+                        if maps.get("movies"):
+                            write()     # a movie takes its frames in order, in this process
+                        else:
+                            bg.submit(write, f"the files of state {st.state}")
+                    if dice is not None:
+                        dice(st)
+            finally:
+                for movie in maps.get("movies", {}).values():
+                    movie.close()
+    if csv:
         store.remove_rows()
-    vtk_here = vtk and state_files        # a cluster's tasks wrote the VTK files; the maps are drawn here
-    if vtk_here or plot_every or dice is not None:
-        axes = None
-        maps = {}
-        if plot_every:
-            maps = dict(scales=_run_scales(store, plot_every, grid.active, limits), frame=frame_name,
-                        movies={q: MapMovie(folder / "maps" / f"{q}.mp4") for q in animate})
-        try:
-            for st in progress(store.states(), "writing", total=n, unit="state"):
-                if vtk_here or plot_every:
-                    if axes is None:  # state 0: the reference surface gives every map its mm axes
-                        axes = surface_axes(grid.xs, grid.ys, st.points, grid.active)
-                    image = image_of(st.state) if image_of is not None and plot_every and \
-                        st.state % plot_every == 0 else None
-                    write_state_files(folder, st, vtk=vtk_here, plot_every=plot_every, axes=axes,
-                                      label=labels[st.state] if labels else f"state {st.state}", image=image,
-                                      **maps)
-                if dice is not None:
-                    dice(st)
-        finally:
-            for movie in maps.get("movies", {}).values():
-                movie.close()
     if vtk:
         write_collection(folder / "vtk", range(n))

@@ -2,14 +2,16 @@
 
 All image positions are in the rectified (virtual) images of the rig, pixels, x = column, y = row; the
 grid of points lies in the LEFT image of the reference state 0. Per state s:
-- stereo match of state 0 (left_0 -> right_0): seeds by a 1-D ZNCC search along the same row
-  (`row_seed_search`; the rectified pair puts a scene point on one row of both images), or, for a rig
-  whose rows are off its images, in a band about the offset measured in the reference pair
-  (`refit.offset_seed_search`, `StereoSettings.row_offsets`), then IC-GN with
-  the affine (or quadratic) subset shape - the right subset is foreshortened differently - and
-  reliability-guided propagation (the 2-D engine, `stereodic.dic`);
+- stereo match of state 0 (left_0 -> right_0): every point from the feature guess
+  (`stereodic.dic.initial_guess.feature_guess`), the rest from seeds found by a 1-D ZNCC search along
+  the same row (`row_seed_search`; the rectified pair puts a scene point on one row of both images),
+  or, for a rig whose rows are off its images, in a band about the offset measured in the reference
+  pair (`refit.offset_seed_search`, `StereoSettings.row_offsets`), then IC-GN with the affine (or
+  quadratic) subset shape - the right subset is foreshortened differently - and reliability-guided
+  propagation (the 2-D engine, `stereodic.dic`);
 - temporal match left_0 -> left_s (the 2-D engine's tracking, `stereodic.dic.sequence`, each point
-  starting from its previous displacement plus its last change);
+  starting from its previous displacement plus its last change; from the feature guess at state 1 and
+  wherever the motion jumped);
 - cross match left_0 -> right_s, starting from the previous state's cross warps moved by the left
   camera's change of displacement (DICe's and VIC-3D's scheme) and by the last change of the disparity
   (the velocity-based start of the temporal match, carried over to the second camera): every state

@@ -1,0 +1,74 @@
+"""Output work off the critical path: tasks run in forked child processes beside the caller.
+
+Formatting a CSV, drawing PNG maps with matplotlib and writing VTK files are Python work that holds the
+interpreter's lock, so threads would not overlap them; forked processes do, each with a copy-on-write view
+of the caller's arrays (nothing is pickled). `Background` keeps at most `workers` children running; when all
+are busy the caller runs the next task itself, so the work spreads over the caller and the children. A
+task is a callable without arguments that writes its own files (atomically, as every output); it returns
+nothing to the caller.
+
+The children only format and write: they run no OpenMP kernel (a forked child of a process whose OpenMP
+threads have run must not start its own), and leave by os._exit (multiprocessing's fork start), so the
+caller's buffers and exit handlers are not run twice.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from typing import Callable
+
+
+def threads() -> int:
+    """The threads the run may use: OMP_NUM_THREADS if set, else the CPUs this process may run on."""
+    try:
+        return max(1, int(os.environ.get("OMP_NUM_THREADS", "")))
+    except ValueError:
+        return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
+
+
+class Background:
+    """Run tasks in at most `workers` forked children (module docstring); 0 workers: every task in the
+    caller, in order. Used as a context manager, which waits for every child on leaving; a child that
+    failed raises RuntimeError then (its traceback went to stderr)."""
+
+    def __init__(self, workers: int):
+        self.workers = workers if hasattr(os, "fork") else 0
+        self.running: list[tuple[str, multiprocessing.Process]] = []
+        self.failed: list[str] = []
+
+    def __enter__(self) -> "Background":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.wait()
+
+    def _reap(self) -> None:
+        still = []
+        for name, proc in self.running:
+            if proc.exitcode is None:
+                still.append((name, proc))
+            else:
+                proc.join()
+                if proc.exitcode != 0:
+                    self.failed.append(name)
+        self.running = still
+
+    def submit(self, task: Callable[[], object], name: str) -> None:
+        """Run `task` (named `name` in errors) in a new child if fewer than `workers` are running, else here."""
+        self._reap()
+        if len(self.running) >= self.workers:
+            task()
+            return
+        proc = multiprocessing.get_context("fork").Process(target=task, name=name, daemon=True)
+        proc.start()
+        self.running.append((name, proc))
+
+    def wait(self) -> None:
+        """Wait for every child; RuntimeError naming the tasks that failed."""
+        for _, proc in self.running:
+            proc.join()
+        self._reap()
+        if self.failed:
+            failed, self.failed = self.failed, []
+            raise RuntimeError(f"writing {', '.join(failed)} failed (the error is above)")
