@@ -29,11 +29,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.capture import MIN_POSES, Capture
+from calib.capture import MIN_POSES, Capture, CoverGlass
 from calib.errors import InputError
 from calib.pose_init import central_start
-from calib.poses import OUT_OF_FAMILY, PoseFit, log_so3, pose_sample, refine_poses
-from calib.prvm import Lines
+from calib.poses import OUT_OF_FAMILY, PoseFit, PoseSample, log_so3, pose_sample, refine_poses
+from calib.prvm import GLASS_ITERATIONS, Lines, fit_posed_lines, posed_glass_offset
 
 # the planes of the regularisation (working frame) and of the uncertainty (WCS): these quantiles of the
 # z of the displays' points in that frame
@@ -74,10 +74,24 @@ class PoseReport:
                  "used": bool(self.used[k])} for k, n in enumerate(self.poses)]
 
 
-def _refine(sample, start, active: np.ndarray) -> PoseFit:
-    """Refine the poses of the `active` ones (pose 0 among them) from the central start."""
+def _refine(sample, start, active: np.ndarray, glass: CoverGlass | None) -> PoseFit:
+    """Refine the poses of the `active` ones (pose 0 among them) from the central start; with a cover
+    glass, again `GLASS_ITERATIONS` times with each block's points moved to where its ray, refracted by
+    the glass of each pose's display, meets the pixel plane (`calib.prvm.posed_glass_offset`, the rays
+    those of the previous poses)."""
     idx = np.flatnonzero(active)
-    return refine_poses(sample.subset(idx), start.rotation[idx], start.translation[idx])
+    part = sample.subset(idx)
+    fit = refine_poses(part, start.rotation[idx], start.translation[idx])
+    if glass is None or glass.thickness_mm <= 0:
+        return fit
+    coords = [p.T[:, None, :] for p in part.points]             # (2, 1, N) display mm
+    weights = [w[None, :].astype(np.float32) for w in part.weights]
+    for _ in range(GLASS_ITERATIONS):
+        lines = fit_posed_lines(coords, weights, fit.rotation, fit.translation, (1.0, 1.0), glass=glass).lines
+        shift = posed_glass_offset(lines.slope[0], fit.rotation, glass)
+        moved = PoseSample(part.points + shift, part.weights, part.pixels, part.block)
+        fit = refine_poses(moved, fit.rotation, fit.translation)
+    return fit
 
 
 def estimate_poses(capture: Capture, camera: str, coords: list[np.ndarray],
@@ -95,7 +109,7 @@ def estimate_poses(capture: Capture, camera: str, coords: list[np.ndarray],
     active = np.ones(m, bool)
     chi = np.zeros(m)
     while True:
-        fit = _refine(sample, start, active)
+        fit = _refine(sample, start, active, capture.display.cover_glass)
         idx = np.flatnonzero(active)
         chi[idx] = fit.chi
         bad = [k for j, k in enumerate(idx) if k != 0 and fit.out_of_family[j]]
@@ -165,7 +179,6 @@ def calibrate_handheld(capture: Capture, camera: str, smoother, z_ref: float = 0
     whose `poses` is the `PoseReport`."""
     from calib.calibration import (Calibration, decode_all, dropped_quality, point_weights, ray_meta, ray_prvm,
                                    regularise_lines, _coverage_notes)
-    from calib.prvm import fit_posed_lines
     poses = capture.poses(camera)
     if len(poses) < MIN_POSES:
         raise InputError(capture.manifest_path, f"camera {camera!r} has frames at {len(poses)} display pose(s); "
