@@ -154,6 +154,43 @@ def _wcs_sigma(lines: Lines, sigma: np.ndarray, to_wcs: tuple[np.ndarray, np.nda
     return np.stack(out, axis=-1).astype(np.float32)
 
 
+def _pose_sigma(coords: list[np.ndarray], weights: list[np.ndarray], pitch: np.ndarray, fit: PoseFit, lines: Lines,
+                planes: tuple[float, float], rows: int = 32) -> np.ndarray:
+    """(H, W, 2) float32 1-sigma (mm, RMS over x and y) that the poses' uncertainty (`PoseFit.covariance`,
+    the poses taken as independent) gives each line's point on the working frame's planes z = planes[0],
+    planes[1]: a pose's error (dw, dd) moves its point X by -[X - centre]_x dw + dd, across the line by
+    (dx - s_x dz, dy - s_y dz) (s the line's slope), and the line's point on the plane z by that
+    times the point's least-squares weight there, w_k / sum w + w_k (z_k - z_mean)(z - z_mean) / Szz."""
+    h, w = weights[0].shape
+    out = np.zeros((h, w, 2), np.float32)
+    rot, trans, cov = fit.rotation, fit.translation, fit.covariance
+    for r0 in range(0, h, rows):
+        sl = slice(r0, min(h, r0 + rows))
+        q = np.stack([np.stack([c[0, sl] * pitch[0], c[1, sl] * pitch[1], np.zeros_like(c[0, sl])], axis=-1)
+                      for c in coords])                                            # (M, r, W, 3)
+        x = np.einsum("kij,k...j->k...i", rot, q) + trans[:, None, None, :]
+        wt = np.where(np.isfinite(x).all(axis=-1), np.stack([wk[sl] for wk in weights]), 0.0).astype(np.float64)
+        x = np.nan_to_num(x)
+        s_w = np.maximum(wt.sum(axis=0), 1e-300)
+        z_mean = (wt * x[..., 2]).sum(axis=0) / s_w
+        szz = np.maximum((wt * (x[..., 2] - z_mean) ** 2).sum(axis=0), 1e-300)
+        slope = np.nan_to_num(lines.slope[sl])
+        lever = x - fit.centre[:, None, None, :]
+        # across the line per unit pose change: (M, r, W, 2, 6)
+        jac = np.zeros(x.shape[:-1] + (2, 6))
+        for i in range(2):
+            e = np.zeros(3)
+            e[i] = 1.0
+            along = e - np.concatenate([np.zeros(2), [1.0]]) * slope[..., i, None]   # (r, W, 3): e_i - s_i e_z
+            jac[..., i, :3] = np.cross(lever, along)                  # d(along . X)/dw = (X - c) x along
+            jac[..., i, 3:] = along
+        var = np.einsum("k...ij,kjl,k...il->k...i", jac, cov, jac)               # (M, r, W, 2)
+        for j, z in enumerate(planes):
+            a = wt / s_w + wt * (x[..., 2] - z_mean) * (z - z_mean) / szz
+            out[sl, :, j] = np.sqrt(np.maximum((a[..., None] ** 2 * var).sum(axis=0).mean(axis=-1), 0))
+    return out
+
+
 def _report(poses: list[int], fit: PoseFit, active: np.ndarray, chi: np.ndarray, start_rms_px: float,
             rms_mm: np.ndarray) -> PoseReport:
     """The poses kept, in the WCS (the working frame's pose 0 undone; their covariance rotated alike);
@@ -214,6 +251,7 @@ def calibrate_handheld(capture: Capture, camera: str, smoother, z_ref: float = 0
     working = _planes(used_coords, used_weights, pitch, fit.rotation, fit.translation)
     lines, sigma, regularisation = regularise_lines(capture, camera, posed.lines, used_positions, smoother, *working,
                                                     working[0])
+    sigma = np.hypot(sigma, _pose_sigma(used_coords, used_weights, pitch, fit, posed.lines, working))
     raw, lines = posed.lines.moved(*to_wcs, z_ref), lines.moved(*to_wcs, z_ref)
     z_a, z_b = _planes(used_coords, used_weights, pitch, report.rotation[idx], report.translation[idx])
     sigma = _wcs_sigma(lines, sigma, to_wcs, working, (z_a, z_b))
