@@ -35,6 +35,10 @@ from calib.pose_init import central_start
 from calib.poses import OUT_OF_FAMILY, PoseFit, PoseSample, log_so3, pose_sample, refine_poses
 from calib.prvm import GLASS_ITERATIONS, Lines, fit_posed_lines, posed_glass_offset
 
+# a calibration whose rays' directions (1-sigma), over this fraction of the distance from the camera,
+# move a ray by more than DIRECTION_NOTE_PX camera pixels says so (`_direction_note`)
+EXTRAPOLATION = 0.1
+DIRECTION_NOTE_PX = 0.002
 # the planes of the regularisation (working frame) and of the uncertainty (WCS): these quantiles of the
 # z of the displays' points in that frame
 PLANE_QUANTILES = (0.05, 0.95)
@@ -156,14 +160,15 @@ def _wcs_sigma(lines: Lines, sigma: np.ndarray, to_wcs: tuple[np.ndarray, np.nda
 
 def _pose_sigma(coords: list[np.ndarray], weights: list[np.ndarray], pitch: np.ndarray, fit: PoseFit, lines: Lines,
                 planes: tuple[float, float], rows: int = 32) -> np.ndarray:
-    """(H, W, 2) float32 1-sigma (mm, RMS over x and y) that the poses' uncertainty (`PoseFit.covariance`,
-    the poses taken as independent) gives each line's point on the working frame's planes z = planes[0],
+    """(H, W, 2) float32 1-sigma (mm, RMS over x and y) that the poses' uncertainty (all of them together,
+    `PoseFit.joint_covariance`) gives each line's point on the working frame's planes z = planes[0],
     planes[1]: a pose's error (dw, dd) moves its point X by -[X - centre]_x dw + dd, across the line by
     (dx - s_x dz, dy - s_y dz) (s the line's slope), and the line's point on the plane z by that
     times the point's least-squares weight there, w_k / sum w + w_k (z_k - z_mean)(z - z_mean) / Szz."""
     h, w = weights[0].shape
     out = np.zeros((h, w, 2), np.float32)
-    rot, trans, cov = fit.rotation, fit.translation, fit.covariance
+    rot, trans = fit.rotation, fit.translation
+    cov = fit.joint_covariance.reshape(6 * len(rot), 6 * len(rot))
     for r0 in range(0, h, rows):
         sl = slice(r0, min(h, r0 + rows))
         q = np.stack([np.stack([c[0, sl] * pitch[0], c[1, sl] * pitch[1], np.zeros_like(c[0, sl])], axis=-1)
@@ -184,11 +189,35 @@ def _pose_sigma(coords: list[np.ndarray], weights: list[np.ndarray], pitch: np.n
             along = e - np.concatenate([np.zeros(2), [1.0]]) * slope[..., i, None]   # (r, W, 3): e_i - s_i e_z
             jac[..., i, :3] = np.cross(lever, along)                  # d(along . X)/dw = (X - c) x along
             jac[..., i, 3:] = along
-        var = np.einsum("k...ij,kjl,k...il->k...i", jac, cov, jac)               # (M, r, W, 2)
         for j, z in enumerate(planes):
             a = wt / s_w + wt * (x[..., 2] - z_mean) * (z - z_mean) / szz
-            out[sl, :, j] = np.sqrt(np.maximum((a[..., None] ** 2 * var).sum(axis=0).mean(axis=-1), 0))
+            g = np.moveaxis(a[..., None, None] * jac, 0, -2).reshape(-1, 2, 6 * len(rot))     # (r W, 2, 6M)
+            var = ((g @ cov) * g).sum(axis=-1).mean(axis=-1)
+            out[sl, :, j] = np.sqrt(np.maximum(var, 0)).reshape(a.shape[1:])
     return out
+
+
+def _direction_note(camera: str, lines: Lines, sigma: np.ndarray, working: tuple[float, float],
+                    fit: PoseFit) -> list[str]:
+    """A note when the poses' depth spread and tilts leave the rays' directions uncertain: their median
+    1-sigma (from the two working planes' 1-sigma `sigma`, the planes z = working[0], working[1] of the
+    working frame, where z is roughly the distance from the camera), times `EXTRAPOLATION` of the
+    distance, is more than `DIRECTION_NOTE_PX` camera pixels (the pixel's angle: the median difference
+    of neighbouring lines' slopes)."""
+    span = working[1] - working[0]
+    direction = np.sqrt(sigma[..., 0].astype(np.float64) ** 2 + sigma[..., 1] ** 2) / max(span, 1e-9)
+    angle = np.nanmedian(np.linalg.norm(np.diff(lines.slope, axis=1), axis=-1)[lines.valid[:, 1:] & lines.valid[:, :-1]])
+    px = EXTRAPOLATION * float(np.nanmedian(direction[lines.valid])) / angle
+    if not px > DIRECTION_NOTE_PX:
+        return []
+    normals = fit.rotation[:, :, 2]
+    tilt = np.degrees(np.arccos(np.clip(normals @ normals.mean(axis=0) / np.linalg.norm(normals.mean(axis=0)), -1, 1)))
+    depth = np.ptp(fit.centre[:, 2])
+    mid = float(np.mean(working))
+    return [f"camera {camera!r}: the poses span only {depth:.0f} mm in depth and are tilted at most {tilt.max():.1f} "
+            f"degrees from their mean: the rays' directions are uncertain by {px:.3f} camera px at "
+            f"{EXTRAPOLATION:.0%} of the distance beyond them (1-sigma); add poses about {0.15 * mid:.0f} mm "
+            f"nearer and farther than {mid:.0f} mm, and tilted 15-30 degrees about the display's x and y axes"]
 
 
 def _report(poses: list[int], fit: PoseFit, active: np.ndarray, chi: np.ndarray, start_rms_px: float,
@@ -252,6 +281,7 @@ def calibrate_handheld(capture: Capture, camera: str, smoother, z_ref: float = 0
     lines, sigma, regularisation = regularise_lines(capture, camera, posed.lines, used_positions, smoother, *working,
                                                     working[0])
     sigma = np.hypot(sigma, _pose_sigma(used_coords, used_weights, pitch, fit, posed.lines, working))
+    notes += _direction_note(camera, lines, sigma, working, fit)
     raw, lines = posed.lines.moved(*to_wcs, z_ref), lines.moved(*to_wcs, z_ref)
     z_a, z_b = _planes(used_coords, used_weights, pitch, report.rotation[idx], report.translation[idx])
     sigma = _wcs_sigma(lines, sigma, to_wcs, working, (z_a, z_b))
