@@ -87,7 +87,7 @@ class HandHeld:
             raise InputError("--disturb", f"pose {self.disturbed} is not one of the {self.poses} poses")
 
 
-def as_held(poses: int = 7, **lens_options) -> dict:
+def as_held(*, poses: int = 7, **lens_options) -> dict:
     """`scanners.sim.calibration.simulate_calibration`'s arguments for a display held as people hold a
     monitor (`HELD_FOCUS_MM`, `HELD_GLASS`, `HELD_FILL`; the hand-held poses above it); lens_options: the
     lens's further overrides (`scanners.sim.lenses.make_lens`)."""
