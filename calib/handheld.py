@@ -184,9 +184,8 @@ def _pose_sigma(coords: list[np.ndarray], weights: list[np.ndarray], pitch: np.n
         # across the line per unit pose change: (M, r, W, 2, 6)
         jac = np.zeros(x.shape[:-1] + (2, 6))
         for i in range(2):
-            e = np.zeros(3)
-            e[i] = 1.0
-            along = e - np.concatenate([np.zeros(2), [1.0]]) * slope[..., i, None]   # (r, W, 3): e_i - s_i e_z
+            along = np.zeros(slope.shape[:-1] + (3,))                                  # e_i - s_i e_z
+            along[..., i], along[..., 2] = 1.0, -slope[..., i]
             jac[..., i, :3] = np.cross(lever, along)                  # d(along . X)/dw = (X - c) x along
             jac[..., i, 3:] = along
         for j, z in enumerate(planes):
@@ -206,7 +205,8 @@ def _direction_note(camera: str, lines: Lines, sigma: np.ndarray, working: tuple
     of neighbouring lines' slopes)."""
     span = working[1] - working[0]
     direction = np.sqrt(sigma[..., 0].astype(np.float64) ** 2 + sigma[..., 1] ** 2) / max(span, 1e-9)
-    angle = np.nanmedian(np.linalg.norm(np.diff(lines.slope, axis=1), axis=-1)[lines.valid[:, 1:] & lines.valid[:, :-1]])
+    pairs = lines.valid[:, 1:] & lines.valid[:, :-1]
+    angle = np.nanmedian(np.linalg.norm(np.diff(lines.slope, axis=1), axis=-1)[pairs])
     px = EXTRAPOLATION * float(np.nanmedian(direction[lines.valid])) / angle
     if not px > DIRECTION_NOTE_PX:
         return []

@@ -145,7 +145,7 @@ class PoseFit:
     rotation: (M, 3, 3), translation: (M, 3): X = R q + t for display-frame points q of each pose.
     centre: (M, 3) the centroid of each pose's points (the point its rotation turns about);
     covariance: (M, 6, 6) of each pose's (rotation vector (rad), translation of its centre (mm));
-    joint_covariance: (M, 6, M, 6) of all poses' parameters together (the covariance's blocks);
+    joint_covariance: (M, 6, M, 6) of all poses' parameters together (`covariance` is its diagonal blocks);
     rms_mm: (M,) RMS distance of its points from the fitted lines (across the working z); chi: (M,) how
     far its points are from one rigid display (`_Problem.held_out`, over the median pose's, or over 1
     if the median is below); sigma: the weighted residual's RMS per

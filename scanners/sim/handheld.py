@@ -6,7 +6,9 @@ Poses (`handheld_poses`): the display faces the camera, its centre `distance_mm`
 front of the camera along the optical axis, shifted sideways by up to a tenth of the field there, tilted
 about an axis across the line of sight by up to `max_tilt_deg` (the tilt axes of successive poses go
 round the circle, so that the planes' normals span all directions), and turned about its normal by up to
-`roll_deg`. A pose is drawn again until the display covers `min_cover` of the camera's field (pose 0,
+`roll_deg`. As people hold a monitor (`as_held`, issue 29): pose 0 at a set distance (`first_mm`),
+tilts from `min_tilt_deg` up, about the display's x or y axis in turn (`tilt_about="xy"`), the lens
+focused at pose 0 behind a cover glass. A pose is drawn again until the display covers `min_cover` of the camera's field (pose 0,
 which also carries the flats: all of it) and no pixel sees it at more than `MAX_INCIDENCE_DEG` from its
 normal.
 
@@ -48,8 +50,9 @@ class HandHeld:
     display's centre), the largest tilt and roll (degrees), the least covered share of the field;
     `first_mm`: pose 0's distance (None: drawn like the others'); `min_tilt_deg`: the least tilt
     (None: 0.3 of the largest); `tilt_about`: "round" (the tilt axes go round the circle) or "xy" (about
-    the display's x or y axis in turn, as a person tips a monitor); `disturbed`: the index of a pose whose display moves halfway through its fringe frames (None: none),
-    by `disturbance_mm` and `disturbance_deg`; given: the poses themselves, in the simulator's frame
+    the display's x or y axis in turn, as a person tips a monitor); `disturbed`: the index of a pose
+    whose display moves halfway through its fringe frames (None: none), by `disturbance_mm` and
+    `disturbance_deg`; given: the poses themselves, in the simulator's frame
     (the cameras of a rig see the same display; default: drawn by `handheld_poses`)."""
 
     poses: int = 8

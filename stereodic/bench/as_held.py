@@ -103,8 +103,8 @@ def held_accuracy(lens: str, width: int, height: int, root: Path, seed: int = 0)
     random = float(np.sqrt(np.nanmean(_volume(est, again, planes, fp) ** 2) / 2))
     staged_out = root / f"held_staged_{lens}"
     staged = {k: v for k, v in options.items() if k != "handheld"}
-    simulate_calibration(staged_out, z_positions=list(np.linspace(planes[0], planes[-1], len(truth.extra["display_cr"]))),
-                         **common, **staged)
+    positions = list(np.linspace(planes[0], planes[-1], len(truth.extra["display_cr"])))
+    simulate_calibration(staged_out, z_positions=positions, **common, **staged)
     st_truth = load_prvm(staged_out / "truth.npz")
     st_cal = calibrate_camera(load_capture(staged_out))
     # the staged WCS: the first position's display, at its nominal z (X_sim = R (X - z0 e_z) + t)
