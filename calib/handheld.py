@@ -39,6 +39,8 @@ from calib.prvm import GLASS_ITERATIONS, Lines, fit_posed_lines, posed_glass_off
 # move a ray by more than DIRECTION_NOTE_PX camera pixels says so (`_direction_note`)
 EXTRAPOLATION = 0.1
 DIRECTION_NOTE_PX = 0.002
+# the poses' part of the rays' uncertainty is computed on at most this many pixels (`_pose_sigma`)
+POSE_SIGMA_PIXELS = 400_000
 # the planes of the regularisation (working frame) and of the uncertainty (WCS): these quantiles of the
 # z of the displays' points in that frame
 PLANE_QUANTILES = (0.05, 0.95)
@@ -159,7 +161,22 @@ def _wcs_sigma(lines: Lines, sigma: np.ndarray, to_wcs: tuple[np.ndarray, np.nda
 
 
 def _pose_sigma(coords: list[np.ndarray], weights: list[np.ndarray], pitch: np.ndarray, fit: PoseFit, lines: Lines,
-                planes: tuple[float, float], rows: int = 32) -> np.ndarray:
+                planes: tuple[float, float]) -> np.ndarray:
+    """`_pose_sigma_grid` on every s-th pixel each way (s such that at most `POSE_SIGMA_PIXELS` are
+    computed; the field is smooth but where a pose stops being seen), repeated over each s x s block."""
+    h, w = weights[0].shape
+    s = max(1, int(np.ceil(np.sqrt(h * w / POSE_SIGMA_PIXELS))))
+    if s == 1:
+        return _pose_sigma_grid(coords, weights, pitch, fit, lines, planes)
+    sub = Lines(lines.start[::s, ::s], lines.slope[::s, ::s], lines.valid[::s, ::s], lines.residual_mm[::s, ::s],
+                lines.used[::s, ::s], lines.z_ref)
+    small = _pose_sigma_grid([c[:, ::s, ::s] for c in coords], [wk[::s, ::s] for wk in weights], pitch, fit, sub,
+                             planes)
+    return np.repeat(np.repeat(small, s, axis=0), s, axis=1)[:h, :w]
+
+
+def _pose_sigma_grid(coords: list[np.ndarray], weights: list[np.ndarray], pitch: np.ndarray, fit: PoseFit,
+                     lines: Lines, planes: tuple[float, float], rows: int = 32) -> np.ndarray:
     """(H, W, 2) float32 1-sigma (mm, RMS over x and y) that the poses' uncertainty (all of them together,
     `PoseFit.joint_covariance`) gives each line's point on the working frame's planes z = planes[0],
     planes[1]: a pose's error (dw, dd) moves its point X by -[X - centre]_x dw + dd, across the line by
@@ -190,8 +207,8 @@ def _pose_sigma(coords: list[np.ndarray], weights: list[np.ndarray], pitch: np.n
             jac[..., i, 3:] = along
         for j, z in enumerate(planes):
             a = wt / s_w + wt * (x[..., 2] - z_mean) * (z - z_mean) / szz
-            g = np.moveaxis(a[..., None, None] * jac, 0, -2).reshape(-1, 2, 6 * len(rot))     # (r W, 2, 6M)
-            var = ((g @ cov) * g).sum(axis=-1).mean(axis=-1)
+            g = np.moveaxis(a[..., None, None] * jac, 0, -2).reshape(-1, 6 * len(rot))        # (r W 2, 6M)
+            var = ((g @ cov) * g).sum(axis=-1).reshape(-1, 2).mean(axis=-1)
             out[sl, :, j] = np.sqrt(np.maximum(var, 0)).reshape(a.shape[1:])
     return out
 
