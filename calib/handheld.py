@@ -29,15 +29,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.capture import MIN_POSES, Capture
+from calib.capture import MIN_POSES, Capture, CoverGlass
 from calib.errors import InputError
 from calib.pose_init import central_start
-from calib.poses import OUT_OF_FAMILY, PoseFit, log_so3, pose_sample, refine_poses
+from calib.poses import OUT_OF_FAMILY, PoseFit, PoseSample, log_so3, pose_sample, refine_poses
 from calib.positions import dropped_quality, point_weights
-from calib.prvm import Lines, fit_posed_lines
+from calib.prvm import GLASS_ITERATIONS, Lines, fit_posed_lines, posed_glass_offset
 from calib.ray_field import Calibration, coverage_notes, ray_meta, ray_prvm
 from calib.sensor import decode_all, regularise_lines
 
+# a calibration whose rays' directions (1-sigma), over this fraction of the distance from the camera,
+# move a ray by more than DIRECTION_NOTE_PX camera pixels says so (`_direction_note`)
+EXTRAPOLATION = 0.1
+DIRECTION_NOTE_PX = 0.002
+# the poses' part of the rays' uncertainty is computed on at most this many pixels (`_pose_sigma`)
+POSE_SIGMA_PIXELS = 400_000
 # the planes of the regularisation (working frame) and of the uncertainty (WCS): these quantiles of the
 # z of the displays' points in that frame
 PLANE_QUANTILES = (0.05, 0.95)
@@ -77,10 +83,24 @@ class PoseReport:
                  "used": bool(self.used[k])} for k, n in enumerate(self.poses)]
 
 
-def _refine(sample, start, active: np.ndarray) -> PoseFit:
-    """Refine the poses of the `active` ones (pose 0 among them) from the central start."""
+def _refine(sample, start, active: np.ndarray, glass: CoverGlass | None) -> PoseFit:
+    """Refine the poses of the `active` ones (pose 0 among them) from the central start; with a cover
+    glass, again `GLASS_ITERATIONS` times with each block's points moved to where its ray, refracted by
+    the glass of each pose's display, meets the pixel plane (`calib.prvm.posed_glass_offset`, the rays
+    those of the previous poses)."""
     idx = np.flatnonzero(active)
-    return refine_poses(sample.subset(idx), start.rotation[idx], start.translation[idx])
+    part = sample.subset(idx)
+    fit = refine_poses(part, start.rotation[idx], start.translation[idx])
+    if glass is None or glass.thickness_mm <= 0:
+        return fit
+    coords = [p.T[:, None, :] for p in part.points]             # (2, 1, N) display mm
+    weights = [w[None, :].astype(np.float32) for w in part.weights]
+    for _ in range(GLASS_ITERATIONS):
+        lines = fit_posed_lines(coords, weights, fit.rotation, fit.translation, (1.0, 1.0), glass=glass).lines
+        shift = posed_glass_offset(lines.slope[0], fit.rotation, glass)
+        moved = PoseSample(part.points + shift, part.weights, part.pixels, part.block)
+        fit = refine_poses(moved, fit.rotation, fit.translation)
+    return fit
 
 
 def estimate_poses(capture: Capture, camera: str, coords: list[np.ndarray],
@@ -98,7 +118,7 @@ def estimate_poses(capture: Capture, camera: str, coords: list[np.ndarray],
     active = np.ones(m, bool)
     chi = np.zeros(m)
     while True:
-        fit = _refine(sample, start, active)
+        fit = _refine(sample, start, active, capture.display.cover_glass)
         idx = np.flatnonzero(active)
         chi[idx] = fit.chi
         bad = [k for j, k in enumerate(idx) if k != 0 and fit.out_of_family[j]]
@@ -141,6 +161,83 @@ def _wcs_sigma(lines: Lines, sigma: np.ndarray, to_wcs: tuple[np.ndarray, np.nda
             lam = (z - z_w[0]) / (z_w[1] - z_w[0])
             out.append(np.sqrt(((1 - lam) * sigma[..., 0]) ** 2 + (lam * sigma[..., 1]) ** 2))
     return np.stack(out, axis=-1).astype(np.float32)
+
+
+def _pose_sigma(coords: list[np.ndarray], weights: list[np.ndarray], pitch: np.ndarray, fit: PoseFit, lines: Lines,
+                planes: tuple[float, float]) -> np.ndarray:
+    """`_pose_sigma_grid` on every s-th pixel each way (s such that at most `POSE_SIGMA_PIXELS` are
+    computed; the field is smooth but where a pose stops being seen), repeated over each s x s block."""
+    h, w = weights[0].shape
+    s = max(1, int(np.ceil(np.sqrt(h * w / POSE_SIGMA_PIXELS))))
+    if s == 1:
+        return _pose_sigma_grid(coords, weights, pitch, fit, lines, planes)
+    sub = Lines(lines.start[::s, ::s], lines.slope[::s, ::s], lines.valid[::s, ::s], lines.residual_mm[::s, ::s],
+                lines.used[::s, ::s], lines.z_ref)
+    small = _pose_sigma_grid([c[:, ::s, ::s] for c in coords], [wk[::s, ::s] for wk in weights], pitch, fit, sub,
+                             planes)
+    return np.repeat(np.repeat(small, s, axis=0), s, axis=1)[:h, :w]
+
+
+def _pose_sigma_grid(coords: list[np.ndarray], weights: list[np.ndarray], pitch: np.ndarray, fit: PoseFit,
+                     lines: Lines, planes: tuple[float, float], rows: int = 32) -> np.ndarray:
+    """(H, W, 2) float32 1-sigma (mm, RMS over x and y) that the poses' uncertainty (all of them together,
+    `PoseFit.joint_covariance`) gives each line's point on the working frame's planes z = planes[0],
+    planes[1]: a pose's error (dw, dd) moves its point X by -[X - centre]_x dw + dd, across the line by
+    (dx - s_x dz, dy - s_y dz) (s the line's slope), and the line's point on the plane z by that
+    times the point's least-squares weight there, w_k / sum w + w_k (z_k - z_mean)(z - z_mean) / Szz."""
+    h, w = weights[0].shape
+    out = np.zeros((h, w, 2), np.float32)
+    rot, trans = fit.rotation, fit.translation
+    cov = fit.joint_covariance.reshape(6 * len(rot), 6 * len(rot))
+    for r0 in range(0, h, rows):
+        sl = slice(r0, min(h, r0 + rows))
+        q = np.stack([np.stack([c[0, sl] * pitch[0], c[1, sl] * pitch[1], np.zeros_like(c[0, sl])], axis=-1)
+                      for c in coords])                                            # (M, r, W, 3)
+        x = np.einsum("kij,k...j->k...i", rot, q) + trans[:, None, None, :]
+        wt = np.where(np.isfinite(x).all(axis=-1), np.stack([wk[sl] for wk in weights]), 0.0).astype(np.float64)
+        x = np.nan_to_num(x)
+        s_w = np.maximum(wt.sum(axis=0), 1e-300)
+        z_mean = (wt * x[..., 2]).sum(axis=0) / s_w
+        szz = np.maximum((wt * (x[..., 2] - z_mean) ** 2).sum(axis=0), 1e-300)
+        slope = np.nan_to_num(lines.slope[sl])
+        lever = x - fit.centre[:, None, None, :]
+        # across the line per unit pose change: (M, r, W, 2, 6)
+        jac = np.zeros(x.shape[:-1] + (2, 6))
+        for i in range(2):
+            along = np.zeros(slope.shape[:-1] + (3,))                                  # e_i - s_i e_z
+            along[..., i], along[..., 2] = 1.0, -slope[..., i]
+            jac[..., i, :3] = np.cross(lever, along)                  # d(along . X)/dw = (X - c) x along
+            jac[..., i, 3:] = along
+        for j, z in enumerate(planes):
+            a = wt / s_w + wt * (x[..., 2] - z_mean) * (z - z_mean) / szz
+            g = np.moveaxis(a[..., None, None] * jac, 0, -2).reshape(-1, 6 * len(rot))        # (r W 2, 6M)
+            var = ((g @ cov) * g).sum(axis=-1).reshape(-1, 2).mean(axis=-1)
+            out[sl, :, j] = np.sqrt(np.maximum(var, 0)).reshape(a.shape[1:])
+    return out
+
+
+def _direction_note(camera: str, lines: Lines, sigma: np.ndarray, working: tuple[float, float],
+                    fit: PoseFit) -> list[str]:
+    """A note when the poses' depth spread and tilts leave the rays' directions uncertain: their median
+    1-sigma (from the two working planes' 1-sigma `sigma`, the planes z = working[0], working[1] of the
+    working frame, where z is roughly the distance from the camera), times `EXTRAPOLATION` of the
+    distance, is more than `DIRECTION_NOTE_PX` camera pixels (the pixel's angle: the median difference
+    of neighbouring lines' slopes)."""
+    span = working[1] - working[0]
+    direction = np.sqrt(sigma[..., 0].astype(np.float64) ** 2 + sigma[..., 1] ** 2) / max(span, 1e-9)
+    pairs = lines.valid[:, 1:] & lines.valid[:, :-1]
+    angle = np.nanmedian(np.linalg.norm(np.diff(lines.slope, axis=1), axis=-1)[pairs])
+    px = EXTRAPOLATION * float(np.nanmedian(direction[lines.valid])) / angle
+    if not px > DIRECTION_NOTE_PX:
+        return []
+    normals = fit.rotation[:, :, 2]
+    tilt = np.degrees(np.arccos(np.clip(normals @ normals.mean(axis=0) / np.linalg.norm(normals.mean(axis=0)), -1, 1)))
+    depth = np.ptp(fit.centre[:, 2])
+    mid = float(np.mean(working))
+    return [f"camera {camera!r}: the poses span only {depth:.0f} mm in depth and are tilted at most {tilt.max():.1f} "
+            f"degrees from their mean: the rays' directions are uncertain by {px:.3f} camera px at "
+            f"{EXTRAPOLATION:.0%} of the distance beyond them (1-sigma); add poses about {0.15 * mid:.0f} mm "
+            f"nearer and farther than {mid:.0f} mm, and tilted 15-30 degrees about the display's x and y axes"]
 
 
 def _report(poses: list[int], fit: PoseFit, active: np.ndarray, chi: np.ndarray, start_rms_px: float,
@@ -201,6 +298,8 @@ def calibrate_handheld(capture: Capture, camera: str, smoother, z_ref: float = 0
     working = _planes(used_coords, used_weights, pitch, fit.rotation, fit.translation)
     lines, sigma, regularisation = regularise_lines(capture, camera, posed.lines, used_positions, smoother, *working,
                                                     working[0])
+    sigma = np.hypot(sigma, _pose_sigma(used_coords, used_weights, pitch, fit, posed.lines, working))
+    notes += _direction_note(camera, lines, sigma, working, fit)
     raw, lines = posed.lines.moved(*to_wcs, z_ref), lines.moved(*to_wcs, z_ref)
     z_a, z_b = _planes(used_coords, used_weights, pitch, report.rotation[idx], report.translation[idx])
     sigma = _wcs_sigma(lines, sigma, to_wcs, working, (z_a, z_b))

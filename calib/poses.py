@@ -145,6 +145,7 @@ class PoseFit:
     rotation: (M, 3, 3), translation: (M, 3): X = R q + t for display-frame points q of each pose.
     centre: (M, 3) the centroid of each pose's points (the point its rotation turns about);
     covariance: (M, 6, 6) of each pose's (rotation vector (rad), translation of its centre (mm));
+    joint_covariance: (M, 6, M, 6) of all poses' parameters together (`covariance` is its diagonal blocks);
     rms_mm: (M,) RMS distance of its points from the fitted lines (across the working z); chi: (M,) how
     far its points are from one rigid display (`_Problem.held_out`, over the median pose's, or over 1
     if the median is below); sigma: the weighted residual's RMS per
@@ -163,6 +164,7 @@ class PoseFit:
     cost_start: float
     cost: float
     dof: int
+    joint_covariance: np.ndarray | None = None
 
     @property
     def out_of_family(self) -> np.ndarray:
@@ -420,7 +422,8 @@ def refine_poses(sample: PoseSample, rotation: np.ndarray, translation: np.ndarr
     dof = max(2 * npts - 4 * int(keep.sum()) - basis.shape[1], 1)
     sigma2 = cost / dof
     cov_p = sigma2 * np.linalg.pinv(jtj)
-    cov = (basis @ cov_p @ basis.T).reshape(m, 6, m, 6)[np.arange(m), :, np.arange(m), :]
+    joint = (basis @ cov_p @ basis.T).reshape(m, 6, m, 6)
+    cov = joint[np.arange(m), :, np.arange(m), :]
     chi_k = prob.held_out(p, sample.pixels[keep])
     rot, t = prob.poses(p)
     # unweighted distances from the lines (mm): the weighted residual over sqrt(w)
@@ -429,4 +432,4 @@ def refine_poses(sample: PoseSample, rotation: np.ndarray, translation: np.ndarr
     w, d = prob.unpack(p)
     centre = prob.centre + d
     return PoseFit(rot, t, centre, cov, rms, chi_k / max(float(np.median(chi_k)), 1.0), float(np.sqrt(sigma2)),
-                   int(keep.sum()), cost_start, cost, dof)
+                   int(keep.sum()), cost_start, cost, dof, joint)

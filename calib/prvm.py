@@ -111,6 +111,18 @@ def glass_offset(slope: np.ndarray, glass: CoverGlass) -> np.ndarray:
     return glass.thickness_mm * slope * (1 - cos_a / (glass.refractive_index * cos_g))
 
 
+def posed_glass_offset(slope: np.ndarray, rotation: np.ndarray, glass: CoverGlass) -> np.ndarray:
+    """(M, ..., 2) mm to add to the decoded display points of lines with slopes `slope` (..., 2) (dx/dz,
+    dy/dz in a frame; NaN: taken as along z) seen on displays whose rotations in that frame are
+    `rotation` (M, 3, 3): `glass_offset` of each line's direction in each display's own frame."""
+    d = np.concatenate([np.nan_to_num(slope), np.ones(slope.shape[:-1] + (1,))], axis=-1)
+    out = np.empty((len(rotation),) + slope.shape)
+    for k, r in enumerate(rotation):
+        dk = d @ r                                   # the direction in display k's frame (R^T d)
+        out[k] = glass_offset(dk[..., :2] / dk[..., 2:], glass)
+    return out
+
+
 @dataclass
 class PosedLines:
     """Result of `fit_posed_lines`: the lines (in the output frame), and per pose the RMS distance (mm)
@@ -157,10 +169,7 @@ def fit_posed_lines(coords: list[np.ndarray], weights: list[np.ndarray], rotatio
             _fit_posed(np.ascontiguousarray((q + shift).reshape(m, n, 2)), wt.reshape(m, n), rotation, translation,
                        part.start, part.slope, part.valid, part.used, part.residual_mm, sq)
             if it < GLASS_ITERATIONS and glassy:
-                d = np.concatenate([np.nan_to_num(part.slope), np.ones((n, 1))], axis=-1)
-                for k in range(m):
-                    dk = d @ rotation[k]                     # the direction in display k's frame
-                    shift[k] = glass_offset(dk[..., :2] / dk[..., 2:], glass).reshape(shift.shape[1:])
+                shift = posed_glass_offset(part.slope, rotation, glass).reshape(shift.shape)
         ss += np.nansum(sq, axis=0)
         count += (np.isfinite(sq) & (wt.reshape(m, n).T > 0)).sum(axis=0)
         part = Lines(*(a_.reshape(q.shape[1], w, *a_.shape[1:]) for a_ in

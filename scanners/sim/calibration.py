@@ -372,7 +372,8 @@ def _handheld_truth(truth, poses: list[DisplayPose], held: HandHeld, shown: list
     rot, t = relative_poses(poses)
     out.extra.update({"display_rotation": rot, "display_translation_mm": t, "sim_rotation": poses[0].R,
                       "sim_translation_mm": poses[0].t})
-    meta = {"poses": held.poses, "distance_mm": list(held.distance_mm), "max_tilt_deg": held.max_tilt_deg,
+    meta = {"poses": held.poses, "distance_mm": list(held.distance_mm), "first_mm": held.first_mm,
+            "min_tilt_deg": held.min_tilt_deg, "tilt_about": held.tilt_about, "max_tilt_deg": held.max_tilt_deg,
             "roll_deg": held.roll_deg, "min_cover": held.min_cover, "disturbed": held.disturbed}
     if held.disturbed is not None:
         moved = next(p for p, f in zip(reversed(shown), reversed(frames)) if f.pose == held.disturbed)

@@ -6,7 +6,9 @@ Poses (`handheld_poses`): the display faces the camera, its centre `distance_mm`
 front of the camera along the optical axis, shifted sideways by up to a tenth of the field there, tilted
 about an axis across the line of sight by up to `max_tilt_deg` (the tilt axes of successive poses go
 round the circle, so that the planes' normals span all directions), and turned about its normal by up to
-`roll_deg`. A pose is drawn again until the display covers `min_cover` of the camera's field (pose 0,
+`roll_deg`. As people hold a monitor (`as_held`, issue 29): pose 0 at a set distance (`first_mm`),
+tilts from `min_tilt_deg` up, about the display's x or y axis in turn (`tilt_about="xy"`), the lens
+focused at pose 0 behind a cover glass. A pose is drawn again until the display covers `min_cover` of the camera's field (pose 0,
 which also carries the flats: all of it) and no pixel sees it at more than `MAX_INCIDENCE_DEG` from its
 normal.
 
@@ -34,14 +36,23 @@ MAX_INCIDENCE_DEG = 60.0
 # the sensor is checked on a grid of every COVER_STEP-th pixel
 COVER_STEP = 16
 MAX_DRAWS = 200
+# the display's focus, distance and cover glass as people hold a monitor for a stage-free calibration
+# (issue 29): pose 0 at 420 mm, the others 45 mm nearer to 25 mm farther, tipped 4-15 degrees about its
+# x or y axis; the lens focused at 420 mm; a 0.5 mm cover glass of index 1.52; 90 % pixel fill
+HELD_FOCUS_MM = 420.0
+HELD_GLASS = (0.5, 1.52)
+HELD_FILL = (0.9, 0.9)
 
 
 @dataclass(frozen=True)
 class HandHeld:
     """How the display is held: `poses` poses (>= 3), distances (mm, along the camera's axis to the
     display's centre), the largest tilt and roll (degrees), the least covered share of the field;
-    `disturbed`: the index of a pose whose display moves halfway through its fringe frames (None: none),
-    by `disturbance_mm` and `disturbance_deg`; given: the poses themselves, in the simulator's frame
+    `first_mm`: pose 0's distance (None: drawn like the others'); `min_tilt_deg`: the least tilt
+    (None: 0.3 of the largest); `tilt_about`: "round" (the tilt axes go round the circle) or "xy" (about
+    the display's x or y axis in turn, as a person tips a monitor); `disturbed`: the index of a pose
+    whose display moves halfway through its fringe frames (None: none), by `disturbance_mm` and
+    `disturbance_deg`; given: the poses themselves, in the simulator's frame
     (the cameras of a rig see the same display; default: drawn by `handheld_poses`)."""
 
     poses: int = 8
@@ -53,6 +64,9 @@ class HandHeld:
     disturbance_mm: float = 0.2
     disturbance_deg: float = 0.1
     given: tuple[DisplayPose, ...] | None = None
+    first_mm: float | None = None
+    min_tilt_deg: float | None = None
+    tilt_about: str = "round"
 
     def __post_init__(self):
         if int(self.poses) != self.poses or self.poses < 3:
@@ -65,8 +79,25 @@ class HandHeld:
                                            f"{self.max_tilt_deg} and {self.roll_deg}")
         if not 0 < self.min_cover <= 1:
             raise InputError("handheld", f"min_cover must be in (0, 1], got {self.min_cover}")
+        if self.first_mm is not None and not self.first_mm > 0:
+            raise InputError("--distance", f"pose 0's distance must be positive (mm), got {self.first_mm}")
+        if self.min_tilt_deg is not None and not 0 <= self.min_tilt_deg <= self.max_tilt_deg:
+            raise InputError("--max-tilt", f"the least tilt must be in [0, {self.max_tilt_deg}] degrees, got "
+                                           f"{self.min_tilt_deg}")
+        if self.tilt_about not in ("round", "xy"):
+            raise InputError("handheld", f"tilt_about must be 'round' or 'xy', got {self.tilt_about!r}")
         if self.disturbed is not None and not 0 <= self.disturbed < self.poses:
             raise InputError("--disturb", f"pose {self.disturbed} is not one of the {self.poses} poses")
+
+
+def as_held(*, poses: int = 7, **lens_options) -> dict:
+    """`scanners.sim.calibration.simulate_calibration`'s arguments for a display held as people hold a
+    monitor (`HELD_FOCUS_MM`, `HELD_GLASS`, `HELD_FILL`; the hand-held poses above it); lens_options: the
+    lens's further overrides (`scanners.sim.lenses.make_lens`)."""
+    held = HandHeld(poses=poses, distance_mm=(HELD_FOCUS_MM - 45.0, HELD_FOCUS_MM + 25.0), first_mm=HELD_FOCUS_MM,
+                    min_tilt_deg=4.0, max_tilt_deg=15.0, roll_deg=2.0, tilt_about="xy")
+    return {"handheld": held, "cover_glass": HELD_GLASS, "display": SimDisplay(fill_factor=HELD_FILL),
+            "lens_options": {"focus_mm": HELD_FOCUS_MM, **lens_options}}
 
 
 def coverage(lens: Lens, display: SimDisplay, pose: DisplayPose) -> tuple[float, float]:
@@ -106,11 +137,15 @@ def handheld_poses(lenses: Lens | list[Lens], display: SimDisplay, held: HandHel
     for i in range(held.poses):
         need = 1.0 if i == 0 else held.min_cover
         for _ in range(MAX_DRAWS):
-            dist = rng.uniform(*held.distance_mm)
+            dist = held.first_mm if i == 0 and held.first_mm is not None else rng.uniform(*held.distance_mm)
             shift = rng.uniform(-0.1, 0.1, 2) * _field_mm(lens, dist)
             target = origin + dist * axis + facing[:, :2] @ shift
-            spin = phase + 2 * np.pi * i / held.poses + rng.normal(0, 0.3)
-            tilt = np.radians(held.max_tilt_deg * rng.uniform(0.3, 1.0))
+            if held.tilt_about == "xy":          # about x or y in turn, either way
+                spin = np.pi / 2 * (i % 2) + np.pi * rng.integers(2)
+            else:
+                spin = phase + 2 * np.pi * i / held.poses + rng.normal(0, 0.3)
+            least = 0.3 * held.max_tilt_deg if held.min_tilt_deg is None else held.min_tilt_deg
+            tilt = np.radians(rng.uniform(least, held.max_tilt_deg))
             tilt_axis = facing @ np.array([np.cos(spin), np.sin(spin), 0.0])
             rot = _axis_angle(tilt_axis, tilt) @ facing @ rotation(
                 "z", np.radians(rng.uniform(-held.roll_deg, held.roll_deg)))

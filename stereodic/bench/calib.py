@@ -1,4 +1,5 @@
-"""Benchmark of the PRVM calibration (issue 3; the rows of issue 14 come from `stereodic.bench.poses`): accuracy per lens family against the simulator's truth
+"""Benchmark of the PRVM calibration (issue 3; the rows of issue 14 come from `stereodic.bench.poses`, those
+of issue 29 from `stereodic.bench.as_held`): accuracy per lens family against the simulator's truth
 (unregularised and regularised; the unregularised rays' noise, from a second capture with other sensor
 noise, against the phase-noise bound; OpenCV's 14-coefficient model fed dense
 correspondences and chessboards), and the speed and peak memory of decoding and fitting a 5 MP camera.
@@ -210,7 +211,7 @@ def regularise_seconds(width: int, height: int) -> float:
 
 def run(quick: bool = False) -> list[Figure]:
     from scanners.sim.calibration import simulate_calibration
-    from stereodic.bench import poses
+    from stereodic.bench import as_held, poses
     width, height = (320, 256) if quick else (1280, 1024)
     figs: list[Figure] = []
     ideal = {}
@@ -268,5 +269,6 @@ def run(quick: bool = False) -> list[Figure]:
                            seconds, "s", goal="<= 10 s" if not quick else "", ok=seconds <= 10 if not quick else None))
         figs.append(Figure("calib/speed", f"peak memory {mp:.1f} MP", peak / 2 ** 30, "GiB",
                            goal="<= 2 GiB" if not quick else "", ok=peak <= 2 * 2 ** 30 if not quick else None))
-    # issue 14: hand-held poses, pose refinement below the stage floor, Bayer, hand-held speed
-    return figs + poses.run(quick, floors)
+    # issue 14: hand-held poses, pose refinement below the stage floor, Bayer, hand-held speed; issue 29:
+    # the display held as people hold a monitor
+    return figs + poses.run(quick, floors) + as_held.run(quick)

@@ -45,6 +45,11 @@ def register(sub):
                    help="a colour camera with this raw Bayer mosaic (per-colour response and lateral "
                         "chromatic aberration); default monochrome")
     add_handheld_options(c)
+    c.add_argument("--as-held", action="store_true",
+                   help="hold the display as people hold a monitor (scanners.sim.handheld.as_held): pose 0 at "
+                        "420 mm, the others 45 mm nearer to 25 mm farther, tipped 4-15 degrees about x or y, the "
+                        "lens focused at 420 mm, a 0.5 mm cover glass (unless --cover-glass), 90 %% pixel fill; "
+                        "--handheld N poses (default 7)")
     c.add_argument("--chessboard", action="store_true", help="also render chessboards (OpenCV comparison)")
     add_flaw_options(c)
     c.set_defaults(func=run_calibration)
@@ -61,12 +66,22 @@ def run_calibration(args) -> int:
         raise InputError("--cover-glass", f"expected THICKNESS_MM,INDEX, got {args.cover_glass}")
     from scanners.sim.bayer import BayerSensor
     steps = args.steps[0] if len(args.steps) == 1 else args.steps
+    held, glass, lens_options, flaws = handheld_from(args), args.cover_glass, None, flaw_kwargs(args)
+    if args.as_held:
+        import dataclasses
+
+        from scanners.sim.handheld import as_held
+        options = as_held(poses=args.handheld or 7)
+        held = dataclasses.replace(options["handheld"], disturbed=args.disturb)
+        glass = options["cover_glass"] if glass is None else glass
+        flaws["display"] = dataclasses.replace(flaws["display"], fill_factor=options["display"].fill_factor)
+        lens_options = options["lens_options"]
     cap = simulate_calibration(
         args.output, lens=args.lens, width=args.width, height=args.height, seed=args.seed,
         periods=args.periods, steps=steps, z_positions=args.positions_mm,
         flat_levels=DEFAULT_FLATS if args.flat_levels is None else args.flat_levels, noise=args.noise,
-        supersample=args.supersample, cover_glass=args.cover_glass, low=args.low, high=args.high,
-        chessboard=args.chessboard, stage_error_um=args.stage_error_um, handheld=handheld_from(args),
-        bayer=None if args.bayer is None else BayerSensor(args.bayer), **flaw_kwargs(args))
+        supersample=args.supersample, cover_glass=glass, low=args.low, high=args.high,
+        chessboard=args.chessboard, stage_error_um=args.stage_error_um, handheld=held, lens_options=lens_options,
+        bayer=None if args.bayer is None else BayerSensor(args.bayer), **flaws)
     wrote(cap.manifest_path, f"{len(cap.frames)} frames in {cap.root}, truth in {cap.root / 'truth.npz'}")
     return 0

@@ -32,26 +32,35 @@ def true_rays(w=96, h=72, k1=-0.15, f=150.0, dist=150.0):
     return centre + t[..., None] * d, d
 
 
+def _refraction(direction, glass):
+    """(..., 2) how far short (mm, in the display's x, y) of the straight air ray's point on the pixel
+    plane a ray of `direction` (the display's frame) lands after crossing the cover glass."""
+    if glass is None:
+        return np.zeros(direction.shape[:-1] + (2,))
+    s = direction[..., :2] / direction[..., 2:3]
+    t2 = (s * s).sum(-1, keepdims=True)
+    sin2 = t2 / (1 + t2)
+    tan_in = np.sqrt(sin2 / glass.refractive_index ** 2 / (1 - sin2 / glass.refractive_index ** 2))
+    tan_air = np.sqrt(t2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return glass.thickness_mm * s * np.where(tan_air > 0, 1 - tan_in / tan_air, 0)
+
+
 def _hit(origin, direction, z, glass):
     """Display pixel coordinates (c, r) the ray lights up at stage position z."""
     t = (z - origin[..., 2]) / direction[..., 2]
     p = origin + t[..., None] * direction
-    if glass is not None:
-        s = direction[..., :2] / direction[..., 2:3]
-        t2 = (s * s).sum(-1, keepdims=True)
-        sin2 = t2 / (1 + t2)
-        tan_in = np.sqrt(sin2 / glass.refractive_index ** 2 / (1 - sin2 / glass.refractive_index ** 2))
-        tan_air = np.sqrt(t2)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            p[..., :2] -= glass.thickness_mm * s * np.where(tan_air > 0, 1 - tan_in / tan_air, 0)
+    p[..., :2] -= _refraction(direction, glass)
     return p[..., 0] / DISPLAY.pitch_mm[0], p[..., 1] / DISPLAY.pitch_mm[1]
 
 
-def _hit_pose(origin, direction, rotation, translation, display):
-    """Display pixel coordinates (c, r) the ray lights up on a display in pose X = R q + t."""
+def _hit_pose(origin, direction, rotation, translation, display, glass=None):
+    """Display pixel coordinates (c, r) the ray lights up on a display in pose X = R q + t (through its
+    cover glass, if any, lying on the camera's side of the pixel plane)."""
     normal = rotation[:, 2]
     s = ((translation - origin) @ normal) / (direction @ normal)
     q = (origin + s[..., None] * direction - translation) @ rotation
+    q[..., :2] -= _refraction(direction @ rotation, glass)
     return q[..., 0] / display.pitch_mm[0], q[..., 1] / display.pitch_mm[1]
 
 
@@ -96,11 +105,11 @@ def make_capture(root: Path, w=96, h=72, zs=(0.0, 40.0), periods=(480, 60, 12), 
     places = [{"z_mm": z} for z in zs] if poses is None else [{"pose": k} for k in range(len(poses))]
     for zi, where in enumerate(places):
         if stage_poses is not None:
-            c, r = _hit_pose(origin, direction, *stage_poses[zi], display)
+            c, r = _hit_pose(origin, direction, *stage_poses[zi], display, glass)
         elif poses is None:
             c, r = _hit(origin, direction, where["z_mm"], glass)
         else:
-            c, r = _hit_pose(origin, direction, *poses[zi], display)
+            c, r = _hit_pose(origin, direction, *poses[zi], display, glass)
         for level in flat_levels if poses is None or zi == 0 else ():
             f = Frame("cam0", f"z{zi}/flat_{level}.png", Pattern("flat", {"level": level}), **where)
             writer.add(f, shoot(np.full(c.shape, float(level)), c, r))

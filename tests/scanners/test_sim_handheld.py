@@ -43,6 +43,28 @@ def test_poses_cover_the_field_within_the_reach():
     assert np.linalg.svd(normals, compute_uv=False)[1] > 0.3 * np.sqrt(len(poses)) * np.sin(np.radians(10))
 
 
+def test_as_held_poses_are_about_the_focus_tipped_about_x_or_y():
+    """`as_held`: pose 0's centre 420 mm along the axis, the others 375-445 mm; each display tipped 4-15
+    degrees about the camera's x or y axis in turn (the roll of up to 2 degrees is about its normal);
+    the lens focused at 420 mm
+    behind a 0.5 mm glass, 90 % fill."""
+    from scanners.sim.handheld import as_held
+    options = as_held(poses=7)
+    lens, display = make_lens("noncentral", **options["lens_options"]), options["display"]
+    assert lens.focus_mm == 420.0 and options["cover_glass"] == (0.5, 1.52) and display.fill_factor == (0.9, 0.9)
+    poses = handheld_poses(lens, display, options["handheld"], seed=0)
+    axis = lens.rotation[:, 2]
+    centre = np.array([display.size_mm[0] - display.pitch_mm[0], display.size_mm[1] - display.pitch_mm[1], 0]) / 2
+    depths = [(pose.to_wcs(centre) - lens.centre_mm) @ axis for pose in poses]
+    assert depths[0] == pytest.approx(420.0, abs=1e-6) and all(375.0 <= d <= 445.0 for d in depths)
+    for k, pose in enumerate(poses):
+        tilt = np.degrees(np.arccos(pose.normal @ axis))
+        assert 4.0 - 1e-9 <= tilt <= 15.0 + 1e-9
+        # about x (k even: the normal leans along the camera's y only) or y (k odd: along its x only)
+        lean = lens.rotation.T @ pose.normal
+        assert abs(lean[k % 2]) < 1e-9 and abs(lean[1 - k % 2]) > np.sin(np.radians(4.0)) - 1e-9
+
+
 def test_disturbed_pose_moves_by_the_stated_amounts():
     display = SimDisplay()
     held = HandHeld(disturbance_mm=0.2, disturbance_deg=0.1)
