@@ -7,7 +7,9 @@ One camera: `camera_matrix` (or K) and `distortion_coefficients` (or D; any of O
 A stereo pair (the stereo_calib sample, cv2.stereoCalibrate): M1 D1 M2 D2 R T with x_2 = R x_1 + T (the
 world frame is camera 1's, unless R_wcs and T_wcs give camera 1's world pose, as `stereodic export
 --format opencv` writes them). The sample writes intrinsics.yml (M1 D1 M2 D2) and extrinsics.yml (R T R1 R2
-P1 P2 Q) apart: both files may be given.
+P1 P2 Q) apart: both files may be given. The structured-light sample's names (its
+calibrationParameters.yml) are read as the same pair: cam1_intrinsics, cam1_distorsion (sic; or
+cam1_distortion), cam1_size [width, height], cam2_*, R, T (`_structured_light_names`).
 Image size: image_width and image_height, or image_size / imageSize [width, height]; else --size.
 K[0, 1] is kept as the skew (OpenCV's own functions ignore it; it is 0 in what OpenCV writes).
 """
@@ -57,12 +59,28 @@ def _camera(K, dist, R, t, size, name, where) -> CameraModel:
                        np.asarray(t, np.float64).ravel(), size[0], size[1], name)
 
 
+def _structured_light_names(nodes: dict) -> dict:
+    """The nodes with OpenCV's structured-light sample's camera keys (cam1_intrinsics, cam1_distorsion,
+    cam1_size, cam2_...) renamed to the stereo_calib sample's M1 D1 M2 D2 (and image_size)."""
+    out = dict(nodes)
+    for i in ("1", "2"):
+        if f"cam{i}_intrinsics" in nodes:
+            out[f"M{i}"] = nodes[f"cam{i}_intrinsics"]
+        for key in (f"cam{i}_distorsion", f"cam{i}_distortion"):
+            if key in nodes:
+                out[f"D{i}"] = nodes[key]
+    if "cam1_size" in nodes and "image_size" not in nodes:
+        out["image_size"] = nodes["cam1_size"]
+    return out
+
+
 def read(paths: list[Path]) -> list[CameraModel]:
     """The camera(s) of one FileStorage file, or of two read as one (module docstring)."""
     nodes = {}
     for p in paths:
         nodes.update(read_filestorage(p))
     where = paths[0]
+    nodes = _structured_light_names(nodes)
     size = _size(nodes)
     if any(k in nodes for k in ("M1", "M2", "D1", "D2")):
         missing = [k for k in STEREO_KEYS if k not in nodes]
