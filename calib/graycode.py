@@ -28,11 +28,19 @@ GRAY_TOLERANCE of a period is flagged UNWRAP.
 
 from __future__ import annotations
 
+import os
+import re
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
+from calib.capture import Capture, Frame, Pattern
+from calib.errors import InputError
+from calib.imageio import IMAGE_SUFFIXES
 from calib.phase import DARK, UNDECIDED
+
+FOLDER_SUFFIXES = IMAGE_SUFFIXES + (".jpg", ".jpeg", ".bmp")   # what OpenCV's samples save too
 
 DECISIVE_FRACTION = 0.1     # a bit is decisive where |pattern - inverse| >= this fraction of the contrast
 GRAY_TOLERANCE = 0.4        # periods: the largest disagreement of the Gray code and the phase kept
@@ -68,11 +76,12 @@ def gray_profile(n: int, bit: int, inverse: bool = False) -> np.ndarray:
 @dataclass
 class GrayDecoded:
     """One camera's Gray-code decoding. coord: (H, W) float32 panel pixels (stripe centre or boundary),
-    NaN where flagged; contrast: (H, W) float32 pattern contrast, the frames' units; quality: (H, W) uint8
-    `calib.phase` flags; stripe_px: the stripe width 2**low_bit."""
+    NaN where flagged; contrast: (H, W) float32 pattern contrast and offset: the mean level, the frames'
+    units; quality: (H, W) uint8 `calib.phase` flags; stripe_px: the stripe width 2**low_bit."""
 
     coord: np.ndarray
     contrast: np.ndarray
+    offset: np.ndarray
     quality: np.ndarray
     stripe_px: int
 
@@ -103,7 +112,7 @@ def decode_gray(patterns: list[np.ndarray], inverses: list[np.ndarray] | None, w
     Returns
     -------
     decoded : GrayDecoded
-        Coordinates (panel pixels), contrast and flags.
+        Coordinates (panel pixels), contrast, mean level and flags.
     """
     if inverses is None and (white is None or black is None):
         raise ValueError("Gray code without inverse frames needs the white and black frames")
@@ -113,8 +122,11 @@ def decode_gray(patterns: list[np.ndarray], inverses: list[np.ndarray] | None, w
     else:
         mid = (f32(white) + f32(black)) / 2
         diffs = [2 * (f32(p) - mid) for p in patterns]
-    contrast = f32(white) - f32(black) if white is not None and black is not None else \
-        np.max(np.abs(np.stack(diffs)), axis=0)
+    if white is not None and black is not None:
+        contrast, offset = f32(white) - f32(black), (f32(white) + f32(black)) / 2
+    else:
+        contrast = np.max(np.abs(np.stack(diffs)), axis=0)
+        offset = sum(f32(p) + f32(q) for p, q in zip(patterns, inverses)) / np.float32(2 * len(patterns))
     shape = contrast.shape
     limit = np.maximum(DECISIVE_FRACTION * contrast, np.float32(min_difference))
     code = np.zeros(shape, np.int64)
@@ -136,7 +148,7 @@ def decode_gray(patterns: list[np.ndarray], inverses: list[np.ndarray] | None, w
     quality[(coord < -0.5) | (coord > extent_px - 0.5)] |= UNDECIDED
     quality[~(contrast >= min_contrast)] |= DARK
     out = np.where(quality == 0, coord, np.nan).astype(np.float32)
-    return GrayDecoded(out, contrast, quality, w)
+    return GrayDecoded(out, contrast, offset, quality, w)
 
 
 def unwrap_with_gray(coord_gray: np.ndarray, phase: np.ndarray, period_px: float,
@@ -171,3 +183,58 @@ def unwrap_with_gray(coord_gray: np.ndarray, phase: np.ndarray, period_px: float
     with np.errstate(invalid="ignore"):
         consistent = np.abs(cycles - k) <= GRAY_TOLERANCE
     return k * period_px + f, consistent
+
+
+# ------------------------------------------------------------------ a folder in OpenCV's GrayCodePattern order
+
+_NUMBERED = re.compile(r"^(.*?)(\d+)$")
+
+
+def opencv_sequence(width_px: int, height_px: int) -> list[Pattern]:
+    """The patterns of OpenCV's structured_light.GrayCodePattern(width, height) in its order: the column
+    bits, most significant first, each followed by its inverse; the row bits the same way; white; black."""
+    seq = []
+    for axis, extent in (("x", width_px), ("y", height_px)):
+        for bit in reversed(range(gray_bits(extent))):
+            seq += [Pattern("gray", {"axis": axis, "bit": bit, "inverse": inv}) for inv in (False, True)]
+    return seq + [Pattern("flat", {"level": 255}), Pattern("flat", {"level": 0})]
+
+
+def opencv_folder(folder: str | os.PathLike, projector: tuple[int, int], cameras: tuple[str, str]) -> Capture:
+    """A scan capture (one state) of a folder of images in OpenCV's GrayCodePattern order, read as it is.
+
+    The image files are grouped by their name without its trailing number (``pattern_cam1_im7.jpg``: group
+    ``pattern_cam1_im``, number 7); the two groups, in natural order, are the `cameras` (left, right), and
+    within a group the numbers 1, 2, ... (or 0, 1, ...) follow `opencv_sequence`. InputError naming the
+    folder when there are not exactly two groups, or a group lacks an image of the sequence."""
+    from calib.image_files import natural_key
+    from calib.imageio import image_size
+    folder = Path(folder)
+    groups: dict[str, dict[int, str]] = {}
+    for p in sorted(folder.iterdir(), key=natural_key):
+        m = _NUMBERED.match(p.stem)
+        if p.is_file() and m and p.suffix.lower() in FOLDER_SUFFIXES:
+            groups.setdefault(m.group(1), {})[int(m.group(2))] = p.name
+    seq = opencv_sequence(*projector)
+    if len(groups) != 2:
+        raise InputError(folder, f"holds {len(groups)} numbered image series ({', '.join(groups) or 'none'}): an "
+                                 f"OpenCV Gray-code scan has two, one per camera, of {len(seq)} images each "
+                                 f"(or give a capture.json)")
+    frames, sizes = [], {}
+    for cam, (prefix, files) in zip(cameras, sorted(groups.items(), key=lambda kv: natural_key(kv[0]))):
+        first = min(files)
+        for k, pattern in enumerate(seq):
+            name = files.get(first + k)
+            if name is None:
+                what = (f"{pattern.axis} bit {pattern.bit}{' inverse' if pattern.inverse else ''}"
+                        if pattern.type == "gray" else ("white" if pattern.level else "black"))
+                raise InputError(folder, f"lacks image {first + k} of the series {prefix}* ({what}: OpenCV's "
+                                         f"Gray code of a {projector[0]}x{projector[1]} projector has {len(seq)} "
+                                         f"images)")
+            frames.append(Frame(cam, name, pattern, state=0))
+        if len(files) != len(seq):
+            raise InputError(folder, f"the series {prefix}* has {len(files)} images, OpenCV's Gray code of a "
+                                     f"{projector[0]}x{projector[1]} projector has {len(seq)}")
+        sizes[cam] = image_size(folder / files[first])
+    return Capture(folder, "scan", sizes, frames,
+                   extra={"projector": {"width_px": int(projector[0]), "height_px": int(projector[1])}})
