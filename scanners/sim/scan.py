@@ -32,6 +32,7 @@ from calib.atomic import write_npz
 from calib.capture import MANIFEST, Capture, Frame, Pattern, load_capture
 from calib.errors import InputError
 from calib.imageio import write_gray
+from calib.patterns import gray_sequence, pattern_filename
 from calib.progress import progress
 from scanners.sim.camera import SimCamera
 from scanners.sim.defocus import blur_and_integrate
@@ -233,11 +234,17 @@ def steps_per_period(periods, steps) -> list[int]:
     return [int(n) for n in per]
 
 
-def scan_frames(state: int, periods, steps, low: int, high: int) -> list[Frame]:
+def scan_frames(state: int, periods, steps, low: int, high: int, gray_width: int = 0) -> list[Frame]:
     """The frame records of one state: for each camera, each period, each shift (x-axis fringes);
-    steps: one int, or one per period."""
+    steps: one int, or one per period; gray_width: first the Gray code of that many panel columns
+    (`calib.patterns.gray_sequence`: with one period down to stripes of half of it, with none down to
+    single columns) and its flats; 0: none."""
     frames = []
     for cam in CAMERAS:
+        if gray_width:
+            seq = gray_sequence(gray_width, 1, period_px=periods[0] if periods else None)
+            frames += [Frame(cam, f"s{state:03d}/{cam}_{pattern_filename(pat, k)}", pat, state=state)
+                       for k, (pat, _) in enumerate(seq) if pat.type != "fringe"]
         for p, n in zip(periods, steps_per_period(periods, steps)):
             for k, shift in enumerate(fringe_shifts(n)):
                 frames.append(Frame(cam, f"s{state:03d}/{cam}_P{p:g}_s{k}.png",
@@ -248,7 +255,7 @@ def scan_frames(state: int, periods, steps, low: int, high: int) -> list[Frame]:
 
 def simulate_scan(out_dir: str | os.PathLike, *, scenes: list[Scene] | None = None, rig: ScanRig | None = None,
                   periods=DEFAULT_PERIODS, steps=None, seed: int = 0, noise: bool = True, low: int = 10,
-                  high: int = 250) -> Capture:
+                  high: int = 250, gray: bool = False) -> Capture:
     """Render a scan dataset (module docstring) with the true PRVMs of its cameras.
 
     Parameters
@@ -270,6 +277,9 @@ def simulate_scan(out_dir: str | os.PathLike, *, scenes: list[Scene] | None = No
         Sensor noise (False: the expected images, rounded).
     low, high : int
         The fringes' code values, 0 <= low < high <= 255.
+    gray : bool
+        Project the column Gray code first (`scan_frames`): `periods` is then empty (Gray code alone) or
+        one period (Gray code plus phase shifting).
 
     Returns
     -------
@@ -281,8 +291,10 @@ def simulate_scan(out_dir: str | os.PathLike, *, scenes: list[Scene] | None = No
     rig = rig or default_scan_rig(seed=seed)
     scenes = standard_scenes() if scenes is None else scenes
     periods = [int(p) if float(p) == int(p) else float(p) for p in periods]
-    per = steps_per_period(periods, steps)
-    if max(periods) < rig.projector.width_px:
+    per = steps_per_period(periods, steps) if periods else []
+    if gray and len(periods) > 1:
+        raise InputError("--periods", f"Gray code orders one fringe period, got {len(periods)}")
+    if not gray and max(periods) < rig.projector.width_px:
         raise InputError("--periods", f"the longest period ({max(periods):g} px) must cover the projector's "
                                       f"{rig.projector.width_px} columns (absolute phase)")
     if not 0 <= low < high <= 255:
@@ -293,7 +305,7 @@ def simulate_scan(out_dir: str | os.PathLike, *, scenes: list[Scene] | None = No
     cams = rig.cameras(seed)
     frames = []
     for state, scene in enumerate(progress(scenes, "simulating scan", total=len(scenes))):
-        state_frames = scan_frames(state, periods, steps, low, high)
+        state_frames = scan_frames(state, periods, steps, low, high, rig.projector.width_px if gray else 0)
         for name, cam in zip(CAMERAS, cams):
             view = lit_view(cam, scene, rig.projector)
             for f in state_frames:
@@ -311,7 +323,7 @@ def simulate_scan(out_dir: str | os.PathLike, *, scenes: list[Scene] | None = No
             "states": [{"state": k, **sc.describe()} for k, sc in enumerate(scenes)]}
     write_npz(out / "truth.npz", meta=np.array(json.dumps(meta)))
     extra = {"projector": {**p.record(), "axis": "x", "periods_px": periods,
-                           "steps": per[0] if len(set(per)) == 1 else per},
+                           **({"steps": per[0] if len(set(per)) == 1 else per} if per else {})},
              "simulated": {"lens": rig.left.family, "seed": seed, "noise": noise, "supersample": rig.supersample,
                            "truth": "truth.npz", "true_prvms": [f"truth_{n}.npz" for n in CAMERAS],
                            "scenes": [sc.name for sc in scenes]}}
