@@ -6,7 +6,12 @@ Steps for one state (one scan) of a `kind: "scan"` dataset:
     the frames in memory): per fringe period the wrapped phase, modulation and quality flags, corrected
     for the projector's gamma when the manifest's `projector` block states it
     (`calib.phase.WaveformCorrection`), then temporal unwrapping (`calib.phase.unwrap_temporal`) into the
-    absolute projector column; flagged pixels become NaN;
+    absolute projector column; flagged pixels become NaN. A pixel with a clipped sample in any set is
+    flagged SATURATED, not solved from its unclipped samples as the calibration does: on a scanned object
+    a clipped sample marks a highlight, whose neighbours in time (the samples nearly as bright) and in
+    space (the camera's blur spreads it) are not the linear cosine the fit assumes; solved, such pixels
+    bent a bright sphere's front by +60 um (docs/scanner.md, "Clipped pixels"). Gray code: see
+    `calib.graycode`;
  2. rectify (`virtual_phase`): the absolute phase (never the wrapped one) and the modulation are
     interpolated through each camera's IMM into the common virtual image; a virtual pixel any of whose 4
     real neighbours is flagged or blank is NaN (the quality mask is carried along);
@@ -40,7 +45,7 @@ from calib.capture import Capture, Frame, load_capture
 from calib.decode import DARK_FRACTION, MAX_MISMATCH_SIGMA, MODULATION_FRACTION
 from calib.errors import InputError
 from calib.graycode import decode_gray, unwrap_with_gray
-from calib.phase import LOW_MODULATION, UNWRAP, WaveformCorrection, decode_frames, unwrap_temporal
+from calib.phase import LOW_MODULATION, SATURATED, UNWRAP, WaveformCorrection, decode_frames, unwrap_temporal
 from stereodic.matching import match_rows
 from stereodic.phase_filter import row_slope, smooth_phase
 from stereodic.rig import Rig, check_camera_sizes
@@ -257,6 +262,8 @@ def decode_camera(capture: Capture, camera: str, sets: ScanSets, images=None) ->
                                 MIN_MODULATION_FRACTION * full, _correction(proj, sets.fringes[period]))
         except ValueError as exc:
             raise InputError(capture.manifest_path, f"camera {camera!r}, period {period:g} px: {exc}") from None
+        # a pixel with a clipped sample is not measured (module docstring, step 1)
+        res.quality[(res.clipped != 0).any(axis=0)] |= SATURATED
         stride = max(1, res.modulation.size // 500_000)          # the 90th percentile from a sample
         sample = res.modulation.ravel()[::stride][res.quality.ravel()[::stride] == 0]
         if sample.size:

@@ -116,13 +116,20 @@ class LitView:
     """What one camera's sub-samples see of one scene: c (H*S, W*S) float32 projector panel column (NaN:
     not lit - shadow, miss, outside the projector's field); factor: float32 irradiance factor; albedo:
     float32 (0 on a miss); blur_px (H, W) defocus diameters; points (H, W, 3) the points the pixel
-    centres see (NaN on a miss)."""
+    centres see (NaN on a miss); gloss: float32 the specular lobe's reflectance towards the camera (0 for a
+    matte surface), added to the albedo for the projector's light."""
 
     c: np.ndarray
     factor: np.ndarray
     albedo: np.ndarray
     blur_px: np.ndarray
     points: np.ndarray
+    gloss: np.ndarray
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    """Rows of `v` (N, 3) scaled to unit length."""
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
 def lit_view(cam: SimCamera, scene: Scene, projector: Projector) -> LitView:
@@ -134,6 +141,7 @@ def lit_view(cam: SimCamera, scene: Scene, projector: Projector) -> LitView:
     c = np.empty((h * s, w * s), np.float32)
     factor = np.empty_like(c)
     albedo = np.empty_like(c)
+    gloss = np.zeros_like(c)
     pts = np.empty((h * s, w * s, 3))
     for v0 in range(0, h, ROWS_PER_CHUNK):
         vs = (np.arange(v0, min(h, v0 + ROWS_PER_CHUNK))[:, None] + sub[None, :]).ravel()
@@ -149,17 +157,22 @@ def lit_view(cam: SimCamera, scene: Scene, projector: Projector) -> LitView:
         c[rows] = np.where(lit, cc, np.nan).reshape(len(vs), -1)
         factor[rows] = f.reshape(len(vs), -1)
         albedo[rows] = np.where(seen, hit.albedo, 0.0).reshape(len(vs), -1)
+        if hit.specular.any():      # Blinn-Phong: the half vector of the directions to projector and camera
+            half = _unit(_unit(projector.centre_mm - hit.point) - d.reshape(-1, 3))
+            lobe = hit.specular * np.clip(np.einsum("ij,ij->i", half, hit.normal), 0, 1) ** hit.shininess
+            gloss[rows] = np.where(lit, lobe, 0.0).reshape(len(vs), -1)
         pts[rows] = np.where(seen[:, None], hit.point, np.nan).reshape(len(vs), -1, 3)
     centre = pts[s // 2::s, s // 2::s]
     focus = lens.centre_mm + lens.focus_mm * lens.rotation[:, 2]
     blur = lens.blur_diameter_px(*lens.pixel_grid(), np.where(np.isfinite(centre), centre, focus))
-    return LitView(c, factor, albedo, blur.astype(np.float32), centre)
+    return LitView(c, factor, albedo, blur.astype(np.float32), centre, gloss)
 
 
 def render_frame(cam: SimCamera, view: LitView, projector: Projector, pattern: Pattern, ambient: float,
                  noise: bool = True) -> np.ndarray:
     """The camera image (uint8, or uint16 above 8 bits) of the scene of `view` under `pattern`."""
-    radiance = view.albedo * (np.float32(ambient) + view.factor * projector.emission(pattern, view.c))
+    radiance = view.albedo * np.float32(ambient) + (view.albedo + view.gloss) * view.factor * \
+        projector.emission(pattern, view.c)
     e = blur_and_integrate(radiance, cam.supersample, view.blur_px, cam.sigma_px)
     e *= cam.vignetting * cam.gain * np.float32(cam.exposure_e)
     return cam.sensor.digitise(e, cam.rng if noise else None)
