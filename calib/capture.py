@@ -141,7 +141,7 @@ class Frame:
 
     def identity(self) -> tuple:
         """What makes two frames the same capture (a duplicate if it appears twice)."""
-        return (self.camera, self.z_mm, self.pose, self.state, self.pattern.key(), self.repeat or 0)
+        return (self.camera, self.z_mm, self.pose, self.state, self.pattern.key(), self.repeat or 0, self.exposure_ms)
 
 
 @dataclass

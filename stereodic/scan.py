@@ -163,6 +163,13 @@ def check_scan_dataset(capture: Capture, cameras: tuple[str, str], state: int) -
         if not sets.fringes and not sets.gray:
             raise InputError(where, f"camera {cam!r} has no fringe or Gray-code (axis x) frames in state {state}")
         for period, frames in sets.fringes.items():
+            exposures = by_exposure(frames)
+            shifts = {e: sorted(round(f.pattern.shift_rad, 9) for f in fs) for e, fs in exposures.items()}
+            if len({tuple(v) for v in shifts.values()}) > 1:
+                counts = ", ".join(f"{len(v)} at {_ms(e)}" for e, v in shifts.items())
+                raise InputError(where, f"camera {cam!r}, state {state}: the exposures of period {period:g} px do "
+                                        f"not match (not the same shifts at every exposure: frames {counts})")
+            frames = next(iter(exposures.values()))
             if len({round(f.pattern.shift_rad, 9) for f in frames}) < 3:
                 raise InputError(where, f"camera {cam!r}, state {state}: the fringe of period {period:g} px has "
                                         f"{len(frames)} frame(s) with fewer than 3 distinct shifts (missing "
@@ -171,6 +178,9 @@ def check_scan_dataset(capture: Capture, cameras: tuple[str, str], state: int) -
             if want_steps is not None and len(frames) != want_steps:
                 raise InputError(where, f"camera {cam!r}, state {state}: period {period:g} px has {len(frames)} "
                                         f"frames, the projector block says steps = {proj['steps']}")
+        if len({f.exposure_ms for f in sets.gray.values()}) > 1:
+            raise InputError(where, f"camera {cam!r}, state {state}: Gray-code frames at several exposures are not "
+                                    f"merged (take the Gray code at one exposure)")
         if "periods_px" in proj and (sets.fringes or proj["periods_px"]):
             want = sorted(float(p) for p in proj["periods_px"])
             if sorted(sets.fringes) != want:
@@ -216,6 +226,18 @@ def _check_gray(sets: ScanSets, width_px: int, ctx: str, where) -> None:
                                     f"{int(np.log2(period / 2))})")
 
 
+def by_exposure(frames: list) -> dict:
+    """The frames grouped by `exposure_ms` (None: not recorded), longest exposure first."""
+    groups = defaultdict(list)
+    for f in frames:
+        groups[f.exposure_ms].append(f)
+    return dict(sorted(groups.items(), key=lambda kv: -(kv[0] or 0.0)))
+
+
+def _ms(exposure: float | None) -> str:
+    return "no exposure_ms" if exposure is None else f"{exposure:g} ms"
+
+
 def _steps(proj: dict, period: float) -> int | None:
     """The number of steps the projector block states for `period` (None: not stated)."""
     steps = proj.get("steps")
@@ -255,19 +277,7 @@ def decode_camera(capture: Capture, camera: str, sets: ScanSets, images=None) ->
     quality = np.zeros((h, w), np.uint8)
     phases, last, full = [], None, None
     for period in periods:
-        raws = [read(f) for f in sets.fringes[period]]
-        full = capture.max_value(camera, raws[0])
-        try:
-            res = decode_frames(raws, [f.pattern.shift_rad for f in sets.fringes[period]], full, DARK_FRACTION * full,
-                                MIN_MODULATION_FRACTION * full, _correction(proj, sets.fringes[period]))
-        except ValueError as exc:
-            raise InputError(capture.manifest_path, f"camera {camera!r}, period {period:g} px: {exc}") from None
-        # a pixel with a clipped sample is not measured (module docstring, step 1)
-        res.quality[(res.clipped != 0).any(axis=0)] |= SATURATED
-        stride = max(1, res.modulation.size // 500_000)          # the 90th percentile from a sample
-        sample = res.modulation.ravel()[::stride][res.quality.ravel()[::stride] == 0]
-        if sample.size:
-            res.quality[res.modulation < MODULATION_FRACTION * np.percentile(sample, 90)] |= LOW_MODULATION
+        res, full = _decode_period(capture, camera, period, sets.fringes[period], read)
         quality |= res.quality
         phases.append(res.phase)
         last = res
@@ -295,6 +305,39 @@ def decode_camera(capture: Capture, camera: str, sets: ScanSets, images=None) ->
     coord = np.where(quality == 0, coord.astype(np.float32), np.float32(np.nan))
     scale = np.float32(1.0 / full)
     return PhaseMap(coord, last.modulation * scale, last.offset * scale, quality, last.frames)
+
+
+def _decode_period(capture: Capture, camera: str, period: float, frames: list, read):
+    """(`calib.phase.WrappedPhase`, full scale) of one period's frames; with several exposures merged per
+    pixel: the longest exposure that is unclipped, lit and modulated (HDR). LOW_MODULATION where the
+    modulation per unit of exposure is below MODULATION_FRACTION of its 90th percentile (shadows, stray
+    light). A pixel with a clipped sample is SATURATED (module docstring, step 1)."""
+    proj = projector_block(capture)
+    merged, exposure_of = None, None
+    for exposure, group in by_exposure(frames).items():
+        raws = [read(f) for f in group]
+        full = capture.max_value(camera, raws[0])
+        try:
+            res = decode_frames(raws, [f.pattern.shift_rad for f in group], full, DARK_FRACTION * full,
+                                MIN_MODULATION_FRACTION * full, _correction(proj, group))
+        except ValueError as exc:
+            where = f"camera {camera!r}, period {period:g} px" + ("" if exposure is None else f", {exposure:g} ms")
+            raise InputError(capture.manifest_path, f"{where}: {exc}") from None
+        res.quality[(res.clipped != 0).any(axis=0)] |= SATURATED
+        if merged is None:
+            merged, exposure_of = res, np.full(res.phase.shape, exposure or 1.0, np.float32)
+            continue
+        take = (merged.quality != 0) & (res.quality == 0)
+        for name in ("phase", "offset", "modulation", "noise", "quality"):
+            getattr(merged, name)[take] = getattr(res, name)[take]
+        exposure_of[take] = exposure
+    # shadows: little of the projector's light per unit of exposure, whatever the exposure
+    light = merged.modulation / exposure_of
+    stride = max(1, light.size // 500_000)                      # the 90th percentile from a sample
+    sample = light.ravel()[::stride][merged.quality.ravel()[::stride] == 0]
+    if sample.size:
+        merged.quality[light < MODULATION_FRACTION * np.percentile(sample, 90)] |= LOW_MODULATION
+    return merged, full
 
 
 def _decode_gray(capture: Capture, camera: str, sets: ScanSets, read):

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +45,7 @@ from scanners.sim.stereo import CAMERAS, stereo_lenses
 
 TARGET = np.asarray(DEFAULT_TARGET_MM, np.float64)
 DEFAULT_PERIODS = (1280, 160, 32, 8)   # panel px: ratios 8, 5, 4 unwrap safely; 8 px sets the depth noise
+BASE_EXPOSURE_MS = 10.0                # the simulated cameras' exposure time (recorded with several exposures)
 FINE_STEPS, COARSE_STEPS = 16, 3       # default steps: the finest period measures, the coarser ones unwrap
 # the measuring volume (WCS mm, about the target): x, y, z extent; L0 is its diagonal
 VOLUME_MM = (200.0, 160.0, 100.0)
@@ -169,12 +170,13 @@ def lit_view(cam: SimCamera, scene: Scene, projector: Projector) -> LitView:
 
 
 def render_frame(cam: SimCamera, view: LitView, projector: Projector, pattern: Pattern, ambient: float,
-                 noise: bool = True) -> np.ndarray:
-    """The camera image (uint8, or uint16 above 8 bits) of the scene of `view` under `pattern`."""
+                 noise: bool = True, exposure: float = 1.0) -> np.ndarray:
+    """The camera image (uint8, or uint16 above 8 bits) of the scene of `view` under `pattern`, exposed
+    `exposure` times the camera's exposure."""
     radiance = view.albedo * np.float32(ambient) + (view.albedo + view.gloss) * view.factor * \
         projector.emission(pattern, view.c)
     e = blur_and_integrate(radiance, cam.supersample, view.blur_px, cam.sigma_px)
-    e *= cam.vignetting * cam.gain * np.float32(cam.exposure_e)
+    e *= cam.vignetting * cam.gain * np.float32(cam.exposure_e * exposure)
     return cam.sensor.digitise(e, cam.rng if noise else None)
 
 
@@ -266,9 +268,17 @@ def scan_frames(state: int, periods, steps, low: int, high: int, gray_width: int
     return frames
 
 
+def _exposed(frames: list[Frame], exposures) -> list[Frame]:
+    """Each frame at each relative exposure (module docstring of `simulate_scan`); one exposure: as is."""
+    if len(exposures) == 1 and exposures[0] == 1.0:
+        return frames
+    return [replace(f, file=f"{f.file[:-4]}_e{x:g}.png", exposure_ms=BASE_EXPOSURE_MS * x)
+            for f in frames for x in exposures]
+
+
 def simulate_scan(out_dir: str | os.PathLike, *, scenes: list[Scene] | None = None, rig: ScanRig | None = None,
                   periods=DEFAULT_PERIODS, steps=None, seed: int = 0, noise: bool = True, low: int = 10,
-                  high: int = 250, gray: bool = False) -> Capture:
+                  high: int = 250, gray: bool = False, exposures=(1.0,)) -> Capture:
     """Render a scan dataset (module docstring) with the true PRVMs of its cameras.
 
     Parameters
@@ -293,6 +303,10 @@ def simulate_scan(out_dir: str | os.PathLike, *, scenes: list[Scene] | None = No
     gray : bool
         Project the column Gray code first (`scan_frames`): `periods` is then empty (Gray code alone) or
         one period (Gray code plus phase shifting).
+    exposures : sequence of float
+        Each pattern is taken at each of these exposures (relative to the default, which brings a white
+        surface facing the projector to 95 % of full scale); with several, the frames record
+        `exposure_ms` (BASE_EXPOSURE_MS times the factor) and their files end in _e<factor>.
 
     Returns
     -------
@@ -318,12 +332,14 @@ def simulate_scan(out_dir: str | os.PathLike, *, scenes: list[Scene] | None = No
     cams = rig.cameras(seed)
     frames = []
     for state, scene in enumerate(progress(scenes, "simulating scan", total=len(scenes))):
-        state_frames = scan_frames(state, periods, steps, low, high, rig.projector.width_px if gray else 0)
+        state_frames = _exposed(scan_frames(state, periods, steps, low, high, rig.projector.width_px if gray else 0),
+                                exposures)
         for name, cam in zip(CAMERAS, cams):
             view = lit_view(cam, scene, rig.projector)
             for f in state_frames:
                 if f.camera == name:
-                    write_gray(out / f.file, render_frame(cam, view, rig.projector, f.pattern, rig.ambient, noise))
+                    write_gray(out / f.file, render_frame(cam, view, rig.projector, f.pattern, rig.ambient, noise,
+                                                          (f.exposure_ms or BASE_EXPOSURE_MS) / BASE_EXPOSURE_MS))
         frames += state_frames
     for name, lens in zip(CAMERAS, (rig.left, rig.right)):
         lens.true_prvm(camera=name, dataset=f"simulated scanner, seed {seed}",

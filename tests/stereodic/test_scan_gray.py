@@ -223,3 +223,54 @@ def test_a_clipped_highlight_does_not_bend_the_sphere(glossy):
     on = d[np.abs(d) < 0.5]
     assert len(on) > 100
     assert trimmed_range(on) < 0.012
+
+
+# ------------------------------------------------------------------------- several exposures (HDR)
+
+def _sphere_scan(folder, surface_kw, exposures=(1.0,)):
+    from scanners.sim.scan import TARGET, _background
+    from scanners.sim.scan_scene import Scene, Sphere
+    sphere = Sphere(centre=TARGET + [10.0, 5.0, 0], radius_mm=25.0, **surface_kw)
+    simulate_scan(folder, scenes=[Scene([sphere, _background()], "sphere")], rig=default_scan_rig(width=320, height=256),
+                  exposures=exposures)
+    save_rig(folder / "rig.npz", rig_from_files(folder / "truth_cam0.npz", folder / "truth_cam1.npz"))
+    result, _ = scan_state(load_rig(folder / "rig.npz"), load_capture(folder), 0)
+    on = result.points[np.abs(sphere.distance(result.points)) < 0.5]
+    return on, fit_sphere(on) if len(on) > 10 else None
+
+
+EXPOSURES = (4.0, 1.0, 0.25)
+
+
+@pytest.mark.slow
+def test_several_exposures_recover_a_metal_part_and_a_dark_one(tmp_path):
+    matte, matte_fit = _sphere_scan(tmp_path / "matte", dict(albedo=0.3, texture=0.1))
+    metal = dict(albedo=0.3, texture=0.1, specular=2.0, shininess=30.0)      # the same, with a specular lobe
+    glint, _ = _sphere_scan(tmp_path / "metal1", metal)
+    hdr, hdr_fit = _sphere_scan(tmp_path / "metal3", metal, EXPOSURES)
+    # one exposure loses the highlight (clipped) and the 8-px filter band around it: 8 % of the sphere
+    assert len(glint) < 0.3 * len(matte)
+    assert len(hdr) >= 0.98 * len(matte)                                     # 1358 of 1358
+    matte_pf = trimmed_range(matte_fit.residuals)
+    assert trimmed_range(hdr_fit.residuals) <= 1.5 * matte_pf               # 26.9 against 23.2 um
+    dark, dark_fit = _sphere_scan(tmp_path / "dark3", dict(albedo=0.1), EXPOSURES)
+    assert len(dark) > 0.3 * len(matte)
+    assert trimmed_range(dark_fit.residuals) <= 1.5 * matte_pf              # 21.3 um
+
+
+def test_exposures_that_do_not_match_are_an_error(tmp_path, capsys):
+    from scanners.sim.scan import TARGET
+    from scanners.sim.scan_scene import Plane, Scene
+    out = tmp_path / "hdr"
+    simulate_scan(out, scenes=[Scene([Plane(centre=TARGET, normal=(0, 0, -1), size_mm=(100, 80))], "plate")],
+                  rig=default_scan_rig(width=32, height=24, supersample=1), periods=(1280, 160), steps=3,
+                  exposures=(1.0, 0.5))
+    save_rig(out / "rig.npz", rig_from_files(out / "truth_cam0.npz", out / "truth_cam1.npz"))
+    m = json.loads((out / "capture.json").read_text())
+    m["frames"] = [f for f in m["frames"] if not (f["camera"] == "cam0" and f.get("exposure_ms") == 5.0
+                                                   and f["pattern"]["period_px"] == 160
+                                                   and f["pattern"]["shift_rad"] == 0)]
+    (out / "capture.json").write_text(json.dumps(m))
+    assert main(["scan", str(out / "rig.npz"), str(out), "-o", str(tmp_path / "c.ply")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "exposures of period 160 px do not match" in err[0] and "2 at 5 ms" in err[0]
