@@ -274,3 +274,16 @@ def test_exposures_that_do_not_match_are_an_error(tmp_path, capsys):
     assert main(["scan", str(out / "rig.npz"), str(out), "-o", str(tmp_path / "c.ply")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "exposures of period 160 px do not match" in err[0] and "2 at 5 ms" in err[0]
+
+
+@pytest.mark.skipif(not STATUE.is_dir(), reason="the statue dataset is not on this machine")
+def test_statue_calibration_reads_as_it_is():
+    from stereodic.formats import read_calibration
+    fmt, (one, two) = read_calibration([STATUE / "calibrationParameters.yml"])
+    fs = cv2.FileStorage(str(STATUE / "calibrationParameters.yml"), cv2.FILE_STORAGE_READ)
+    assert fmt == "opencv" and (one.width, one.height) == (two.width, two.height) == (1920, 1280)
+    assert one.fx == fs.getNode("cam1_intrinsics").mat()[0, 0] and two.cx == fs.getNode("cam2_intrinsics").mat()[0, 2]
+    assert np.allclose(one.R, np.eye(3)) and np.allclose(one.t, 0)
+    # R, T: camera 2's pose in camera 1's frame (x1 = R x2 + T), so camera 2's centre is T
+    assert np.allclose(-two.R.T @ two.t, fs.getNode("T").mat().ravel())
+    assert np.allclose(two.R, fs.getNode("R").mat().T)
