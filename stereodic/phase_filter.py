@@ -114,7 +114,8 @@ def smooth_phase(phase: np.ndarray, *, sigma_px: float, max_step: float | None =
     if sigma_px <= 0:
         return phase.copy()
     r = radius(sigma_px)
-    core = cv2.erode(continuous(phase, max_step, plateaus=plateaus).view(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8),
+    window = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
+    core = cv2.erode(continuous(phase, max_step, plateaus=plateaus).view(np.uint8), window,
                      borderType=cv2.BORDER_CONSTANT, borderValue=0).view(bool)
     # filter the phase minus a ramp c + s x (the filter reproduces a ramp exactly, so it is added back
     # unfiltered): small numbers keep float32 sums exact to ~1e-5 phase units

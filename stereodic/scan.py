@@ -45,7 +45,8 @@ from calib.capture import Capture, Frame, load_capture
 from calib.decode import DARK_FRACTION, MAX_MISMATCH_SIGMA, MODULATION_FRACTION
 from calib.errors import InputError
 from calib.graycode import decode_gray, unwrap_with_gray
-from calib.phase import LOW_MODULATION, SATURATED, UNWRAP, WaveformCorrection, decode_frames, unwrap_temporal
+from calib.phase import (LOW_MODULATION, QUALITY_NAMES, SATURATED, UNWRAP, WaveformCorrection, decode_frames,
+                         unwrap_temporal)
 from stereodic.matching import match_rows
 from stereodic.phase_filter import row_slope, smooth_phase
 from stereodic.rig import Rig, check_camera_sizes
@@ -443,8 +444,12 @@ def scan_state(rig: Rig, capture: Capture, state: int, *, cameras: tuple[str, st
     xr = match_rows(phases[0], phases[1])
     result = match_and_triangulate(rig, phases[0], phases[1], mods[0], mods[1], corrected, matches=xr)
     if len(result.points) == 0:
+        counts = {name: sum(int(((pm.quality & bit) != 0).sum()) for pm in real)
+                  for bit, name in QUALITY_NAMES.items()}
+        most = f"; most pixels flagged: {max(counts, key=counts.get)}" if max(counts.values()) else ""
         raise InputError(capture.root, f"state {state}: no point was matched: nothing lit by the projector is "
-                                       f"seen by both cameras (is the object inside the common field of view?)")
+                                       f"seen by both cameras (is the object inside the common field of view?)"
+                                       f"{most}")
     return result, {"phase": tuple(phases), "modulation": tuple(mods), "matches": xr,
                     "real": tuple(real)}
 

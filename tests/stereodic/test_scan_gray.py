@@ -231,8 +231,8 @@ def _sphere_scan(folder, surface_kw, exposures=(1.0,)):
     from scanners.sim.scan import TARGET, _background
     from scanners.sim.scan_scene import Scene, Sphere
     sphere = Sphere(centre=TARGET + [10.0, 5.0, 0], radius_mm=25.0, **surface_kw)
-    simulate_scan(folder, scenes=[Scene([sphere, _background()], "sphere")], rig=default_scan_rig(width=320, height=256),
-                  exposures=exposures)
+    simulate_scan(folder, scenes=[Scene([sphere, _background()], "sphere")],
+                  rig=default_scan_rig(width=320, height=256), exposures=exposures)
     save_rig(folder / "rig.npz", rig_from_files(folder / "truth_cam0.npz", folder / "truth_cam1.npz"))
     result, _ = scan_state(load_rig(folder / "rig.npz"), load_capture(folder), 0)
     on = result.points[np.abs(sphere.distance(result.points)) < 0.5]
