@@ -35,9 +35,12 @@ MIN_POSES = 3
 # Pattern types and the keys each one requires. "fringe": a phase-shifting fringe of DESIGN.md;
 # "flat": a uniform grey level (intensity calibration); "chessboard": squares of `square_px` display
 # pixels, `squares` = [columns, rows], top-left corner of the board at display pixel `origin_px`
-# (used for the OpenCV comparison); "none": no pattern shown (ambient, DIC speckle under plain light).
+# (used for the OpenCV comparison); "none": no pattern shown (ambient, DIC speckle under plain light);
+# "gray": bit `bit` (0 = least significant) of the binary-reflected Gray code of the column (axis "x") or
+# row, white where 1, optional "inverse": true for its complement (calib.graycode).
 PATTERN_KEYS = {
     "fringe": ("axis", "period_px", "shift_rad"),
+    "gray": ("axis", "bit"),
     "flat": ("level",),
     "chessboard": ("squares", "square_px"),
     "none": (),
@@ -138,7 +141,7 @@ class Frame:
 
     def identity(self) -> tuple:
         """What makes two frames the same capture (a duplicate if it appears twice)."""
-        return (self.camera, self.z_mm, self.pose, self.state, self.pattern.key(), self.repeat or 0)
+        return (self.camera, self.z_mm, self.pose, self.state, self.pattern.key(), self.repeat or 0, self.exposure_ms)
 
 
 @dataclass
@@ -340,6 +343,13 @@ def _parse_pattern(where: Path, i: int, p: Any) -> Pattern:
             raise InputError(where, f"{ctx}: fringe needs low < high, got {low} and {high}")
     elif t == "flat":
         _num(where, f"{ctx}: level", params["level"])
+    elif t == "gray":
+        if params["axis"] not in ("x", "y"):
+            raise InputError(where, f"{ctx}: gray axis must be 'x' or 'y', got {params['axis']!r}")
+        if not (isinstance(params["bit"], int) and 0 <= params["bit"] < 32):
+            raise InputError(where, f"{ctx}: gray 'bit' must be a whole number 0..31, got {params['bit']!r}")
+        if not isinstance(params.get("inverse", False), bool):
+            raise InputError(where, f"{ctx}: gray 'inverse' must be true or false, got {params['inverse']!r}")
     elif t == "chessboard":
         sq = params["squares"]
         if not (isinstance(sq, list) and len(sq) == 2 and all(isinstance(s, int) and s >= 2 for s in sq)):

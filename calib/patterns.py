@@ -10,6 +10,12 @@ pre-compensated: the code values are chosen so that the *emitted luminance*, not
 the cosine. Such patterns carry `"precompensated": true` in their description, and the decoder then
 works in luminance instead of code values.
 
+Gray code (`gray_image`, `gray_sequence`): bit B of the binary-reflected Gray code of the column
+(axis "x") or row, `high` where the bit is 1 and `low` where 0, each followed by its inverse; then a
+white and a black flat for the decoder's contrast (`calib.graycode`). With a fringe period P the bits
+stop at the stripes of at most P / 2 pixels (one finer than the period: the complementary bit that keeps
+the period order right at the period's edges) and the N shifted fringes of period P follow.
+
 The manifest `patterns.json` (format "stereodic.patterns/1") lists every written image with its
 pattern description, in the order to show them:
     {"format": "stereodic.patterns/1", "display": {"width_px": .., "height_px": ..},
@@ -27,6 +33,7 @@ import numpy as np
 
 from calib.atomic import write_json
 from calib.capture import Pattern
+from calib.graycode import gray_bits, gray_profile
 from calib.imageio import write_gray
 
 PATTERNS_FORMAT = "stereodic.patterns/1"
@@ -178,10 +185,87 @@ def calibration_sequence(display_w: int, display_h: int, *, periods, steps: int 
     return seq
 
 
+def gray_image(display_w: int, display_h: int, *, axis: str, bit: int, inverse: bool = False,
+               low: int = 0, high: int = 255) -> np.ndarray:
+    """One Gray-code bit as a display image (module docstring).
+
+    Parameters
+    ----------
+    display_w, display_h : int
+        The display's size, display pixels.
+    axis : {"x", "y"}
+        "x": the code of the column (vertical stripes); "y": of the row.
+    bit : int
+        The bit, 0 = least significant (stripes of 2**(bit + 1) pixels, the first half as wide).
+    inverse : bool
+        The complement.
+    low, high : int
+        The code values of 0 and 1.
+
+    Returns
+    -------
+    image : (display_h, display_w) uint8
+    """
+    if axis not in ("x", "y"):
+        raise ValueError(f"axis must be 'x' or 'y', got {axis!r}")
+    n = display_w if axis == "x" else display_h
+    line = np.where(gray_profile(n, bit, inverse) == 1, high, low).astype(np.uint8)
+    shape = (display_h, display_w)
+    return np.broadcast_to(line[None, :] if axis == "x" else line[:, None], shape).copy()
+
+
+def gray_sequence(display_w: int, display_h: int, *, axes=("x",), period_px: float | None = None,
+                  steps: int = 16, low: int = 0, high: int = 255,
+                  fringe_low: float = 20, fringe_high: float = 240) -> list[tuple[Pattern, np.ndarray]]:
+    """Every pattern of a Gray-code scan, in display order (module docstring): per axis the bits, most
+    significant first, each followed by its inverse; the white and black flats; with `period_px` the
+    `steps` shifted fringes of that period along the first axis.
+
+    Parameters
+    ----------
+    display_w, display_h : int
+        The display's (projector's) size, pixels.
+    axes : sequence of {"x", "y"}
+        The coded axes, in order.
+    period_px : float, optional
+        Gray code plus phase shifting: the fringe period, pixels (the code stops at stripes of at most
+        half of it); None: the full Gray code, down to single pixels.
+    steps : int
+        Phase steps of the fringe (N >= 3).
+    low, high : int
+        The Gray code's code values.
+    fringe_low, fringe_high : float
+        The code values the fringe spans.
+
+    Returns
+    -------
+    sequence : list of (Pattern, (display_h, display_w) uint8)
+    """
+    low_bit = 0 if period_px is None else int(np.floor(np.log2(period_px / 2)))
+    if low_bit < 0:
+        raise ValueError(f"a fringe period of {period_px} px is too short for Gray code (>= 2 px)")
+    seq = []
+    for axis in axes:
+        for bit in reversed(range(low_bit, gray_bits(display_w if axis == "x" else display_h))):
+            for inverse in (False, True):
+                seq.append((Pattern("gray", {"axis": axis, "bit": bit, "inverse": inverse}),
+                            gray_image(display_w, display_h, axis=axis, bit=bit, inverse=inverse, low=low,
+                                       high=high)))
+    seq += [(Pattern("flat", {"level": int(v)}), flat_image(display_w, display_h, int(v))) for v in (high, low)]
+    if period_px is not None:
+        for delta in step_shifts(steps):
+            seq.append((fringe_pattern(axes[0], period_px, delta, fringe_low, fringe_high),
+                        fringe_image(display_w, display_h, axis=axes[0], period_px=period_px, shift_rad=delta,
+                                     low=fringe_low, high=fringe_high)))
+    return seq
+
+
 def pattern_filename(pattern: Pattern, index: int) -> str:
     """A readable, unique file name for the index-th pattern of a sequence."""
     if pattern.type == "flat":
         return f"{index:03d}_flat_{pattern.level}.png"
+    if pattern.type == "gray":
+        return f"{index:03d}_{pattern.axis}_gray{pattern.bit}{'_inv' if pattern.inverse else ''}.png"
     return f"{index:03d}_{pattern.axis}_P{pattern.period_px:g}_s{pattern.shift_rad:+.4f}.png"
 
 

@@ -34,9 +34,10 @@ import numba
 import numpy as np
 
 # quality flags (bits of the per-pixel `quality` array; 0 = good)
-DARK, SATURATED, LOW_MODULATION, UNWRAP, NO_DATA, EDGE = 1, 2, 4, 8, 16, 32
+DARK, SATURATED, LOW_MODULATION, UNWRAP, NO_DATA, EDGE, UNDECIDED = 1, 2, 4, 8, 16, 32, 64
 QUALITY_NAMES = {DARK: "too dark", SATURATED: "saturated", LOW_MODULATION: "low modulation",
-                 UNWRAP: "unwrapping inconsistent", NO_DATA: "not decoded", EDGE: "display edge"}
+                 UNWRAP: "unwrapping inconsistent", NO_DATA: "not decoded", EDGE: "display edge",
+                 UNDECIDED: "Gray-code bit undecided"}
 
 
 @dataclass

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +32,7 @@ from calib.atomic import write_npz
 from calib.capture import MANIFEST, Capture, Frame, Pattern, load_capture
 from calib.errors import InputError
 from calib.imageio import write_gray
+from calib.patterns import gray_sequence, pattern_filename
 from calib.progress import progress
 from scanners.sim.camera import SimCamera
 from scanners.sim.defocus import blur_and_integrate
@@ -44,6 +45,7 @@ from scanners.sim.stereo import CAMERAS, stereo_lenses
 
 TARGET = np.asarray(DEFAULT_TARGET_MM, np.float64)
 DEFAULT_PERIODS = (1280, 160, 32, 8)   # panel px: ratios 8, 5, 4 unwrap safely; 8 px sets the depth noise
+BASE_EXPOSURE_MS = 10.0                # the simulated cameras' exposure time (recorded with several exposures)
 FINE_STEPS, COARSE_STEPS = 16, 3       # default steps: the finest period measures, the coarser ones unwrap
 # the measuring volume (WCS mm, about the target): x, y, z extent; L0 is its diagonal
 VOLUME_MM = (200.0, 160.0, 100.0)
@@ -115,13 +117,20 @@ class LitView:
     """What one camera's sub-samples see of one scene: c (H*S, W*S) float32 projector panel column (NaN:
     not lit - shadow, miss, outside the projector's field); factor: float32 irradiance factor; albedo:
     float32 (0 on a miss); blur_px (H, W) defocus diameters; points (H, W, 3) the points the pixel
-    centres see (NaN on a miss)."""
+    centres see (NaN on a miss); gloss: float32 the specular lobe's reflectance towards the camera (0 for a
+    matte surface), added to the albedo for the projector's light."""
 
     c: np.ndarray
     factor: np.ndarray
     albedo: np.ndarray
     blur_px: np.ndarray
     points: np.ndarray
+    gloss: np.ndarray
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    """Rows of `v` (N, 3) scaled to unit length."""
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
 def lit_view(cam: SimCamera, scene: Scene, projector: Projector) -> LitView:
@@ -133,6 +142,7 @@ def lit_view(cam: SimCamera, scene: Scene, projector: Projector) -> LitView:
     c = np.empty((h * s, w * s), np.float32)
     factor = np.empty_like(c)
     albedo = np.empty_like(c)
+    gloss = np.zeros_like(c)
     pts = np.empty((h * s, w * s, 3))
     for v0 in range(0, h, ROWS_PER_CHUNK):
         vs = (np.arange(v0, min(h, v0 + ROWS_PER_CHUNK))[:, None] + sub[None, :]).ravel()
@@ -148,19 +158,25 @@ def lit_view(cam: SimCamera, scene: Scene, projector: Projector) -> LitView:
         c[rows] = np.where(lit, cc, np.nan).reshape(len(vs), -1)
         factor[rows] = f.reshape(len(vs), -1)
         albedo[rows] = np.where(seen, hit.albedo, 0.0).reshape(len(vs), -1)
+        if hit.specular.any():      # Blinn-Phong: the half vector of the directions to projector and camera
+            half = _unit(_unit(projector.centre_mm - hit.point) - d.reshape(-1, 3))
+            lobe = hit.specular * np.clip(np.einsum("ij,ij->i", half, hit.normal), 0, 1) ** hit.shininess
+            gloss[rows] = np.where(lit, lobe, 0.0).reshape(len(vs), -1)
         pts[rows] = np.where(seen[:, None], hit.point, np.nan).reshape(len(vs), -1, 3)
     centre = pts[s // 2::s, s // 2::s]
     focus = lens.centre_mm + lens.focus_mm * lens.rotation[:, 2]
     blur = lens.blur_diameter_px(*lens.pixel_grid(), np.where(np.isfinite(centre), centre, focus))
-    return LitView(c, factor, albedo, blur.astype(np.float32), centre)
+    return LitView(c, factor, albedo, blur.astype(np.float32), centre, gloss)
 
 
 def render_frame(cam: SimCamera, view: LitView, projector: Projector, pattern: Pattern, ambient: float,
-                 noise: bool = True) -> np.ndarray:
-    """The camera image (uint8, or uint16 above 8 bits) of the scene of `view` under `pattern`."""
-    radiance = view.albedo * (np.float32(ambient) + view.factor * projector.emission(pattern, view.c))
+                 noise: bool = True, exposure: float = 1.0) -> np.ndarray:
+    """The camera image (uint8, or uint16 above 8 bits) of the scene of `view` under `pattern`, exposed
+    `exposure` times the camera's exposure."""
+    radiance = view.albedo * np.float32(ambient) + (view.albedo + view.gloss) * view.factor * \
+        projector.emission(pattern, view.c)
     e = blur_and_integrate(radiance, cam.supersample, view.blur_px, cam.sigma_px)
-    e *= cam.vignetting * cam.gain * np.float32(cam.exposure_e)
+    e *= cam.vignetting * cam.gain * np.float32(cam.exposure_e * exposure)
     return cam.sensor.digitise(e, cam.rng if noise else None)
 
 
@@ -233,11 +249,17 @@ def steps_per_period(periods, steps) -> list[int]:
     return [int(n) for n in per]
 
 
-def scan_frames(state: int, periods, steps, low: int, high: int) -> list[Frame]:
+def scan_frames(state: int, periods, steps, low: int, high: int, gray_width: int = 0) -> list[Frame]:
     """The frame records of one state: for each camera, each period, each shift (x-axis fringes);
-    steps: one int, or one per period."""
+    steps: one int, or one per period; gray_width: first the Gray code of that many panel columns
+    (`calib.patterns.gray_sequence`: with one period down to stripes of half of it, with none down to
+    single columns) and its flats; 0: none."""
     frames = []
     for cam in CAMERAS:
+        if gray_width:
+            seq = gray_sequence(gray_width, 1, period_px=periods[0] if periods else None)
+            frames += [Frame(cam, f"s{state:03d}/{cam}_{pattern_filename(pat, k)}", pat, state=state)
+                       for k, (pat, _) in enumerate(seq) if pat.type != "fringe"]
         for p, n in zip(periods, steps_per_period(periods, steps)):
             for k, shift in enumerate(fringe_shifts(n)):
                 frames.append(Frame(cam, f"s{state:03d}/{cam}_P{p:g}_s{k}.png",
@@ -246,9 +268,17 @@ def scan_frames(state: int, periods, steps, low: int, high: int) -> list[Frame]:
     return frames
 
 
+def _exposed(frames: list[Frame], exposures) -> list[Frame]:
+    """Each frame at each relative exposure (module docstring of `simulate_scan`); one exposure: as is."""
+    if len(exposures) == 1 and exposures[0] == 1.0:
+        return frames
+    return [replace(f, file=f"{f.file[:-4]}_e{x:g}.png", exposure_ms=BASE_EXPOSURE_MS * x)
+            for f in frames for x in exposures]
+
+
 def simulate_scan(out_dir: str | os.PathLike, *, scenes: list[Scene] | None = None, rig: ScanRig | None = None,
                   periods=DEFAULT_PERIODS, steps=None, seed: int = 0, noise: bool = True, low: int = 10,
-                  high: int = 250) -> Capture:
+                  high: int = 250, gray: bool = False, exposures=(1.0,)) -> Capture:
     """Render a scan dataset (module docstring) with the true PRVMs of its cameras.
 
     Parameters
@@ -270,6 +300,13 @@ def simulate_scan(out_dir: str | os.PathLike, *, scenes: list[Scene] | None = No
         Sensor noise (False: the expected images, rounded).
     low, high : int
         The fringes' code values, 0 <= low < high <= 255.
+    gray : bool
+        Project the column Gray code first (`scan_frames`): `periods` is then empty (Gray code alone) or
+        one period (Gray code plus phase shifting).
+    exposures : sequence of float
+        Each pattern is taken at each of these exposures (relative to the default, which brings a white
+        surface facing the projector to 95 % of full scale); with several, the frames record
+        `exposure_ms` (BASE_EXPOSURE_MS times the factor) and their files end in _e<factor>.
 
     Returns
     -------
@@ -281,8 +318,10 @@ def simulate_scan(out_dir: str | os.PathLike, *, scenes: list[Scene] | None = No
     rig = rig or default_scan_rig(seed=seed)
     scenes = standard_scenes() if scenes is None else scenes
     periods = [int(p) if float(p) == int(p) else float(p) for p in periods]
-    per = steps_per_period(periods, steps)
-    if max(periods) < rig.projector.width_px:
+    per = steps_per_period(periods, steps) if periods else []
+    if gray and len(periods) > 1:
+        raise InputError("--periods", f"Gray code orders one fringe period, got {len(periods)}")
+    if not gray and max(periods) < rig.projector.width_px:
         raise InputError("--periods", f"the longest period ({max(periods):g} px) must cover the projector's "
                                       f"{rig.projector.width_px} columns (absolute phase)")
     if not 0 <= low < high <= 255:
@@ -293,12 +332,14 @@ def simulate_scan(out_dir: str | os.PathLike, *, scenes: list[Scene] | None = No
     cams = rig.cameras(seed)
     frames = []
     for state, scene in enumerate(progress(scenes, "simulating scan", total=len(scenes))):
-        state_frames = scan_frames(state, periods, steps, low, high)
+        state_frames = _exposed(scan_frames(state, periods, steps, low, high, rig.projector.width_px if gray else 0),
+                                exposures)
         for name, cam in zip(CAMERAS, cams):
             view = lit_view(cam, scene, rig.projector)
             for f in state_frames:
                 if f.camera == name:
-                    write_gray(out / f.file, render_frame(cam, view, rig.projector, f.pattern, rig.ambient, noise))
+                    write_gray(out / f.file, render_frame(cam, view, rig.projector, f.pattern, rig.ambient, noise,
+                                                          (f.exposure_ms or BASE_EXPOSURE_MS) / BASE_EXPOSURE_MS))
         frames += state_frames
     for name, lens in zip(CAMERAS, (rig.left, rig.right)):
         lens.true_prvm(camera=name, dataset=f"simulated scanner, seed {seed}",
@@ -311,7 +352,7 @@ def simulate_scan(out_dir: str | os.PathLike, *, scenes: list[Scene] | None = No
             "states": [{"state": k, **sc.describe()} for k, sc in enumerate(scenes)]}
     write_npz(out / "truth.npz", meta=np.array(json.dumps(meta)))
     extra = {"projector": {**p.record(), "axis": "x", "periods_px": periods,
-                           "steps": per[0] if len(set(per)) == 1 else per},
+                           **({"steps": per[0] if len(set(per)) == 1 else per} if per else {})},
              "simulated": {"lens": rig.left.family, "seed": seed, "noise": noise, "supersample": rig.supersample,
                            "truth": "truth.npz", "true_prvms": [f"truth_{n}.npz" for n in CAMERAS],
                            "scenes": [sc.name for sc in scenes]}}

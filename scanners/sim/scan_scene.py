@@ -3,10 +3,13 @@
 Surfaces: `Plane` (a rectangular plate), `Sphere`, `HeightField` (a smooth free-form part z = h(x, y) in
 its own frame, intersected by bisection and Newton). A `Scene` is a list of surfaces; a ball bar is two
 spheres (`ball_bar`). Every surface has a Lambertian albedo that varies smoothly over it (a printed
-texture of +-`texture`), and a `distance` to its exact shape: the truth the scans are checked against.
+texture of +-`texture`) and optionally a specular lobe (a metal part: Blinn-Phong, `specular` the lobe's
+peak reflectance, `shininess` its exponent), and a `distance` to its exact shape: the truth the scans are
+checked against.
 
 `Scene.intersect(origin, direction)` gives, per ray, the nearest hit: distance t (inf for a miss), point,
-unit normal (towards the ray's origin), albedo and surface index (-1 for a miss). `Scene.blocked(p, q)`
+unit normal (towards the ray's origin), albedo, the specular lobe's parameters and surface index (-1 for a
+miss). `Scene.blocked(p, q)`
 tells which segments p -> q cross a surface (shadows).
 """
 
@@ -31,11 +34,14 @@ def _texture(points: np.ndarray, base: float, texture: float, seed: int) -> np.n
 
 @dataclass
 class Surface:
-    """Common albedo parameters: `albedo` (mean reflectance 0..1), `texture` (relative variation)."""
+    """Common albedo parameters: `albedo` (mean reflectance 0..1), `texture` (relative variation);
+    `specular`: the peak reflectance of a Blinn-Phong lobe (n.h)^shininess (0: matte)."""
 
     albedo: float = 0.7
     texture: float = 0.2
     seed: int = 0
+    specular: float = 0.0
+    shininess: float = 40.0
 
     def reflectance(self, points: np.ndarray) -> np.ndarray:
         return _texture(points, self.albedo, self.texture, self.seed)
@@ -209,13 +215,16 @@ class HeightField(Surface):
 @dataclass
 class Hit:
     """Nearest hits of N rays: t (N,) mm (inf: miss), point (N, 3), normal (N, 3) unit facing the ray,
-    albedo (N,), surface (N,) index into the scene's surfaces (-1: miss)."""
+    albedo (N,), surface (N,) index into the scene's surfaces (-1: miss), specular and shininess (N,) of
+    the surface hit (0 and 1 on a miss)."""
 
     t: np.ndarray
     point: np.ndarray
     normal: np.ndarray
     albedo: np.ndarray
     surface: np.ndarray
+    specular: np.ndarray
+    shininess: np.ndarray
 
 
 @dataclass
@@ -239,11 +248,12 @@ class Scene:
         point = o + np.where(np.isfinite(best), best, 0)[:, None] * d
         facing = np.einsum("ij,ij->i", normal, d) > 0
         normal[facing] *= -1
-        albedo = np.zeros(len(o))
+        albedo, specular, shininess = np.zeros(len(o)), np.zeros(len(o)), np.ones(len(o))
         for k, s in enumerate(self.surfaces):
             sel = index == k
             albedo[sel] = s.reflectance(point[sel])
-        return Hit(best, point, normal, albedo, index)
+            specular[sel], shininess[sel] = s.specular, s.shininess
+        return Hit(best, point, normal, albedo, index, specular, shininess)
 
     def blocked(self, p: np.ndarray, q: np.ndarray) -> np.ndarray:
         """(N,) bool: the segment from points p (N, 3) (just off a surface) to q (3,) crosses a surface."""

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib.capture import Pattern
+from calib.patterns import gray_image
 
 
 def fringe_shifts(steps: int) -> list[float]:
@@ -22,10 +23,10 @@ def fringe_shifts(steps: int) -> list[float]:
 
 
 def screen_image(pattern: Pattern, width_px: int, height_px: int) -> np.ndarray:
-    """(height_px, width_px) uint8 image of a `fringe`, `flat` or `chessboard` pattern.
+    """(height_px, width_px) uint8 image of a `fringe`, `flat`, `gray` or `chessboard` pattern.
 
     fringe: low + (high - low)/2 * (1 + cos(2*pi*c/period_px - shift_rad)), c the column (axis x) or
-    row (axis y). flat: `level` everywhere. chessboard: `squares` = [columns, rows] of `square_px`
+    row (axis y). flat: `level` everywhere. gray: `calib.patterns.gray_image`. chessboard: `squares` = [columns, rows] of `square_px`
     display pixels from display pixel `origin_px` = [c, r] (the top-left corner of the board), the
     top-left square `low` (default 0), the others alternating with `high` (default 255); `high` around.
     """
@@ -39,6 +40,10 @@ def screen_image(pattern: Pattern, width_px: int, height_px: int) -> np.ndarray:
         line = np.clip(np.rint(line), 0, 255).astype(np.uint8)
         return np.broadcast_to(line[None, :] if pattern.axis == "x" else line[:, None],
                                (height_px, width_px)).copy()
+    if pattern.type == "gray":
+        return gray_image(width_px, height_px, axis=pattern.axis, bit=pattern.bit,
+                          inverse=bool(pattern.params.get("inverse", False)), low=pattern.params.get("low", 0),
+                          high=pattern.params.get("high", 255))
     if pattern.type == "chessboard":
         cols, rows = pattern.squares
         size = float(pattern.square_px)

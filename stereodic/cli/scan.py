@@ -1,7 +1,9 @@
 """`stereodic scan RIG.npz DATASET... -o CLOUD.ply|DIR`: structured-light scan to a point cloud (stereodic.scan.pipeline).
 
 DATASET is a capture of kind "scan" (fringes projected along the projector's columns, several periods
-and steps, a top-level `projector` block with the panel's width_px); RIG.npz is the rectified pair of
+and steps, or Gray code alone or with one fringe period; a top-level `projector` block with the panel's
+width_px), or, with --projector WxH, a folder of images in OpenCV's GrayCodePattern order without a
+capture.json (two numbered series, the left camera's first in natural order); RIG.npz is the rectified pair of
 the two cameras (`stereodic rig`). Each state of the dataset is one scan: the absolute projector phase of
 both cameras is mapped into the rectified virtual images, matched along rows, triangulated with the
 EVM-corrected rays, cleaned of statistical outliers and written as a binary float32 PLY with normals and
@@ -18,7 +20,7 @@ from __future__ import annotations
 
 import argparse
 
-from stereodic.cli.common import add_input, add_output, add_scheduler_option, deprecated, wrote
+from stereodic.cli.common import add_input, add_output, add_scheduler_option, deprecated, parse_size, wrote
 
 RECORD = "scan.batch.json"
 
@@ -45,6 +47,9 @@ def register(sub):
     deprecated(p, "--cameras", "--camera")
     add_output(p, "--mesh", kind="any", metavar="MESH.ply|DIR",
                help="also write a Poisson surface mesh (named like the clouds; a folder for several datasets)")
+    p.add_argument("--projector", type=parse_size, metavar="WxH",
+                   help="a DATASET folder without capture.json holds OpenCV's GrayCodePattern sequence for a "
+                        "projector of this size, read as it is")
     p.add_argument("--no-evm", action="store_true",
                    help="triangulate with the pinhole rays (no EVM correction), for comparison")
     p.add_argument("--smooth", type=float, default=None, metavar="PX",
@@ -78,7 +83,7 @@ def _jobs(args, rig, datasets):
         check_file_output(args.output, "-o/--output")
         if args.mesh is not None:
             check_file_output(args.mesh, "--mesh")
-        return plan_scans(rig, datasets[0], args.output, args.state, args.camera, args.mesh)
+        return plan_scans(rig, datasets[0], args.output, args.state, args.camera, args.mesh, args.projector)
     out = _batch_folder(args.output, "-o/--output")
     mesh = None if args.mesh is None else _batch_folder(args.mesh, "--mesh")
     jobs, seen = [], {}
@@ -88,17 +93,18 @@ def _jobs(args, rig, datasets):
             raise InputError(ds, f"has the folder name of {seen[name]}: their clouds would have the same name")
         seen[name] = ds
         jobs += plan_scans(rig, ds, out / f"{name}.ply", args.state, args.camera,
-                           None if mesh is None else mesh / f"{name}.ply")
+                           None if mesh is None else mesh / f"{name}.ply", args.projector)
     return jobs
 
 
 def _inputs(job, cameras) -> dict:
     """The files a scan reads, fingerprinted (calib.batch)."""
     from calib.batch import file_sha256, fingerprint
-    from calib.capture import load_capture
-    cap = load_capture(job.dataset)
+    from stereodic.scan.pipeline import load_scan
+    cap = load_scan(job.dataset, projector=job.projector, cameras=cameras)
     frames = [f for cam in cameras for f in cap.select(cam, state=job.state)]
-    return {"capture": file_sha256(cap.manifest_path), "frames": [fingerprint(cap.path(f)) for f in frames]}
+    manifest = file_sha256(cap.manifest_path) if cap.manifest_path.is_file() else f"opencv {job.projector}"
+    return {"capture": manifest, "frames": [fingerprint(cap.path(f)) for f in frames]}
 
 
 def scan_task(rig_path: str, rig_sha256: str, job, options: dict):

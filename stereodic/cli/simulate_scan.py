@@ -24,6 +24,9 @@ def register(modes) -> None:
     s.add_argument("--steps", type=parse_floats, default=None,
                    help="phase steps: one number for all periods or one per period (default 16 for the shortest "
                         "period, 3 for the others)")
+    s.add_argument("--gray", action="store_true",
+                   help="project the column Gray code first: with one --periods value Gray code plus phase "
+                        "shifting, with --periods '' Gray code alone")
     add_simulation_options(s, 1280, 1024, 2, "lenses, poses and noise", lens="both cameras' lens family")
     s.set_defaults(func=run)
 
@@ -41,7 +44,7 @@ def run(args) -> int:
     rig = default_scan_rig(width=args.width, height=args.height, seed=args.seed, lens=args.lens,
                            supersample=args.supersample)
     cap = simulate_scan(args.output, scenes=standard_scenes(objects=objects), rig=rig,
-                        periods=args.periods or DEFAULT_PERIODS,
+                        periods=(args.periods or []) if args.gray else (args.periods or DEFAULT_PERIODS), gray=args.gray,
                         steps=args.steps[0] if args.steps and len(args.steps) == 1 else args.steps,
                         seed=args.seed, noise=args.noise)
     save_rig(cap.root / "rig.npz", rig_from_files(cap.root / "truth_cam0.npz", cap.root / "truth_cam1.npz"))

@@ -10,7 +10,10 @@ Optional pose rotation_matrix / R / rvec and translation_vector / T / tvec (worl
 when absent).
 A stereo pair: the stereo_calib sample's M1 D1 M2 D2 R T (x_2 = R x_1 + T), the same as K1 D1 K2 D2
 (cv2.stereoCalibrate's and cv2.fisheye.stereoCalibrate's names), or cam1_intrinsics cam1_distorsion (sic;
-or cam1_distortion) cam1_size cam2_... R T (OpenCV's structured-light sample data). The world frame is
+or cam1_distortion) cam1_size cam2_... R T (OpenCV's structured-light sample data, its
+calibrationParameters.yml; there R, T are camera 2's pose in camera 1's frame, x_1 = R x_2 + T: read the
+other way, the GSoC 2015 statue scans put the torso 4 m away behind the wall, and corresponding pixels
+miss their epipolar lines by 40 px, 3.6 px this way). The world frame is
 camera 1's, unless R_wcs and T_wcs give camera 1's world pose (as `stereodic export --format opencv`
 writes them). The stereo_calib sample writes intrinsics.yml (M1 D1 M2 D2) and extrinsics.yml (R T R1 R2
 P1 P2 Q) apart: both files may be given.
@@ -118,6 +121,8 @@ def _stereo_names(nodes: dict) -> tuple[str, str, str | None] | None:
     return STEREO_NAMES[0] if "D1" in nodes or "D2" in nodes else None
 
 
+
+
 def read(paths: list[Path]) -> list[CameraModel]:
     """The camera(s) of one FileStorage file, or of two read as one (module docstring)."""
     nodes = {}
@@ -136,6 +141,8 @@ def read(paths: list[Path]) -> list[CameraModel]:
         T = np.asarray(nodes["T"], np.float64).ravel()
         if T.size != 3:
             raise InputError(where, "'T' is not a 3-vector")
+        if names[0] == "cam{i}_intrinsics":      # the structured-light sample: x_1 = R x_2 + T (docstring)
+            rel, T = rel.T, -rel.T @ T
         kd = names[0] == "K{i}"
         cams = []
         for i, (R, t) in ((1, (r0, t0)), (2, (rel @ r0, rel @ t0 + T))):

@@ -58,25 +58,28 @@ def noise_gain(sigma_px: float) -> float:
     return float(np.sqrt((kernel(sigma_px) ** 2).sum()))
 
 
-def _row_slope(phase: np.ndarray) -> float:
-    """The median signed phase step along the rows (0 if none)."""
-    d = np.diff(phase[:: max(1, phase.shape[0] // 64)], axis=1)
+def row_slope(phase: np.ndarray, lag: int = 1) -> float:
+    """The median signed phase step along the rows, per pixel, from pixels `lag` apart (0 if none)."""
+    rows = phase[:: max(1, phase.shape[0] // 64)]
+    d = (rows[:, lag:] - rows[:, :-lag]) / lag
     d = d[np.isfinite(d)]
     return float(np.median(d)) if d.size else 0.0
 
 
-def continuous(phase: np.ndarray, max_step: float | None = None) -> np.ndarray:
+def continuous(phase: np.ndarray, max_step: float | None = None, *, plateaus: bool = False) -> np.ndarray:
     """(H, W) bool: valid pixels none of whose valid 4-neighbours makes a discontinuity with them
     (module docstring).
-    max_step: default 4 x the median phase step along the rows."""
+    max_step: default 4 x the median phase step along the rows; plateaus: equal neighbours along a row
+    are continuous too (a Gray-code coordinate is constant across each stripe)."""
     phase = np.asarray(phase, np.float32)
     if max_step is None:
         max_step = 4.0 * phase_step(phase)
-    sign = -1.0 if _row_slope(phase) < 0 else 1.0
+    sign = -1.0 if row_slope(phase, 16 if plateaus else 1) < 0 else 1.0
     ok = np.isfinite(phase)
     step = sign * np.diff(phase, axis=1)
     vert = np.diff(phase, axis=0)
-    bad_h = ok[:, :-1] & ok[:, 1:] & ~((step > 0) & (step < max_step))     # pairs with a NaN are no edge:
+    rising = step >= 0 if plateaus else step > 0
+    bad_h = ok[:, :-1] & ok[:, 1:] & ~(rising & (step < max_step))          # pairs with a NaN are no edge:
     bad_v = ok[:-1] & ok[1:] & ~(np.abs(vert) < max_step)                  # the NaN is masked itself
     ok[:, :-1] &= ~bad_h
     ok[:, 1:] &= ~bad_h
@@ -85,7 +88,8 @@ def continuous(phase: np.ndarray, max_step: float | None = None) -> np.ndarray:
     return ok
 
 
-def smooth_phase(phase: np.ndarray, *, sigma_px: float, max_step: float | None = None) -> np.ndarray:
+def smooth_phase(phase: np.ndarray, *, sigma_px: float, max_step: float | None = None,
+                 plateaus: bool = False) -> np.ndarray:
     """An absolute phase map filtered by the masked local quadratic fit (module docstring).
 
     Parameters
@@ -97,6 +101,9 @@ def smooth_phase(phase: np.ndarray, *, sigma_px: float, max_step: float | None =
     max_step : float, optional
         The largest phase step between neighbours still continuous, phase units; None: 4 x the median
         step along the rows.
+    plateaus : bool
+        Equal neighbours along a row are continuous (a Gray-code coordinate's stairs, which the fit
+        turns into a smooth ramp).
 
     Returns
     -------
@@ -107,12 +114,13 @@ def smooth_phase(phase: np.ndarray, *, sigma_px: float, max_step: float | None =
     if sigma_px <= 0:
         return phase.copy()
     r = radius(sigma_px)
-    core = cv2.erode(continuous(phase, max_step).view(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8),
+    window = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
+    core = cv2.erode(continuous(phase, max_step, plateaus=plateaus).view(np.uint8), window,
                      borderType=cv2.BORDER_CONSTANT, borderValue=0).view(bool)
     # filter the phase minus a ramp c + s x (the filter reproduces a ramp exactly, so it is added back
     # unfiltered): small numbers keep float32 sums exact to ~1e-5 phase units
     x = np.arange(phase.shape[1], dtype=np.float64)
-    slope = _row_slope(phase)
+    slope = row_slope(phase, 16 if plateaus else 1)
     offset = float(np.nanmedian(phase - slope * x)) if np.isfinite(phase).any() else 0.0
     ramp = (offset + slope * x).astype(np.float32)
     out = convolve(np.where(np.isfinite(phase), phase - ramp, np.float32(0)), sigma_px) + ramp

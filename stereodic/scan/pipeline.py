@@ -6,7 +6,12 @@ Steps for one state (one scan) of a `kind: "scan"` dataset:
     the frames in memory): per fringe period the wrapped phase, modulation and quality flags, corrected
     for the projector's gamma when the manifest's `projector` block states it
     (`calib.phase.WaveformCorrection`), then temporal unwrapping (`calib.phase.unwrap_temporal`) into the
-    absolute projector column; flagged pixels become NaN;
+    absolute projector column; flagged pixels become NaN. A pixel with a clipped sample in any set is
+    flagged SATURATED, not solved from its unclipped samples as the calibration does: on a scanned object
+    a clipped sample marks a highlight, whose neighbours in time (the samples nearly as bright) and in
+    space (the camera's blur spreads it) are not the linear cosine the fit assumes; solved, such pixels
+    bent a bright sphere's front by +60 um (docs/scanner.md, "Clipped pixels"). Gray code: see
+    `calib.graycode`;
  2. rectify (`virtual_phase`): the absolute phase (never the wrapped one) and the modulation are
     interpolated through each camera's IMM into the common virtual image; a virtual pixel any of whose 4
     real neighbours is flagged or blank is NaN (the quality mask is carried along);
@@ -36,16 +41,19 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calib.capture import Capture, load_capture
+from calib.capture import Capture, Frame, load_capture
 from calib.decode import DARK_FRACTION, MAX_MISMATCH_SIGMA, MODULATION_FRACTION
 from calib.errors import InputError
-from calib.phase import LOW_MODULATION, UNWRAP, WaveformCorrection, decode_frames, unwrap_temporal
+from calib.graycode import decode_gray, unwrap_with_gray
+from calib.phase import (LOW_MODULATION, QUALITY_NAMES, SATURATED, UNWRAP, WaveformCorrection, decode_frames,
+                         unwrap_temporal)
 from stereodic.scan.matching import match_rows
-from stereodic.scan.phase_filter import smooth_phase
+from stereodic.scan.phase_filter import row_slope, smooth_phase
 from stereodic.stereo.rig import Rig, check_camera_sizes
 from stereodic.stereo.triangulate import triangulate
 
 MIN_MODULATION_FRACTION = 0.02   # of full scale: fringes weaker than this are not measured
+GRAY_NOISE_FRACTION = 0.01      # of full scale: a Gray-code bit whose frame and inverse differ less is undecided
 SMOOTH_PX = 3.0                  # phase filter sigma (virtual pixels): white noise / 6.4, edges eroded by 8 px
 
 
@@ -54,13 +62,15 @@ class PhaseMap:
     """One camera's decoded scan. coord: (H, W) float32 absolute projector column (panel pixels), NaN
     where not measured; modulation: (H, W) float32 fringe amplitude of the shortest period as a fraction
     of full scale, offset: its mean level (same unit); quality: (H, W) uint8 `calib.phase` flags
-    (0 = good); steps: frames of the shortest period."""
+    (0 = good); steps: frames of the shortest period; stripe_px: for a Gray-code coordinate without
+    fringes, its stripe width (the coordinate is a staircase), else 0."""
 
     coord: np.ndarray
     modulation: np.ndarray
     offset: np.ndarray
     quality: np.ndarray
     steps: int
+    stripe_px: int = 0
 
 
 @dataclass
@@ -98,11 +108,39 @@ def projector_block(capture: Capture) -> dict:
     return p
 
 
-def check_scan_dataset(capture: Capture, cameras: tuple[str, str], state: int) -> dict[str, dict[float, list]]:
-    """Frames of `state` per camera and period, checked against each other and the projector block;
-    InputError naming the manifest for a dataset of another kind, a missing camera or state, x-axis
-    fringes missing or with fewer than 3 distinct shifts, periods that differ between the cameras or
-    from the projector block's `periods_px`, or a different number of steps than its `steps`."""
+@dataclass
+class ScanSets:
+    """One camera's frames of one state: fringes (period -> frames, x axis), gray ((bit, inverse) -> frame,
+    x axis; the row code, axis y, is not needed: matching runs along the rows) and flats (level -> frame)."""
+
+    fringes: dict[float, list]
+    gray: dict[tuple[int, bool], Frame]
+    flats: dict[float, Frame]
+
+    def gray_bits(self) -> list[int]:
+        """The Gray-code bits present, least significant first."""
+        return sorted({b for b, _ in self.gray})
+
+
+def load_scan(dataset: str | os.PathLike, *, projector: tuple[int, int] | None = None,
+              cameras: tuple[str, str] = ("left", "right")) -> Capture:
+    """The scan dataset `dataset`: its capture.json, or, given `projector` (width, height) and no
+    capture.json, a folder in OpenCV's GrayCodePattern order (`calib.graycode.opencv_folder`, its two
+    image series named `cameras`)."""
+    path = Path(dataset)
+    if projector is not None and path.is_dir() and not (path / "capture.json").is_file():
+        from calib.graycode import opencv_folder
+        return opencv_folder(path, projector, cameras)
+    return load_capture(dataset)
+
+
+def check_scan_dataset(capture: Capture, cameras: tuple[str, str], state: int) -> dict[str, ScanSets]:
+    """Frames of `state` per camera (`ScanSets`), checked against each other and the projector block;
+    InputError naming the manifest for a dataset of another kind, a missing camera or state, neither
+    x-axis fringes nor Gray code, fringes with fewer than 3 distinct shifts, periods that differ between the
+    cameras or from the projector block's `periods_px`, a different number of steps than its `steps`, a
+    Gray code lacking a bit or an inverse (or, without inverses, the white and black frames), or Gray code
+    beside more than one fringe period or with stripes wider than half the period."""
     where = capture.manifest_path
     if capture.kind != "scan":
         raise InputError(where, f"kind is {capture.kind!r}: `stereodic scan` needs a dataset of kind 'scan'")
@@ -112,15 +150,27 @@ def check_scan_dataset(capture: Capture, cameras: tuple[str, str], state: int) -
         if cam not in capture.cameras:
             raise InputError(where, f"has no camera {cam!r} (cameras: {', '.join(capture.cameras)}); name the "
                                     f"rig's cameras with --camera LEFT,RIGHT")
-        sets: dict[float, list] = defaultdict(list)
-        for f in capture.select(cam, state=state, type="fringe"):
-            if f.pattern.axis != "x":
-                raise InputError(where, f"{f.file}: scan fringes run along the projector columns (axis 'x'), "
-                                        f"got axis {f.pattern.axis!r}")
-            sets[float(f.pattern.period_px)].append(f)
-        if not sets:
-            raise InputError(where, f"camera {cam!r} has no fringe frames in state {state}")
-        for period, frames in sets.items():
+        sets = ScanSets(defaultdict(list), {}, {})
+        for f in capture.select(cam, state=state):
+            if f.pattern.type == "fringe":
+                if f.pattern.axis != "x":
+                    raise InputError(where, f"{f.file}: scan fringes run along the projector columns (axis 'x'), "
+                                            f"got axis {f.pattern.axis!r}")
+                sets.fringes[float(f.pattern.period_px)].append(f)
+            elif f.pattern.type == "gray" and f.pattern.axis == "x":
+                sets.gray[(f.pattern.bit, bool(f.pattern.params.get("inverse", False)))] = f
+            elif f.pattern.type == "flat":
+                sets.flats[float(f.pattern.level)] = f
+        if not sets.fringes and not sets.gray:
+            raise InputError(where, f"camera {cam!r} has no fringe or Gray-code (axis x) frames in state {state}")
+        for period, frames in sets.fringes.items():
+            exposures = by_exposure(frames)
+            shifts = {e: sorted(round(f.pattern.shift_rad, 9) for f in fs) for e, fs in exposures.items()}
+            if len({tuple(v) for v in shifts.values()}) > 1:
+                counts = ", ".join(f"{len(v)} at {_ms(e)}" for e, v in shifts.items())
+                raise InputError(where, f"camera {cam!r}, state {state}: the exposures of period {period:g} px do "
+                                        f"not match (not the same shifts at every exposure: frames {counts})")
+            frames = next(iter(exposures.values()))
             if len({round(f.pattern.shift_rad, 9) for f in frames}) < 3:
                 raise InputError(where, f"camera {cam!r}, state {state}: the fringe of period {period:g} px has "
                                         f"{len(frames)} frame(s) with fewer than 3 distinct shifts (missing "
@@ -129,18 +179,64 @@ def check_scan_dataset(capture: Capture, cameras: tuple[str, str], state: int) -
             if want_steps is not None and len(frames) != want_steps:
                 raise InputError(where, f"camera {cam!r}, state {state}: period {period:g} px has {len(frames)} "
                                         f"frames, the projector block says steps = {proj['steps']}")
-        if "periods_px" in proj:
+        if len({f.exposure_ms for f in sets.gray.values()}) > 1:
+            raise InputError(where, f"camera {cam!r}, state {state}: Gray-code frames at several exposures are not "
+                                    f"merged (take the Gray code at one exposure)")
+        if "periods_px" in proj and (sets.fringes or proj["periods_px"]):
             want = sorted(float(p) for p in proj["periods_px"])
-            if sorted(sets) != want:
+            if sorted(sets.fringes) != want:
                 raise InputError(where, f"camera {cam!r}, state {state}: the frames' projector periods "
-                                        f"{_fmt(sorted(sets))} differ from the projector block's periods_px "
+                                        f"{_fmt(sorted(sets.fringes))} differ from the projector block's periods_px "
                                         f"{_fmt(want)}")
+        if sets.gray:
+            _check_gray(sets, int(proj["width_px"]), f"camera {cam!r}, state {state}", where)
         out[cam] = sets
-    if sorted(out[cameras[0]]) != sorted(out[cameras[1]]):
+    a, b = (out[c] for c in cameras)
+    if sorted(a.fringes) != sorted(b.fringes) or sorted(a.gray) != sorted(b.gray):
         raise InputError(where, f"state {state}: cameras {cameras[0]!r} and {cameras[1]!r} have different "
-                                f"projector periods ({_fmt(sorted(out[cameras[0]]))} vs "
-                                f"{_fmt(sorted(out[cameras[1]]))})")
+                                f"patterns (projector periods {_fmt(sorted(a.fringes))} vs {_fmt(sorted(b.fringes))}, "
+                                f"Gray-code bits {a.gray_bits()} vs {b.gray_bits()})")
     return out
+
+
+def _check_gray(sets: ScanSets, width_px: int, ctx: str, where) -> None:
+    """InputError naming `where` unless the Gray code is whole (see `check_scan_dataset`)."""
+    from calib.graycode import gray_bits
+    bits = sets.gray_bits()
+    top = gray_bits(width_px)
+    missing = [b for b in range(bits[0], top) if (b, False) not in sets.gray]
+    if missing or bits[-1] >= top:
+        raise InputError(where, f"{ctx}: the Gray code of the {width_px} projector columns needs bits "
+                                f"{bits[0]}..{top - 1}; " + (f"bit(s) {', '.join(map(str, missing))} missing"
+                                                             if missing else f"bit {bits[-1]} is beyond them"))
+    inverted = [b for b in bits if (b, True) in sets.gray]
+    if inverted and len(inverted) != len(bits):
+        lacking = [b for b in bits if (b, True) not in sets.gray]
+        raise InputError(where, f"{ctx}: Gray-code bit(s) {', '.join(map(str, lacking))} lack their inverse frame "
+                                f"(the other bits have one)")
+    if not inverted and len(sets.flats) < 2:
+        raise InputError(where, f"{ctx}: Gray code without inverse frames needs a white and a black flat frame "
+                                f"for its thresholds")
+    if sets.fringes:
+        if len(sets.fringes) > 1:
+            raise InputError(where, f"{ctx}: Gray code orders one fringe period, got {_fmt(sorted(sets.fringes))}")
+        period = next(iter(sets.fringes))
+        if 2 ** bits[0] > period / 2:
+            raise InputError(where, f"{ctx}: Gray-code stripes of {2 ** bits[0]} px cannot order fringes of "
+                                    f"{period:g} px (at most half the period: add the bits down to "
+                                    f"{int(np.log2(period / 2))})")
+
+
+def by_exposure(frames: list) -> dict:
+    """The frames grouped by `exposure_ms` (None: not recorded), longest exposure first."""
+    groups = defaultdict(list)
+    for f in frames:
+        groups[f.exposure_ms].append(f)
+    return dict(sorted(groups.items(), key=lambda kv: -(kv[0] or 0.0)))
+
+
+def _ms(exposure: float | None) -> str:
+    return "no exposure_ms" if exposure is None else f"{exposure:g} ms"
 
 
 def _steps(proj: dict, period: float) -> int | None:
@@ -170,42 +266,93 @@ def _correction(proj: dict, frames) -> WaveformCorrection | None:
     return WaveformCorrection(wave, [f.pattern.shift_rad for f in frames])
 
 
-def decode_camera(capture: Capture, camera: str, sets: dict[float, list], images=None) -> PhaseMap:
-    """Absolute projector column of every pixel of `camera` from its fringe sets (period -> frames, see
-    `check_scan_dataset`). images: optional {file: array} already in memory (else read from disk)."""
+def decode_camera(capture: Capture, camera: str, sets: ScanSets, images=None) -> PhaseMap:
+    """Absolute projector column of every pixel of `camera` from its fringe and Gray-code frames (see
+    `check_scan_dataset`): fringes alone are unwrapped temporally, Gray code alone gives its stripes,
+    Gray code and one fringe period the phase ordered by the code (`calib.graycode`). images: optional
+    {file: array} already in memory (else read from disk)."""
     proj = projector_block(capture)
+    read = lambda f: images[f.file] if images is not None else capture.read(f)  # noqa: E731
     w, h = capture.cameras[camera]
-    periods = sorted(sets, reverse=True)
+    periods = sorted(sets.fringes, reverse=True)
     quality = np.zeros((h, w), np.uint8)
-    phases, last = [], None
+    phases, last, full = [], None, None
     for period in periods:
-        raws = [images[f.file] if images is not None else capture.read(f) for f in sets[period]]
-        full = capture.max_value(camera, raws[0])
-        try:
-            res = decode_frames(raws, [f.pattern.shift_rad for f in sets[period]], full, DARK_FRACTION * full,
-                                MIN_MODULATION_FRACTION * full, _correction(proj, sets[period]))
-        except ValueError as exc:
-            raise InputError(capture.manifest_path, f"camera {camera!r}, period {period:g} px: {exc}") from None
-        stride = max(1, res.modulation.size // 500_000)          # the 90th percentile from a sample
-        sample = res.modulation.ravel()[::stride][res.quality.ravel()[::stride] == 0]
-        if sample.size:
-            res.quality[res.modulation < MODULATION_FRACTION * np.percentile(sample, 90)] |= LOW_MODULATION
+        res, full = _decode_period(capture, camera, period, sets.fringes[period], read)
         quality |= res.quality
         phases.append(res.phase)
         last = res
-    try:
-        un = unwrap_temporal(periods, phases, int(proj["width_px"]), valid=quality == 0)
-    except ValueError as exc:
-        raise InputError(capture.manifest_path, f"camera {camera!r}: {exc}") from None
-    for (p_long, p_short), s in zip(zip(periods, periods[1:]), un.mismatch_sigma):
-        if s > MAX_MISMATCH_SIGMA:
-            raise InputError(capture.manifest_path, f"camera {camera!r}: the period ratio {p_long:g}/{p_short:g} "
-                                                    f"is too large for the phase noise (the periods disagree by "
-                                                    f"{s:.3f} period RMS, safe <= {MAX_MISMATCH_SIGMA})")
-    quality[~un.consistent] |= UNWRAP
-    coord = np.where(quality == 0, un.coord.astype(np.float32), np.float32(np.nan))
+    if sets.gray:
+        gray, full = _decode_gray(capture, camera, sets, read)
+        quality |= gray.quality
+        if not periods:
+            coord = np.where(quality == 0, gray.coord, np.float32(np.nan))
+            scale = np.float32(0.5 / full)
+            return PhaseMap(coord, gray.contrast * scale, gray.offset * np.float32(1 / full), quality, 1,
+                            gray.stripe_px)
+        coord, consistent = unwrap_with_gray(gray.coord, phases[0], periods[0], gray.stripe_px)
+    else:
+        try:
+            un = unwrap_temporal(periods, phases, int(proj["width_px"]), valid=quality == 0)
+        except ValueError as exc:
+            raise InputError(capture.manifest_path, f"camera {camera!r}: {exc}") from None
+        for (p_long, p_short), s in zip(zip(periods, periods[1:]), un.mismatch_sigma):
+            if s > MAX_MISMATCH_SIGMA:
+                raise InputError(capture.manifest_path, f"camera {camera!r}: the period ratio {p_long:g}/{p_short:g} "
+                                                        f"is too large for the phase noise (the periods disagree by "
+                                                        f"{s:.3f} period RMS, safe <= {MAX_MISMATCH_SIGMA})")
+        coord, consistent = un.coord, un.consistent
+    quality[~consistent] |= UNWRAP
+    coord = np.where(quality == 0, coord.astype(np.float32), np.float32(np.nan))
     scale = np.float32(1.0 / full)
     return PhaseMap(coord, last.modulation * scale, last.offset * scale, quality, last.frames)
+
+
+def _decode_period(capture: Capture, camera: str, period: float, frames: list, read):
+    """(`calib.phase.WrappedPhase`, full scale) of one period's frames; with several exposures merged per
+    pixel: the longest exposure that is unclipped, lit and modulated (HDR). LOW_MODULATION where the
+    modulation per unit of exposure is below MODULATION_FRACTION of its 90th percentile (shadows, stray
+    light). A pixel with a clipped sample is SATURATED (module docstring, step 1)."""
+    proj = projector_block(capture)
+    merged, exposure_of = None, None
+    for exposure, group in by_exposure(frames).items():
+        raws = [read(f) for f in group]
+        full = capture.max_value(camera, raws[0])
+        try:
+            res = decode_frames(raws, [f.pattern.shift_rad for f in group], full, DARK_FRACTION * full,
+                                MIN_MODULATION_FRACTION * full, _correction(proj, group))
+        except ValueError as exc:
+            where = f"camera {camera!r}, period {period:g} px" + ("" if exposure is None else f", {exposure:g} ms")
+            raise InputError(capture.manifest_path, f"{where}: {exc}") from None
+        res.quality[(res.clipped != 0).any(axis=0)] |= SATURATED
+        if merged is None:
+            merged, exposure_of = res, np.full(res.phase.shape, exposure or 1.0, np.float32)
+            continue
+        take = (merged.quality != 0) & (res.quality == 0)
+        for name in ("phase", "offset", "modulation", "noise", "quality"):
+            getattr(merged, name)[take] = getattr(res, name)[take]
+        exposure_of[take] = exposure
+    # shadows: little of the projector's light per unit of exposure, whatever the exposure
+    light = merged.modulation / exposure_of
+    stride = max(1, light.size // 500_000)                      # the 90th percentile from a sample
+    sample = light.ravel()[::stride][merged.quality.ravel()[::stride] == 0]
+    if sample.size:
+        merged.quality[light < MODULATION_FRACTION * np.percentile(sample, 90)] |= LOW_MODULATION
+    return merged, full
+
+
+def _decode_gray(capture: Capture, camera: str, sets: ScanSets, read):
+    """`calib.graycode.decode_gray` of the camera's Gray-code frames and flats, and the full scale."""
+    bits = sets.gray_bits()
+    patterns = [read(sets.gray[(b, False)]) for b in bits]
+    full = capture.max_value(camera, patterns[0])
+    inverses = [read(sets.gray[(b, True)]) for b in bits] if (bits[0], True) in sets.gray else None
+    levels = sorted(sets.flats)
+    white, black = (read(sets.flats[levels[-1]]), read(sets.flats[levels[0]])) if len(levels) >= 2 else (None, None)
+    dec = decode_gray(patterns, inverses, white, black, low_bit=bits[0],
+                      extent_px=int(projector_block(capture)["width_px"]),
+                      min_contrast=2 * MIN_MODULATION_FRACTION * full, min_difference=GRAY_NOISE_FRACTION * full)
+    return dec, full
 
 
 def virtual_phase(rig: Rig, side: str, real: np.ndarray) -> np.ndarray:
@@ -223,6 +370,15 @@ def virtual_phase(rig: Rig, side: str, real: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------- match + 3D
+
+def _smooth(phase: np.ndarray, smooth_px: float, stripe_px: int) -> np.ndarray:
+    """The phase filter; a Gray-code staircase (stripe_px > 0) with its stairs taken as continuous and
+    steps up to a stripe and a half more than 4 x its slope."""
+    if not stripe_px:
+        return smooth_phase(phase, sigma_px=smooth_px)
+    return smooth_phase(phase, sigma_px=smooth_px, plateaus=True,
+                        max_step=4 * abs(row_slope(phase, 16)) + 1.5 * stripe_px)
+
 
 def match_and_triangulate(rig: Rig, phase_left: np.ndarray, phase_right: np.ndarray, quality_left: np.ndarray,
                           quality_right: np.ndarray, corrected: bool = True, max_gap_px: float = 2.0,
@@ -284,12 +440,16 @@ def scan_state(rig: Rig, capture: Capture, state: int, *, cameras: tuple[str, st
         except InputError as exc:
             raise InputError(capture.manifest_path, f"camera {cam!r}: {exc.problem}") from None
         mods.append(virtual_phase(rig, side, pm.modulation))
-    phases = [smooth_phase(p, sigma_px=smooth_px) for p in phases]
+    phases = [_smooth(p, smooth_px, pm.stripe_px) for p, pm in zip(phases, real)]
     xr = match_rows(phases[0], phases[1])
     result = match_and_triangulate(rig, phases[0], phases[1], mods[0], mods[1], corrected, matches=xr)
     if len(result.points) == 0:
+        counts = {name: sum(int(((pm.quality & bit) != 0).sum()) for pm in real)
+                  for bit, name in QUALITY_NAMES.items()}
+        most = f"; most pixels flagged: {max(counts, key=counts.get)}" if max(counts.values()) else ""
         raise InputError(capture.root, f"state {state}: no point was matched: nothing lit by the projector is "
-                                       f"seen by both cameras (is the object inside the common field of view?)")
+                                       f"seen by both cameras (is the object inside the common field of view?)"
+                                       f"{most}")
     return result, {"phase": tuple(phases), "modulation": tuple(mods), "matches": xr,
                     "real": tuple(real)}
 
@@ -297,21 +457,25 @@ def scan_state(rig: Rig, capture: Capture, state: int, *, cameras: tuple[str, st
 @dataclass(frozen=True)
 class ScanJob:
     """One scan of a batch: state `state` of the dataset `dataset` into the PLY file `cloud` (and a
-    Poisson mesh into `mesh`, unless None)."""
+    Poisson mesh into `mesh`, unless None); projector: (width, height) of a folder in OpenCV's Gray-code
+    order (`load_scan`), else None."""
 
     dataset: str
     state: int
     cloud: Path
     mesh: Path | None = None
+    projector: tuple[int, int] | None = None
 
 
 def plan_scans(rig: Rig, dataset: str | os.PathLike, out: str | os.PathLike, states=None,
-               cameras: tuple[str, str] | None = None, mesh: str | os.PathLike | None = None) -> list[ScanJob]:
+               cameras: tuple[str, str] | None = None, mesh: str | os.PathLike | None = None,
+               projector: tuple[int, int] | None = None) -> list[ScanJob]:
     """The scans of every state of `dataset` (or those listed), checked: `out` for a single state, else
-    `<out stem>_s<state>.ply` per state, and the meshes named the same way from `mesh`. InputError
-    naming the manifest for a dataset without the rig's cameras' states, or without a state listed."""
-    capture = load_capture(dataset)
+    `<out stem>_s<state>.ply` per state, and the meshes named the same way from `mesh`; projector: as
+    `load_scan`'s. InputError naming the manifest for a dataset without the rig's cameras' states, or
+    without a state listed."""
     cameras = cameras or (rig.left.name, rig.right.name)
+    capture = load_scan(dataset, projector=projector, cameras=cameras)
     all_states = capture.states(cameras[0]) if cameras[0] in capture.cameras else []
     states = all_states if states is None else list(states)
     if not states:
@@ -327,7 +491,8 @@ def plan_scans(rig: Rig, dataset: str | os.PathLike, out: str | os.PathLike, sta
         path = Path(path)
         return path if len(states) == 1 else path.with_name(f"{path.stem}_s{s:03d}{path.suffix or '.ply'}")
 
-    return [ScanJob(os.fspath(dataset), s, name(out, s), None if mesh is None else name(mesh, s)) for s in states]
+    return [ScanJob(os.fspath(dataset), s, name(out, s), None if mesh is None else name(mesh, s), projector)
+            for s in states]
 
 
 def scan_job(rig: Rig, job: ScanJob, cameras: tuple[str, str] | None = None, corrected: bool = True,
@@ -337,7 +502,8 @@ def scan_job(rig: Rig, job: ScanJob, cameras: tuple[str, str] | None = None, cor
     mesh files; `capture`: the job's dataset already loaded. Returns [(file, count, what is counted:
     "points" or, for a mesh, "vertices")]."""
     from stereodic.scan.cloud import make_cloud, poisson_mesh, write_cloud, write_mesh
-    capture = capture or load_capture(job.dataset)
+    capture = capture or load_scan(job.dataset, projector=job.projector,
+                                   cameras=cameras or (rig.left.name, rig.right.name))
     viewpoint = (rig.left.centre + rig.right.centre) / 2
     result, _ = scan_state(rig, capture, job.state, cameras=cameras, corrected=corrected, smooth_px=smooth_px)
     cloud, _ = make_cloud(result.points, {"quality": result.quality, "gap_mm": result.gap_mm}, viewpoint,
@@ -354,12 +520,13 @@ def scan_job(rig: Rig, job: ScanJob, cameras: tuple[str, str] | None = None, cor
 def scan_to_files(rig: Rig, dataset: str | os.PathLike, out: str | os.PathLike, states=None,
                   cameras: tuple[str, str] | None = None, mesh: str | os.PathLike | None = None,
                   corrected: bool = True, neighbours: int = 20, std_ratio: float = 3.0,
-                  smooth_px: float = SMOOTH_PX) -> list[tuple[Path, int, str]]:
-    """Scan every state of `dataset` (or those listed) into PLY clouds (`plan_scans`, `scan_job`).
-    Returns [(file, count, what is counted: "points" or, for a mesh, "vertices")]."""
+                  smooth_px: float = SMOOTH_PX, projector: tuple[int, int] | None = None) -> list[tuple[Path, int, str]]:
+    """Scan every state of `dataset` (or those listed) into PLY clouds (`plan_scans`, `scan_job`);
+    projector: as `load_scan`'s. Returns [(file, count, what is counted: "points" or, for a mesh,
+    "vertices")]."""
     from calib.progress import progress
-    jobs = plan_scans(rig, dataset, out, states, cameras, mesh)
-    capture = load_capture(dataset)
+    jobs = plan_scans(rig, dataset, out, states, cameras, mesh, projector)
+    capture = load_scan(dataset, projector=projector, cameras=cameras or (rig.left.name, rig.right.name))
     written = []
     for job in progress(jobs, "scanning", total=len(jobs)):
         written += scan_job(rig, job, cameras, corrected, neighbours, std_ratio, smooth_px, capture)

@@ -147,7 +147,9 @@ def test_stereo_files_k1_d1_and_cam1_intrinsics(tmp_path, names):
 def test_gsoc_structured_light_calibration():
     """The real stereo calibration of ../shared/data/gsoc-statue-graycode (cam1_intrinsics, cam1_distorsion,
     cam1_size, R, T; k3 = 9.5): camera 2 (#1) imported alone, every ray on its pixel by cv2.projectPoints
-    with R, T as written (1e-6 px), over the whole image but the pixels beyond the model's fold."""
+    with the pose R, T give camera 2 in camera 1's frame, x_1 = R x_2 + T (the statue's scans say which
+    way: tests/stereodic/test_scan_gray.py), 1e-6 px, over the whole image but the pixels beyond the
+    model's fold."""
     import os
     path = "/work/shared/data/gsoc-statue-graycode/calibrationParameters.yml"
     if not os.path.exists(path):
@@ -157,7 +159,8 @@ def test_gsoc_structured_light_calibration():
     imp = import_calibration([path], cameras=["#1"])
     prvm = imp.result
     assert (prvm.width, prvm.height) == (1920, 1280) and prvm.valid.mean() > 0.99
-    assert _worst_px(prvm, _pinhole(d2.ravel(), cv2.Rodrigues(R)[0], T.ravel(), k2), depths=(2000.0, 4000.0)) < 1e-6
+    assert _worst_px(prvm, _pinhole(d2.ravel(), cv2.Rodrigues(R.T)[0], -R.T @ T.ravel(), k2),
+                     depths=(2000.0, 4000.0)) < 1e-6
 
 
 def test_kalibr_imucam_chain_with_yaml_header(tmp_path):

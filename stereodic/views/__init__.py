@@ -1,0 +1,1 @@
+"""Several views of one object: registration and merging of scans (`stereodic.views.merge`)."""
