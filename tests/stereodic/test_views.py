@@ -11,7 +11,7 @@ from stereodic.scan.cloud import make_cloud
 from stereodic.scan.fit import fit_sphere, trimmed_range
 from stereodic.stereo.rig import load_rig, rig_from_files, save_rig
 from stereodic.scan.pipeline import scan_state
-from stereodic.views.merge import merge_views, register_views
+from stereodic.scan.views import merge_views, register_views
 
 STEP_DEG = 12.0                      # the turntable's step between views
 SPHERE = np.array([0, -30.0, -25.0])  # the 25 mm sphere before the free-form part, about the axis point
