@@ -127,9 +127,11 @@ def _stereo_pose():
 @pytest.mark.parametrize("names", [("K1", "D1", "K2", "D2"), ("cam1_intrinsics", "cam1_distorsion",
                                                                  "cam2_intrinsics", "cam2_distorsion")])
 def test_stereo_files_k1_d1_and_cam1_intrinsics(tmp_path, names):
-    """Stereo files naming the cameras K1 D1 K2 D2 (cv2.stereoCalibrate's names) or cam1_intrinsics
-    cam1_distorsion (OpenCV's structured-light sample), with R T (x2 = R x1 + T): both cameras' rays on
-    their pixels by cv2.projectPoints (1e-6 px), camera 2 with R, T as written."""
+    """Stereo files naming the cameras K1 D1 K2 D2 (cv2.stereoCalibrate's names, R T with x2 = R x1 + T)
+    or cam1_intrinsics cam1_distorsion (OpenCV's structured-light sample, whose R T are camera 2's pose in
+    camera 1's frame, x1 = R x2 + T: its statue's scans say so, tests/stereodic/test_scan_gray.py): both
+    cameras' rays on their pixels by cv2.projectPoints (1e-6 px), camera 2 with the pose each layout
+    means."""
     rvec, R, T = _stereo_pose()
     d1, d2 = np.array([-0.1, 0.02, 0.001, 0.0, 0.0]), np.array([-0.12, 0.03, 0.0, 0.001, -0.01])
     k2 = K + np.array([[2.0, 0, 1.5], [0, 2.0, -1.0], [0, 0, 0]])
@@ -140,6 +142,8 @@ def test_stereo_files_k1_d1_and_cam1_intrinsics(tmp_path, names):
     imp = import_calibration([path])
     assert imp.format == "opencv" and [c.name for c in imp.cameras] == ["1", "2"]
     assert _worst_px(imp.prvms[0], _pinhole(d1), depths=(300.0, 800.0)) < 1e-6
+    if names[0].startswith("cam"):
+        rvec, T = cv2.Rodrigues(R.T)[0].ravel(), -R.T @ T
     assert _worst_px(imp.prvms[1], _pinhole(d2, rvec, T, k2), depths=(300.0, 800.0)) < 1e-6
 
 
