@@ -142,6 +142,10 @@ class RunScales:
         return ColourScale(lo, hi, "viridis")
 
 
+# the map over the image is drawn about 600 screen pixels across: its image and field no finer than this
+OVERLAY_PX = 1000
+
+
 @dataclass(frozen=True)
 class Backdrop:
     """The state's original left image (H, W) and where each grid point is in it, x, y (ny, nx) pixels
@@ -155,7 +159,8 @@ class Backdrop:
 
     def raster(self, values: np.ndarray) -> tuple[np.ndarray, tuple[float, float, float, float]]:
         """(field, extent): `values` (ny, nx) interpolated linearly between the points where the camera
-        saw them (their Delaunay triangles) onto a raster of the image (cells half the grid's spacing;
+        saw them (their Delaunay triangles) onto a raster of the image (cells half the grid's spacing, at
+        most OVERLAY_PX across;
         NaN outside the triangles and farther than 1.5 spacings from any point), and the raster's extent
         in image pixels (for imshow). The cells' triangles and weights are kept for the next quantity
         measured at the same points."""
@@ -167,7 +172,8 @@ class Backdrop:
             pts = np.column_stack([self.x[ok], self.y[ok]])
             tree = cKDTree(pts)
             spacing = float(np.median(tree.query(pts, k=2)[0][:, 1]))
-            r = max(1, int(spacing // 2))
+            # cells half the grid's spacing, but no finer than a picture shows (OVERLAY_PX across)
+            r = max(1, int(spacing // 2), -(-max(self.image.shape) // OVERLAY_PX))
             gy, gx = np.mgrid[0:self.image.shape[0]:r, 0:self.image.shape[1]:r].astype(float)
             cells = np.column_stack([gx.ravel(), gy.ravel()])
             tri = Triangulation(pts[:, 0], pts[:, 1])
@@ -243,15 +249,22 @@ def map_figure(values: np.ndarray, axes: MapAxes, *, title: str, quantity: str, 
 
 def _draw_over_image(ax, backdrop: Backdrop, values: np.ndarray, lo: float, hi: float, cmap: str) -> None:
     """The field over its image (`Backdrop.raster`), semi-transparent."""
-    img = np.asarray(backdrop.image, float)
-    ax.imshow(img, cmap="gray", vmin=np.percentile(img, 0.5), vmax=np.percentile(img, 99.5), interpolation="nearest")
+    import cv2
+    img = np.asarray(backdrop.image, np.float32)
+    h, w = img.shape
+    shown = img
+    if max(h, w) > OVERLAY_PX:       # no finer than the picture shows: the image averaged down to it
+        f = OVERLAY_PX / max(h, w)
+        shown = cv2.resize(img, (max(1, round(w * f)), max(1, round(h * f))), interpolation=cv2.INTER_AREA)
+    ax.imshow(shown, cmap="gray", vmin=np.percentile(shown, 0.5), vmax=np.percentile(shown, 99.5),
+              interpolation="nearest", extent=(-0.5, w - 0.5, h - 0.5, -0.5))
     ok = np.isfinite(values) & np.isfinite(backdrop.x) & np.isfinite(backdrop.y)
     if ok.sum() >= 3:
         field, extent = backdrop.raster(values)
         ax.imshow(np.ma.masked_invalid(field), cmap=cmap, vmin=lo, vmax=hi, alpha=0.55, interpolation="nearest",
                   extent=extent)
-    ax.set_xlim(-0.5, img.shape[1] - 0.5)
-    ax.set_ylim(img.shape[0] - 0.5, -0.5)
+    ax.set_xlim(-0.5, w - 0.5)
+    ax.set_ylim(h - 0.5, -0.5)
     ax.set_xlabel("x (px)")
     ax.set_ylabel("y (px)")
     ax.set_title(f"over {backdrop.label}", fontsize=9)
