@@ -160,15 +160,13 @@ class Backdrop:
     def raster(self, values: np.ndarray) -> tuple[np.ndarray, tuple[float, float, float, float]]:
         """(field, extent): `values` (ny, nx) interpolated linearly between the points where the camera
         saw them (their Delaunay triangles) onto a raster of the image (cells half the grid's spacing, at
-        most OVERLAY_PX across;
-        NaN outside the triangles and farther than 1.5 spacings from any point), and the raster's extent
-        in image pixels (for imshow). The cells' triangles and weights are kept for the next quantity
-        measured at the same points."""
-        from matplotlib.tri import Triangulation
-        from scipy.spatial import cKDTree
-        ok = np.isfinite(values) & np.isfinite(self.x) & np.isfinite(self.y)
+        most OVERLAY_PX across; NaN outside the triangles, in a triangle with an unmeasured corner and
+        farther than 1.5 spacings from any point), and the raster's extent in image pixels (for imshow).
+        The triangles and the cells' weights depend on the points alone: made once, for every quantity."""
         c = self._cache
-        if "ok" not in c or not np.array_equal(c["ok"], ok):
+        if "weights" not in c:
+            from scipy.spatial import Delaunay, cKDTree
+            ok = np.isfinite(self.x) & np.isfinite(self.y)
             pts = np.column_stack([self.x[ok], self.y[ok]])
             tree = cKDTree(pts)
             spacing = float(np.median(tree.query(pts, k=2)[0][:, 1]))
@@ -176,20 +174,17 @@ class Backdrop:
             r = max(1, int(spacing // 2), -(-max(self.image.shape) // OVERLAY_PX))
             gy, gx = np.mgrid[0:self.image.shape[0]:r, 0:self.image.shape[1]:r].astype(float)
             cells = np.column_stack([gx.ravel(), gy.ravel()])
-            tri = Triangulation(pts[:, 0], pts[:, 1])
-            found = tri.get_trifinder()(cells[:, 0], cells[:, 1])       # matplotlib's trapezoid map: fast
-            vertices = tri.triangles[np.maximum(found, 0)]
-            a, b, e = (pts[vertices[:, i]] for i in range(3))
-            v0, v1, v2 = b - a, e - a, cells - a
-            d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
-            d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
-            den = d00 * d11 - d01 * d01
-            inside = (found >= 0) & (np.abs(den) > 1e-12 * d00 * d11) & (tree.query(cells)[0] <= 1.5 * spacing)
-            den = np.where(inside, den, 1.0)                              # a flat triangle: outside
-            wb, we = np.where(inside, (d11 * d20 - d01 * d21) / den, 0), np.where(inside, (d00 * d21 - d01 * d20) / den, 0)
-            c.update(ok=ok, shape=gx.shape, vertices=vertices, weights=np.column_stack([1 - wb - we, wb, we]),
-                     inside=inside, extent=(-r / 2, gx[0, -1] + r / 2, gy[-1, 0] + r / 2, -r / 2))
-        v = values[ok]
+            tri = Delaunay(pts)
+            found = tri.find_simplex(cells)
+            inside = (found >= 0) & (tree.query(cells)[0] <= 1.5 * spacing)
+            affine = tri.transform[np.maximum(found, 0)]              # barycentric coordinates, qhull's
+            b = np.einsum("nij,nj->ni", affine[:, :2], cells - affine[:, 2])
+            weights = np.column_stack([b, 1 - b.sum(1)])
+            inside &= np.isfinite(weights).all(1)                     # a flat triangle: outside
+            c.update(ok=ok, shape=gx.shape, vertices=tri.simplices[np.maximum(found, 0)],
+                     weights=np.where(inside[:, None], weights, 0.0), inside=inside,
+                     extent=(-r / 2, gx[0, -1] + r / 2, gy[-1, 0] + r / 2, -r / 2))
+        v = values[c["ok"]]
         out = np.where(c["inside"], (v[c["vertices"]] * c["weights"]).sum(1), np.nan)
         return out.reshape(c["shape"]), c["extent"]
 
