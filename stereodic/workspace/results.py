@@ -3,7 +3,8 @@ reference image, a quantity's values in one state, one point's history, and fixe
 
 Three sources: a `stereodic dic` run folder (`run.json` and `states/state{k:06d}.npz`, readable while
 the run goes on: the states recorded done), a `dic` output's `dic.npz`, and a `dic2d` NPZ (one slice per
-deformed image, `calib.npz_stream.read_slice`). Nothing is loaded whole: opening reads state 0, a redraw
+deformed image, `calib.npz_stream.read_slice`; its state 0 is the reference image, deformed image k
+is state k + 1, as in `stereodic gauge`). Nothing is loaded whole: opening reads state 0, a redraw
 reads one state's one array, a history one array per state.
 
 Frames and units: positions are the points' places in the original (unrectified) left reference image,
@@ -88,7 +89,8 @@ class DicSource:
             self.path = path
             self.meta, _ = read_npz(path, ("stereodic.dic/1", "stereodic.dic2d/1"), "DIC result", keys=())
             self.kind = "dic" if self.meta["format"] == "stereodic.dic/1" else "dic2d"
-            self.count = slice_count(path, "state" if self.kind == "dic" else "u")
+            # a dic2d result's state 0 is its reference image, deformed image k state k + 1, as for gauges
+            self.count = slice_count(path, "state") if self.kind == "dic" else slice_count(path, "u") + 1
             first = None
         self.quantities = [q for q in (STEREO if self.kind == "dic" else PLANAR) if self._has(q.key)]
         if self.kind == "dic":
@@ -124,7 +126,18 @@ class DicSource:
         if self.run_folder is not None:
             with np.load(self.run_folder / "states" / f"state{k:06d}.npz") as z:
                 return {n: z[n] for n in z.files} if key is None else z[key]
+        if self.kind == "dic2d":
+            return self._reference_state(key) if k == 0 else read_slice(self.path, key, k - 1)
         return read_slice(self.path, key, k)
+
+    def _reference_state(self, key: str) -> np.ndarray:
+        """A dic2d result's state 0, the reference image against itself: at every active grid point zero
+        displacement and strain, ZNCC 1 and status 0 (converged); NaN elsewhere (status -1)."""
+        with np.load(self.path) as z:
+            active = z["active"].astype(bool)
+        if key == "status":
+            return np.where(active, 0, -1)
+        return np.where(active, 1.0 if key == "zncc" else 0.0, np.nan)
 
     def _has(self, key: str) -> bool:
         if self.run_folder is not None:
@@ -189,7 +202,8 @@ class DicSource:
     def labels(self) -> list[str]:
         """Each finished state in words ("state 3: tension", "deformed image 2 (b.png)")."""
         if self.kind == "dic2d":
-            return [f"deformed image {k} ({Path(n).name})" for k, n in enumerate(self.meta.get("images", []))]
+            return ["reference image"] + [f"deformed image {k} ({Path(n).name})"
+                                          for k, n in enumerate(self.meta.get("images", []))]
         named = self.meta.get("state_labels") or self._workspace().get("state_labels")
         if isinstance(named, list) and len(named) >= self.count:
             return [str(s) for s in named[:self.count]]

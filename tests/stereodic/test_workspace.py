@@ -481,3 +481,26 @@ def test_further_options_name_no_file():
     for bad, word in (("--mask /etc/x.png", "--mask"), ("-o /tmp/elsewhere", "-o"), ("--max-gap", "needs a value")):
         with pytest.raises(InputError, match=word):
             extra_options(bad)
+
+
+def test_dic2d_states_number_as_the_gauges_do(tmp_path):
+    """A dic2d result in the workspace: state 0 is the reference image and deformed image k is state k + 1,
+    as in `stereodic gauge`, so that the slider's state and a gauge curve's state are the same image; the
+    history of u at a point is 0 then the dic2d CSV's u, and the simulated truth's shift is what it measures."""
+    from stereodic.gauge.result import open_gauge_result
+    from stereodic.workspace.results import DicSource
+    sim = tmp_path / "sim"
+    assert main(["simulate", "dic2d", "--width", "200", "--height", "160", "--shift", "3.4,-1.2", "-o", str(sim)]) == 0
+    out = tmp_path / "r.csv"
+    assert main(["dic2d", str(sim / "reference.png"), str(sim / "moved.png"), "--step", "10", "-o", str(out),
+                 "--npz", str(tmp_path / "r.npz")]) == 0
+    src, gauge = DicSource(tmp_path / "r.npz"), open_gauge_result(tmp_path / "r.npz")
+    assert src.count == gauge.count == 2
+    assert src.labels() == gauge.labels
+    rows = [r for r in _csv(out) if r["converged"] == "1"]
+    r = rows[len(rows) // 2]
+    i = src.nearest(float(r["x"]), float(r["y"]))
+    assert (src.x[i], src.y[i]) == (float(r["x"]), float(r["y"]))
+    hist = src.history(i, "u")
+    np.testing.assert_allclose(hist, [0.0, float(r["u"])], atol=1e-9)
+    assert abs(hist[1] - 3.4) < 0.05 and src.values(0, "status")[i] == 0 and src.values(0, "zncc")[i] == 1.0
