@@ -615,7 +615,8 @@ def dic_grid(args, width: int, height: int, image: str, source: str, *, referenc
     """The DIC point grid and seeds from the options --subset, --step, --roi, --mask, --roi-polygon and
     --start-point, for a reference image of width x height pixels (`image` names it in messages, `source` is the
     file blamed when no point fits). `original`: the IMM (stereodic.virtual.imm.IMM) of a rectified reference
-    image, whose --roi, --mask and --roi-polygon are in the original image with --roi-frame original.
+    image, whose --roi, --mask, --roi-polygon and --start-point are in the original image with --roi-frame
+    original.
     Without any of them, `reference` (a callable giving the reference image) places the points where it
     has speckle (`stereodic.dic.texture.specimen_mask`). Returns (grid, seeds [(x, y), ...]); InputError
     for any option that does not fit.
@@ -651,8 +652,18 @@ def dic_grid(args, width: int, height: int, image: str, source: str, *, referenc
             raise InputError(source, f"the {image} has no speckle that a {args.subset}-pixel subset can register "
                                      f"(blank, dark or out of focus?); give --roi or --mask to measure anyway")
     seeds = []
+    in_original = original is not None and getattr(args, "roi_frame", "rectified") == "original"
     for text in args.start_point:
         x, y = parse_ints(text, 2, "--start-point")
+        if in_original:    # given in the original left image, like the region: moved onto the rectified one
+            from stereodic.dic.region import point_to_rectified
+            rw, rh = original.real_size
+            moved = point_to_rectified(x, y, original.map_x, original.map_y, original.valid) \
+                if 0 <= x < rw and 0 <= y < rh else None
+            if moved is None:
+                raise InputError("--start-point", f"{text} is outside the {rw}x{rh} original left image's part "
+                                                  f"that the {image} shows")
+            x, y = moved
         if not (0 <= x < width and 0 <= y < height):
             raise InputError("--start-point", f"{text} is outside the {width}x{height} {image}")
         if roi and not (roi[0] <= x <= roi[2] and roi[1] <= y <= roi[3]):

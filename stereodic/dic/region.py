@@ -169,3 +169,23 @@ def to_rectified(mask: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, valid: 
     out = cv2.remap(mask.astype(np.uint8), map_x.astype(np.float32), map_y.astype(np.float32), cv2.INTER_NEAREST,
                     borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     return out.astype(bool) & valid
+
+
+def point_to_rectified(x: float, y: float, map_x: np.ndarray, map_y: np.ndarray, valid: np.ndarray
+                       ) -> tuple[int, int] | None:
+    """The rectified pixel (column, row) that samples the point (x, y) of the original image most closely
+    (the IMM's nearest valid virtual pixel), or None when no valid virtual pixel samples within one pixel of
+    it (the point is outside the rectified image).
+
+    Parameters
+    ----------
+    x, y : float
+        Column and row in the original image, pixels.
+    map_x, map_y : (Hv, Wv) float32
+        The IMM: the real position each virtual pixel samples.
+    valid : (Hv, Wv) bool
+        Not blank.
+    """
+    d2 = np.where(valid, (map_x - x) ** 2 + (map_y - y) ** 2, np.inf)
+    row, col = np.unravel_index(int(np.argmin(d2)), d2.shape)
+    return (int(col), int(row)) if d2[row, col] <= 1.0 else None

@@ -72,3 +72,25 @@ def test_the_specimen_is_found_on_a_dark_background():
     background = np.ones_like(mask)
     background[30:120, 50:160] = False
     assert not mask[background].any()
+
+
+def test_a_start_point_in_the_original_left_image(dic_sim, tmp_path):
+    """--start-point with --roi-frame original is a pixel of the original left image: it lands on the
+    rectified pixel that samples it (the rig's own IMM says where each rectified pixel samples), and a point
+    outside the original image is refused in one line, exit 2."""
+    from stereodic.dic.region import point_to_rectified
+    imm = load_rig(dic_sim / "rig.npz").left.imm
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        c, r = int(rng.integers(20, imm.map_x.shape[1] - 20)), int(rng.integers(20, imm.map_x.shape[0] - 20))
+        if not imm.valid[r, c]:
+            continue
+        x, y = float(imm.map_x[r, c]), float(imm.map_y[r, c])
+        cc, rr = point_to_rectified(x, y, imm.map_x, imm.map_y, imm.valid)
+        assert np.hypot(imm.map_x[rr, cc] - x, imm.map_y[rr, cc] - y) <= 1e-6 or (cc, rr) == (c, r)
+    assert point_to_rectified(-50.0, -50.0, imm.map_x, imm.map_y, imm.valid) is None
+    (tmp_path / "roi.json").write_text(json.dumps({"outer": OUTER}))
+    common = [str(dic_sim / "rig.npz"), str(dic_sim), "--roi-polygon", str(tmp_path / "roi.json"), "--roi-frame",
+              "original", "--subset", "21", "--step", "8", "--no-vtk", "--no-plot", "--strain-window", "0"]
+    assert main(["dic", *common, "--start-point", "5000,10", "-o", str(tmp_path / "bad")]) == 2
+    assert main(["dic", *common, "--start-point", "120,95", "-o", str(tmp_path / "out")]) == 0
