@@ -41,9 +41,9 @@ def register(sub):
     # dice-stereo-list case 21 gives 18 % more out-of-plane noise than DICe's 27, 29 6 % less)
     add_grid_options(p, "left rectified image", subset=29)
     p.add_argument("--roi-frame", choices=["rectified", "original"], default="rectified",
-                   help="the image that --roi, --mask, --roi-polygon and --start-point are given in: the left rectified image "
-                        "(default) or the left camera's original image (the frame a user draws in; its region "
-                        "is moved onto the rectified image through the rig)")
+                   help="the image that --roi, --mask, --roi-polygon and --start-point are given in: the left "
+                        "rectified image (default) or the left camera's original image (the frame a user draws "
+                        "in; its region and points are moved onto the rectified image through the rig)")
     p.add_argument("--shape", choices=["affine", "quadratic"], default="affine",
                    help="subset shape function (default affine)")
     p.add_argument("--disparity", metavar="DMIN,DMAX",

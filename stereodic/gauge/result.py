@@ -31,7 +31,8 @@ from stereodic.dic.grid import Grid
 from stereodic.gauge.frame import SpecimenFrame, rigid_motion
 from stereodic.strain.fit import strain_2d
 from stereodic.strain.measures import measure_strain
-from stereodic.strain.results import DicResult, open_result, specimen_frame_of, state_labels, strains
+from stereodic.strain.results import (DicResult, dic2d_state_labels, open_result, specimen_frame_of, state_labels,
+                                      strains)
 
 STRAINS = ("exx", "eyy", "exy", "e_major", "e_minor", "e_vm")
 _MEASURE_FIELD = {"exx": "exx", "eyy": "eyy", "exy": "exy", "e_major": "major", "e_minor": "minor",
@@ -181,7 +182,7 @@ def open_gauge_result(path: str | os.PathLike, *, frame: str = "rig", origin_px:
             raise InputError("--scale", f"must be > 0 mm per pixel, got {scale_mm_per_px}")
         x, y = np.meshgrid(g.xs, g.ys)
         image_px = np.where(g.active[..., None], np.stack([x, y], -1), np.nan)
-        labels = ["reference image"] + state_labels(res)
+        labels = dic2d_state_labels(res.meta["images"])
         units = {"u": "px", "v": "px"} | ({"dX": "mm", "dY": "mm"} if scale_mm_per_px else {}) | strain_units
         return GaugeResult(res.path, "dic2d", g, res.states + 1, labels, "mm" if scale_mm_per_px else "px",
                            image_px, None, units, window, measure, False, scale_mm_per_px, meta, res)

@@ -61,10 +61,17 @@ def state_labels(result: DicResult) -> list[str]:
     recorded ("state 3: tension", "state 3 (img_0003_0.tif)"), else "state k"; for a dic2d result
     "deformed image k (its file name)"."""
     if result.kind == "dic2d":
-        return [f"deformed image {k} ({Path(name).name})" for k, name in enumerate(result.meta["images"])]
+        return dic2d_state_labels(result.meta["images"])[1:]
     labels = result.meta.get("state_labels")
     return list(labels) if isinstance(labels, list) and len(labels) == result.states else \
         [f"state {k}" for k in range(result.states)]
+
+
+def dic2d_state_labels(images: list[str]) -> list[str]:
+    """The states of a dic2d result with deformed `images` (file names) in words, its reference first:
+    state 0 "reference image", then state k + 1 "deformed image k (its file name)", the numbering of
+    `stereodic gauge` and of the workspace."""
+    return ["reference image"] + [f"deformed image {k} ({Path(name).name})" for k, name in enumerate(images)]
 
 
 def map_axes(result: DicResult, *, frame: SpecimenFrame | None = None) -> MapAxes:

@@ -99,6 +99,7 @@ class DicSource:
         else:
             with np.load(path) as z:
                 xs, ys, active = z["x"], z["y"], z["active"].astype(bool)
+            self._active = active      # where the reference state (state 0) measured
             x0, y0 = np.meshgrid(xs.astype(np.float64), ys.astype(np.float64))
             x0, y0 = np.where(active, x0, np.nan), np.where(active, y0, np.nan)
         self.shape = x0.shape
@@ -133,11 +134,9 @@ class DicSource:
     def _reference_state(self, key: str) -> np.ndarray:
         """A dic2d result's state 0, the reference image against itself: at every active grid point zero
         displacement and strain, ZNCC 1 and status 0 (converged); NaN elsewhere (status -1)."""
-        with np.load(self.path) as z:
-            active = z["active"].astype(bool)
         if key == "status":
-            return np.where(active, 0, -1)
-        return np.where(active, 1.0 if key == "zncc" else 0.0, np.nan)
+            return np.where(self._active, 0, -1)
+        return np.where(self._active, 1.0 if key == "zncc" else 0.0, np.nan)
 
     def _has(self, key: str) -> bool:
         if self.run_folder is not None:
@@ -202,8 +201,8 @@ class DicSource:
     def labels(self) -> list[str]:
         """Each finished state in words ("state 3: tension", "deformed image 2 (b.png)")."""
         if self.kind == "dic2d":
-            return ["reference image"] + [f"deformed image {k} ({Path(n).name})"
-                                          for k, n in enumerate(self.meta.get("images", []))]
+            from stereodic.strain.results import dic2d_state_labels   # strain's imports: only when asked
+            return dic2d_state_labels(self.meta.get("images", []))
         named = self.meta.get("state_labels") or self._workspace().get("state_labels")
         if isinstance(named, list) and len(named) >= self.count:
             return [str(s) for s in named[:self.count]]
