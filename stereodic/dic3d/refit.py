@@ -25,7 +25,9 @@ is the residual; the two angles are fitted by least squares with a soft-L1 loss 
 weigh little). `refit_rig` then rebuilds the rectified pair on the same sensor (the plane is parallel
 to the unchanged baseline): the right camera's IMM and model-less directions resampled from the old
 ones along the turned rays from its centre (exact for central lenses). Where a new virtual pixel samples
-beyond the old virtual image it is blank (a band as wide as the turn moves the image).
+beyond the old virtual image it is blank (a band as wide as the turn moves the image). A right camera of a
+parametric model (an imported calibration) is turned in its model instead and computed from it exactly,
+so it has no such band: only where its real image ends.
 """
 
 from __future__ import annotations
@@ -234,10 +236,15 @@ def refit_rig(rig: Rig, R: np.ndarray) -> Rig:
     Returns
     -------
     rig : Rig
-        The same sensor, left camera, centres, model and reporting frame; the right camera's IMM and
+        The same sensor, left camera, centres, model and reporting frame. A right camera of a parametric
+        model (`stereodic import`) gets its model turned, its IMM and directions computed from it exactly
+        (`exact_camera`: no blank band beyond what its real image covers); any other has its IMM and
         model-less directions resampled (blank where its new rays sample beyond the old virtual image).
     """
     cam, s = rig.right, rig.sensor
+    if cam.model is not None:
+        return replace(rig, right=RigCamera(cam.name, cam.centre, None, None, cam.im, dict(cam.info),
+                                            turned_model(cam.model, R, cam.frame), cam.frame, cam.sensor))
     d = (s.grid() - cam.centre) @ np.asarray(R, np.float64)   # rows: R^T (p - C), the calibrated ray
     uv = s.intersect(cam.centre, d)
     real = cam.imm.real_position(uv[..., 0], uv[..., 1])
@@ -249,6 +256,18 @@ def refit_rig(rig: Rig, R: np.ndarray) -> Rig:
     right = RigCamera(cam.name, cam.centre, IMM(*maps, valid, cam.imm.real_size), direction, cam.im,
                       dict(cam.info, blank_pixels=int((~valid).sum())))
     return replace(rig, right=right)
+
+
+def turned_model(model, R: np.ndarray, frame: np.ndarray):
+    """A parametric camera (`calib.camera_models.CameraModel`, in the world frame of `frame` =
+    world_from_rig (4, 4)) turned about its optical centre by R (3, 3, rig frame; `turn`): it sees a point
+    p where the model saw C + R^T (p - C), C its centre. Returns the model with its pose R, t changed (the
+    centre, the intrinsics and the lens kept)."""
+    F = np.asarray(frame, np.float64)[:3, :3]
+    W = F @ np.asarray(R, np.float64).T @ F.T               # R^T in the world frame
+    centre = model.centre
+    rot = model.R @ W
+    return replace(model, R=rot, t=-rot @ centre)
 
 
 def correct_rig(rig: Rig, left: np.ndarray, right: np.ndarray, offsets: RowOffsets, before: EpipolarReport,

@@ -55,3 +55,22 @@ def test_the_defaults_measure_what_dice_measured(tmp_path, capsys):
     print(f"matched {matched.mean():.3f}, noise in-plane {own[0] * 1e3:.2f} um (DICe {dice[0] * 1e3:.2f}), "
           f"out-of-plane {own[1] * 1e3:.2f} um (DICe {dice[1] * 1e3:.2f})")
     assert own[0] <= dice[0] and own[1] <= dice[1]
+
+
+def test_a_start_point_in_the_original_image_lands_where_its_ray_meets_the_plane():
+    """`dic --roi-frame original --start-point X,Y` on the imported VIC-3D rig: DICe's points (pixels of the
+    original left image) moved onto the rectified pixel that samples them (`region.point_to_rectified`, the
+    rig's IMM, as the run does; the left camera is the one a re-orientation keeps) land within a pixel of where
+    their calibrated rays meet the rectified plane (`project_to_plane` of the imported PRVM: another route)."""
+    from stereodic.dic.region import point_to_rectified
+    imp = import_calibration([DATA / "cal.xml"])
+    imm = imp.result.left.imm
+    f = dice_fields()
+    ok = f["SIGMA"][0] >= 0
+    uv0 = np.stack([f["SUBSET_COORDINATES_X"][0], f["SUBSET_COORDINATES_Y"][0]], 1)[ok]
+    q = project_to_plane(imp.prvms[0], imp.result.sensor)
+    picked = uv0[np.linspace(0, len(uv0) - 1, 25).astype(int)]
+    landed = np.array([point_to_rectified(u, v, imm.map_x, imm.map_y, imm.valid) for u, v in picked], float)
+    assert np.abs(landed - q[picked[:, 1].astype(int), picked[:, 0].astype(int)]).max() < 1.0
+    w, h = imm.real_size
+    assert point_to_rectified(w + 30.0, h / 2, imm.map_x, imm.map_y, imm.valid) is None

@@ -117,3 +117,45 @@ def test_a_turned_rig_is_recovered(dic_sim, tmp_path, capsys):
     assert main(["dic", *args, "--keep-rig", "-o", str(tmp_path / "kept")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--keep-rig" in err[0] and "does not fit" in err[0]
+
+
+def test_a_model_rig_turns_in_its_model_without_a_blank_band():
+    """An imported rig (parametric cameras) re-oriented: the right camera's new maps are its model's own
+    projection of the turned rays (the model seeing p where it saw C + R^T (p - C), computed here from the
+    file's model and the rotation, not through the turned model), blank only where that falls off the real
+    image; the resampled route of a model-less rig would blank a band as wide as the turn moves the image."""
+    from dataclasses import replace
+
+    from calib.camera_models import CameraModel, image_of, prvms_of
+    from stereodic.dic3d.refit import refit_rig, turn
+    from stereodic.stereo.rig import RigCamera
+    from stereodic.virtual.imm import IMM
+
+    def camera(name, centre, yaw_deg):
+        R = Rotation.from_euler("y", -yaw_deg, degrees=True).as_matrix()
+        return CameraModel(1400, 1400, 330, 236, coefficients=[-0.12, 0.05, 0, 0, 0], R=R, t=-R @ centre,
+                           width=640, height=480, name=name)
+
+    cams = [camera("L", np.array([0.0, 0, 0]), 0.0), camera("R", np.array([120.0, 2, 0]), 14.0)]
+    prvms = prvms_of(cams, where="two.yml", dataset="two")
+    rig = build_rig(*prvms, where=("two.yml#L", "two.yml#R"), cameras=tuple(cams))
+    R = turn(rig, 0.4, -0.25)
+    fixed = refit_rig(rig, R)
+    s, right = rig.sensor, rig.right
+    p = s.grid()                                                # virtual pixel centres, rig frame
+    seen = right.centre + (p - right.centre) @ R               # C + R^T (p - C), row-wise
+    F = rig.world_from_rig
+    uv, ok = image_of(cams[1], seen.reshape(-1, 3) @ F[:3, :3].T + F[:3, 3])
+    uv, ok = uv.reshape(p.shape[:2] + (2,)), ok.reshape(p.shape[:2])
+    ok &= (uv[..., 0] >= 0) & (uv[..., 0] <= 639) & (uv[..., 1] >= 0) & (uv[..., 1] <= 479)
+    imm = fixed.right.imm
+    assert (imm.valid == ok).mean() > 0.9999
+    both = imm.valid & ok
+    assert np.abs(np.stack([imm.map_x, imm.map_y], -1)[both] - uv[both]).max() < 1e-3
+    d = fixed.right.direction[both]
+    assert np.abs(d - (p - right.centre)[both] / np.linalg.norm((p - right.centre)[both], axis=-1)[:, None]
+                  ).max() < 1e-9
+    arrays = replace(rig, right=RigCamera(right.name, right.centre, right.imm, right.direction, right.im,
+                                          dict(right.info)))                  # the model dropped
+    resampled = refit_rig(arrays, R).right.imm.valid
+    assert imm.valid.sum() - resampled.sum() > 0.01 * imm.valid.size     # the band it no longer has
