@@ -53,6 +53,7 @@ from stereodic.stereo.rig import Rig, check_camera_sizes
 from stereodic.stereo.triangulate import triangulate
 
 MIN_MODULATION_FRACTION = 0.02   # of full scale: fringes weaker than this are not measured
+VISIBILITY_FRACTION = 0.3        # of the well-lit pixels' fringe visibility: less, with little light, is shadow
 GRAY_NOISE_FRACTION = 0.01      # of full scale: a Gray-code bit whose frame and inverse differ less is undecided
 SMOOTH_PX = 3.0                  # phase filter sigma (virtual pixels): white noise / 6.4, edges eroded by 8 px
 
@@ -311,8 +312,10 @@ def decode_camera(capture: Capture, camera: str, sets: ScanSets, images=None) ->
 def _decode_period(capture: Capture, camera: str, period: float, frames: list, read):
     """(`calib.phase.WrappedPhase`, full scale) of one period's frames; with several exposures merged per
     pixel: the longest exposure that is unclipped, lit and modulated (HDR). LOW_MODULATION where the
-    modulation per unit of exposure is below MODULATION_FRACTION of its 90th percentile (shadows, stray
-    light). A pixel with a clipped sample is SATURATED (module docstring, step 1)."""
+    modulation per unit of exposure is below MODULATION_FRACTION of its 90th percentile and the fringes'
+    visibility (modulation / offset) below VISIBILITY_FRACTION of its 90th percentile (shadows, stray light:
+    little of the projector's light, and what there is mostly unmodulated; a dark surface that the projector
+    lights has weak fringes but sharp ones, and is kept). A pixel with a clipped sample is SATURATED (module docstring, step 1)."""
     proj = projector_block(capture)
     merged, exposure_of = None, None
     for exposure, group in by_exposure(frames).items():
@@ -332,12 +335,15 @@ def _decode_period(capture: Capture, camera: str, period: float, frames: list, r
         for name in ("phase", "offset", "modulation", "noise", "quality"):
             getattr(merged, name)[take] = getattr(res, name)[take]
         exposure_of[take] = exposure
-    # shadows: little of the projector's light per unit of exposure, whatever the exposure
+    # shadows: little of the projector's light per unit of exposure, whatever the exposure, and little of it modulated
     light = merged.modulation / exposure_of
     stride = max(1, light.size // 500_000)                      # the 90th percentile from a sample
     sample = light.ravel()[::stride][merged.quality.ravel()[::stride] == 0]
     if sample.size:
-        merged.quality[light < MODULATION_FRACTION * np.percentile(sample, 90)] |= LOW_MODULATION
+        visibility = merged.modulation / np.maximum(merged.offset, np.float32(1e-6))
+        lit = visibility.ravel()[::stride][merged.quality.ravel()[::stride] == 0]
+        merged.quality[(light < MODULATION_FRACTION * np.percentile(sample, 90))
+                       & (visibility < VISIBILITY_FRACTION * np.percentile(lit, 90))] |= LOW_MODULATION
     return merged, full
 
 
