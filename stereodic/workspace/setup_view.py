@@ -1,5 +1,8 @@
-"""The set-up page: from a `kind: dic` dataset (or a folder of image pairs NAME_0 / NAME_1) and a rig to a
-running `stereodic dic`.
+"""The set-up page: from a `kind: dic` dataset, a folder of image pairs NAME_0 / NAME_1, or two shell-style
+patterns or two videos (one per camera, as `stereodic dic --left --right` takes them; the page's address
+carries them, `?path=FOLDER&left=PATTERN&right=PATTERN`, relative to FOLDER) and a rig to a running
+`stereodic dic`. Without a rig the page first makes one: from two cameras' PRVM files (`stereodic rig`) or
+from another program's calibration file (`stereodic import`, its format recognised from its content).
 
 The left reference image is shown with the specimen's region found automatically (`region.automatic_region`
 on the speckle's predicted noise); the user edits it in the ORIGINAL image: rectangles and polygons add
@@ -95,14 +98,45 @@ def apply_relayout(shapes: list, relayout: dict) -> list:
     return shapes
 
 
-def _states(dataset: Path, rig_path: Path):
-    """(rig, the experiment's states) of a dataset folder, or of a folder of image pairs NAME_0 / NAME_1."""
-    from stereodic.dic3d.dataset import load_states, states_from_folder
+def image_pattern(folder: Path, pattern: str, access: Access, side: str) -> str:
+    """A camera's images typed on the page (a shell-style pattern, a video or other sequence file, or
+    VIDEO:left / VIDEO:right for a half of a side-by-side stream), relative to `folder` unless absolute;
+    InputError naming the side when it is empty, or the first file it names outside the served folders
+    (checked before any file is read)."""
+    import glob
+    import os
+    if not pattern or not pattern.strip():
+        raise InputError(f"{side} images", "give a pattern (e.g. images/left_*.tif) or a video file")
+    text = os.path.expanduser(pattern.strip())
+    text = text if os.path.isabs(text) else str(folder / text)
+    if glob.has_magic(text):
+        for p in glob.glob(text, recursive=True):
+            access.resolve(p)
+    else:
+        half = re.fullmatch(r"(.+):(left|right)", text)
+        access.resolve(half.group(1) if half and not Path(text).exists() else text)
+    return text
+
+
+def _states(dataset: Path, rig_path: Path, images: dict | None = None):
+    """(rig, the experiment's states) of a dataset folder, of a folder of image pairs NAME_0 / NAME_1, or of
+    `images` {"left": pattern, "right": pattern} (`image_pattern`'s, checked)."""
+    from stereodic.dic3d.dataset import load_states, states_from_folder, states_from_patterns
     from stereodic.stereo.rig import load_rig
     rig = load_rig(rig_path)
+    if images:
+        return rig, states_from_patterns(images["left"], images["right"], rig)
     if (dataset / "capture.json").is_file():
         return rig, load_states(dataset, rig)
     return rig, states_from_folder(dataset, "_0", "_1", rig)
+
+
+def checked_images(dataset: Path, images: dict | None, access: Access) -> dict | None:
+    """`images` ({"left", "right"} as typed, or None: the dataset or pairs) with each pattern made absolute
+    and checked (`image_pattern`)."""
+    if not images:
+        return None
+    return {side: image_pattern(dataset, images.get(side) or "", access, side) for side in ("left", "right")}
 
 
 def automatic_shapes(image: Path) -> list[dict]:

@@ -504,3 +504,57 @@ def test_dic2d_states_number_as_the_gauges_do(tmp_path):
     hist = src.history(i, "u")
     np.testing.assert_allclose(hist, [0.0, float(r["u"])], atol=1e-9)
     assert abs(hist[1] - 3.4) < 0.05 and src.values(0, "status")[i] == 0 and src.values(0, "zncc")[i] == 1.0
+
+
+@pytest.mark.browser
+def test_strains_in_the_specimen_frame_in_a_browser(browser, dic_sim, dic_run):
+    """The specimen's x axis drawn on the map at about 30 degrees to the image's rows: the map turns to the
+    specimen's frame, and its exx and exy in the tension state are the simulated plate strain (truth.npz,
+    Green-Lagrange in the plate's e1, e2) resolved along that axis: the angle is where the simulator's own
+    lens puts the line's two ends on the plate, y = z x x with z towards the cameras (-n)."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+
+    from scanners.sim.dic import load_dic_truth, truth_at_pixels
+    from stereodic.workspace.server import start
+    d = browser
+    ws = start([dic_run, dic_sim], background=True)
+    try:
+        d.get(ws.url + "?path=" + urllib.parse.quote(str(dic_run)))
+        _wait(lambda: _plot(d, "field"), 60)
+        handle = d.find_element(By.CSS_SELECTOR, "#state [role=slider]")
+        handle.click()
+        handle.send_keys(Keys.END)
+        _wait(lambda: "tension" in (_plot(d, "field", "layout") or {}).get("title", {}).get("text", ""))
+        rig_exx = np.nanmedian(_cells(d))
+        d.find_element(By.CSS_SELECTOR, "#tool input[value=x-axis]").click()
+        _wait(lambda: (_plot(d, "field", "layout") or {}).get("dragmode") == "drawline")
+        _draw(d, "field", [(60, 130), (160, 72.26)])
+        _wait(lambda: "frame: specimen" in (_plot(d, "field", "layout") or {}).get("title", {}).get("text", ""), 60)
+        ends = [float(v) for v in d.find_element(By.ID, "x-axis").get_attribute("value").split(",")]
+        exx = np.nanmedian(_cells(d))
+        d.find_element(By.ID, "quantity").click()
+        _wait(lambda: [o for o in d.find_elements(By.CSS_SELECTOR, ".dash-dropdown-option") if o.text == "exy"])[0].click()
+        _wait(lambda: (_plot(d, "field", "layout") or {}).get("title", {}).get("text", "").startswith("exy"), 30)
+        exy = np.nanmedian(_cells(d))
+    finally:
+        ws.stop()
+    truth = truth_at_pixels(load_dic_truth(dic_sim), np.array([ends[:2], ends[2:], ((ends[0] + ends[2]) / 2,
+                                                                                  (ends[1] + ends[3]) / 2)]))
+    dx, dy = truth["material"][1] - truth["material"][0]
+    c, s = np.array([dx, dy]) / np.hypot(dx, dy)          # the axis in the plate's (e1, e2)
+    Exx, Eyy, Exy = (truth[k][2, 2] for k in ("exx", "eyy", "exy"))
+    want_exx = 1e6 * (c * c * Exx + 2 * c * s * Exy + s * s * Eyy)
+    want_exy = 1e6 * (c * s * (Exx - Eyy) + (s * s - c * c) * Exy)      # y = (s, -c): z x x with z = -n
+    assert abs(np.degrees(np.arctan2(s, c))) > 20              # the axis is well off the plate's e1
+    assert abs(exx - want_exx) < 200 and abs(exy - want_exy) < 200, (exx, want_exx, exy, want_exy)
+    assert abs(rig_exx - 1e6 * Exx) < 200 and abs(rig_exx - exx) > 2000   # the rig's frame: along e1
+
+
+def _cells(driver):
+    """The field's cell values as plotted (the heat map's z), flattened."""
+    values = driver.execute_script(
+        "var z = document.querySelector('#field .js-plotly-plot')._fullData[0].z;"
+        "var out = []; for (var i = 0; i < z.length; i++) for (var j = 0; j < z[i].length; j++) "
+        "out.push(isFinite(z[i][j]) ? z[i][j] : null); return out;")
+    return np.array([np.nan if v is None else v for v in values], np.float64)
