@@ -558,3 +558,150 @@ def _cells(driver):
         "var out = []; for (var i = 0; i < z.length; i++) for (var j = 0; j < z[i].length; j++) "
         "out.push(isFinite(z[i][j]) ? z[i][j] : null); return out;")
     return np.array([np.nan if v is None else v for v in values], np.float64)
+
+
+def _start_and_wait(d, out, step="8"):
+    """The set-up page's output folder and step typed, the run started and followed to its end."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+    for field_id, value in (("setup-output", str(out)), ("setup-step", step)):
+        field = d.find_element(By.ID, field_id)
+        field.send_keys(Keys.CONTROL, "a")
+        field.send_keys(value)
+    d.find_element(By.ID, "start").click()
+    _wait(lambda: "stereodic dic" in d.find_element(By.ID, "command").text, 30)
+    _wait(lambda: d.find_elements(By.ID, "open-results") or "stopped" in d.find_element(By.ID, "progress").text,
+          240, 1.0)
+    assert d.find_elements(By.ID, "open-results"), d.find_element(By.ID, "progress").text
+    return d.find_element(By.ID, "command").text
+
+
+def _text(d, element_id):
+    """An element's text, "" while it is not there (or the page is being replaced)."""
+    from selenium.common.exceptions import WebDriverException
+    from selenium.webdriver.common.by import By
+    try:
+        return d.find_element(By.ID, element_id).text
+    except WebDriverException:
+        return ""
+
+
+def _use_images(d, left, right):
+    """The left and right images typed on the set-up page (a pattern or a video each), the page reloaded."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+    for field_id, value in (("setup-left", left), ("setup-right", right)):
+        field = d.find_element(By.ID, field_id)
+        field.send_keys(Keys.CONTROL, "a")
+        field.send_keys(value)
+    d.find_element(By.ID, "use-images").click()
+    _wait(lambda: f"{left} --right" in _text(d, "setup-about"), 60)
+    _wait(lambda: _plot(d, "noise"), 90)
+
+
+def _mean_displacement(csv_path, state):
+    rows = [r for r in _csv(csv_path) if r["state"] == str(state) and r["converged"] == "1"]
+    return len(rows), np.array([[float(r[k]) for k in ("dX", "dY", "dZ")] for r in rows]).mean(0)
+
+
+@pytest.mark.browser
+def test_set_up_from_patterns_and_from_videos(browser, dic_sim, tmp_path):
+    """A folder whose images are named by two patterns (images/left_*.png, images/right_*.png) and two
+    lossless videos of the same frames (video/left.avi, video/right.avi): each typed on the set-up page,
+    a region drawn, the run started. The pattern run measures the simulated rigid translation of state 1
+    (0.6, -0.4, 1.2) mm; the video run gives the same numbers as the pattern run (the same pixels)."""
+    import cv2
+    from selenium.webdriver.common.by import By
+
+    from calib.imageio import read_gray
+    from stereodic.workspace.server import start
+    d = browser
+    lab = tmp_path / "lab"
+    (lab / "images").mkdir(parents=True)
+    (lab / "video").mkdir()
+    shutil.copy(dic_sim / "rig.npz", lab / "rig.npz")
+    for cam, side in (("cam0", "left"), ("cam1", "right")):
+        video = cv2.VideoWriter(str(lab / "video" / f"{side}.avi"), cv2.VideoWriter_fourcc(*"FFV1"), 10, (240, 192),
+                                isColor=False)
+        for k in range(3):
+            shutil.copy(dic_sim / f"s{k:03d}" / f"{cam}.png", lab / "images" / f"{side}_{k}.png")
+            video.write(read_gray(dic_sim / f"s{k:03d}" / f"{cam}.png"))
+        video.release()
+    ws = start([lab], background=True)
+    polygon = [(40, 40), (190, 45), (185, 150), (45, 150)]
+    try:
+        d.get(ws.url)
+        _wait(lambda: d.find_elements(By.ID, "use-images"), 60)        # no pairs, no dataset: name the images
+        assert "give the left and right" in d.find_element(By.ID, "setup-about").text
+        runs = {}
+        for kind, left, right in (("patterns", "images/left_*.png", "images/right_*.png"),
+                                  ("videos", "video/left.avi", "video/right.avi")):
+            _use_images(d, left, right)
+            assert d.find_element(By.ID, "setup-about").text.startswith("3 states (--left ")
+            source = _plot(d, "ref-image", "layout")["images"][0]["source"]
+            assert urllib.parse.unquote(source).endswith("left_0.png" if kind == "patterns" else "left.avi::0")
+            status, body, _ = _get(ws.url.rstrip("/") + source)          # the reference image, a video's frame too
+            assert status == 200 and body.startswith("\x89PNG")
+            d.find_element(By.ID, "clear-region").click()
+            _wait(lambda: not (_plot(d, "ref-image", "layout") or {}).get("shapes"))
+            _draw(d, "ref-image", polygon, closed=True)
+            _wait(lambda: (_plot(d, "ref-image", "layout") or {}).get("shapes"))
+            runs[kind] = lab / f"run-{kind}"
+            command = _start_and_wait(d, runs[kind])
+            assert f"--left {lab / left}" in command.replace("'", "") and f"--right {lab / right}" in \
+                command.replace("'", "")
+            record = json.loads((runs[kind] / "workspace.json").read_text())
+            assert record["images"] == {"left": str(lab / left), "right": str(lab / right)}
+            d.save_screenshot(str(tmp_path / f"setup-{kind}.png"))
+    finally:
+        ws.stop()
+    count, mean = _mean_displacement(runs["patterns"] / "dic.csv", 1)
+    assert count > 50 and np.abs(mean - [0.6, -0.4, 1.2]).max() < 0.01, mean
+    a, b = _csv(runs["patterns"] / "dic.csv"), _csv(runs["videos"] / "dic.csv")
+    assert len(a) == len(b) and all(ra["dX"] == rb["dX"] and ra["exx"] == rb["exx"] for ra, rb in zip(a, b))
+
+
+@pytest.mark.browser
+def test_rig_from_another_programs_calibration(browser, dic_sim, tmp_path):
+    """A folder of image pairs and an OpenCV stereo calibration (stereo_calib's M1 D1 M2 D2 R T, no image
+    size), no rig: the page finds the file and its format, `stereodic import` (shown, with --size from the
+    images) makes the rig, whose baseline is the file's |T|, and the page goes on to the set-up."""
+    import cv2
+    from selenium.webdriver.common.by import By
+
+    from stereodic.stereo.rig import load_rig
+    from stereodic.workspace.server import start
+    d = browser
+    folder = tmp_path / "lab"
+    folder.mkdir()
+    for k in range(3):
+        for cam, side in (("cam0", 0), ("cam1", 1)):
+            shutil.copy(dic_sim / f"s{k:03d}" / f"{cam}.png", folder / f"img_{k:04d}_{side}.png")
+    phi = np.arctan2(-120.0, 400.0)                  # the right camera 120 mm to the right, turned to the left's target
+    R = np.array([[np.cos(phi), 0, -np.sin(phi)], [0, 1, 0], [np.sin(phi), 0, np.cos(phi)]])     # R_y(-phi)
+    T = -R @ np.array([120.0, 1.5, -4.0])
+    K = np.array([[480.0, 0, 119.5], [0, 480.0, 95.5], [0, 0, 1]])
+    fs = cv2.FileStorage(str(folder / "stereo.yml"), cv2.FILE_STORAGE_WRITE)
+    for key, value in (("M1", K), ("D1", np.zeros((1, 5))), ("M2", K), ("D2", np.array([[-0.05, 0.01, 0, 0, 0]])),
+                       ("R", R), ("T", T.reshape(3, 1))):
+        fs.write(key, value)
+    fs.release()
+    ws = start([folder], background=True)
+    try:
+        d.get(ws.url)
+        _wait(lambda: d.find_elements(By.ID, "import-rig"), 60)
+        assert "(opencv)" in d.find_element(By.ID, "import-file").text
+        assert d.find_element(By.ID, "import-size").get_attribute("value") == "240x192"
+        d.find_element(By.ID, "import-rig").click()
+        _wait(lambda: d.find_elements(By.ID, "open-setup") or d.find_element(By.ID, "rig-message").text, 120)
+        assert d.find_elements(By.ID, "open-setup"), d.find_element(By.ID, "rig-message").text
+        line = d.find_element(By.ID, "rig-command").text.splitlines()[0]
+        assert line == f"stereodic import {folder / 'stereo.yml'} -o {folder / 'rig.npz'} --size 240x192"
+        rig = load_rig(folder / "rig.npz")
+        assert abs(np.linalg.norm(rig.baseline) - np.linalg.norm(T)) < 1e-6 * np.linalg.norm(T)
+        d.find_element(By.ID, "open-setup").click()
+        _wait(lambda: _plot(d, "noise"), 90)
+        assert "3 states" in d.find_element(By.ID, "setup-about").text
+        d.save_screenshot(str(tmp_path / "imported.png"))
+    finally:
+        ws.stop()
