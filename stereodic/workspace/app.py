@@ -22,20 +22,12 @@ from calib.errors import InputError
 from stereodic.workspace.access import Access
 
 
-def image_pairs(folder: Path) -> bool:
-    """Whether `folder` holds image pairs named as DICe and VIC-3D name them (NAME_0.tif, NAME_1.tif)."""
-    from calib.imageio import IMAGE_SUFFIXES
-    return any(p.suffix.lower() in IMAGE_SUFFIXES and p.stem.endswith("_0") and
-               any((folder / f"{p.stem[:-2]}_1{s}").is_file() for s in (p.suffix, p.suffix.lower()))
-               for p in folder.iterdir())
-
-
 def kind_of(path: Path) -> str:
     """What `path` holds: "dic", "setup", "prvm", "rig" or "scan"; InputError naming it otherwise."""
     if path.is_dir():
         if (path / "run.json").is_file() or (path / "dic.npz").is_file():
             return "dic"
-        from stereodic.workspace.setup_view import holds_images
+        from stereodic.workspace.setup_view import holds_images, image_pairs
         if (path / "capture.json").is_file() or image_pairs(path) or holds_images(path):
             return "setup"
         raise InputError(path, "is neither a `stereodic dic` output folder nor a DIC dataset (no run.json, "

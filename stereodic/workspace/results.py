@@ -214,7 +214,9 @@ class DicSource:
         """Fixed colour limits of quantity `name` over the run, in its unit: `stereodic.dic.maps.RunScales`
         (what the run's PNG maps use: the widest of each state's 1st-99th percentiles, symmetric about
         zero for a signed quantity, strains at least +-STRAIN_FLOOR) over up to LIMIT_STATES states spread
-        over the finished ones; the status codes' own range for `status`."""
+        over the finished ones; the status codes' own range for `status`. Strains in the specimen's frame
+        take no refit here: their range is bounded by the principal strains the result holds (in-plane
+        invariants): exx and eyy lie between e_minor and e_major, |exy| within (e_major - e_minor) / 2."""
         if name in self._limits:
             return self._limits[name]
         if name == "status":
@@ -224,13 +226,24 @@ class DicSource:
         q = self.quantity(name)
         scales = RunScales(floor={c: STRAIN_FLOOR for c in ("exx", "eyy", "exy")})    # microstrain, as the maps
         for k in np.unique(np.linspace(0, self.count - 1, min(self.count, LIMIT_STATES)).round().astype(int)):
-            scales.add(name, self.values(int(k), name), signed=q.signed)
+            scales.add(name, self._limit_values(int(k), q), signed=q.signed)
         scale = scales.scale(name)
         lo, hi = (0.0, 1.0) if scale is None else (float(scale.lo), float(scale.hi))
         if hi - lo <= 1e-12 * max(1.0, abs(hi)):
             lo, hi = lo - 0.5, hi + 0.5
         self._limits[name] = (lo, hi)
         return lo, hi
+
+    def _limit_values(self, k: int, q: Quantity) -> np.ndarray:
+        """The values of state k that bound quantity `q`'s colour limits (`limits`), in its unit."""
+        if self.frame is None or q.key not in _FIELDS or not all(self._has(n) for n in ("e_major", "e_minor")):
+            return self.values(k, q.name)
+        major, minor = (self._read(k, n).ravel()[self.index].astype(np.float64) * q.scale
+                        for n in ("e_major", "e_minor"))
+        if q.key == "exy":
+            return np.concatenate([(major - minor) / 2, (minor - major) / 2])
+        return np.concatenate([major, minor]) if q.key in ("exx", "eyy") else self._read(k, q.key).ravel()[
+            self.index].astype(np.float64) * q.scale
 
     # ------------------------------------------------------------------ labels and images
     def labels(self) -> list[str]:

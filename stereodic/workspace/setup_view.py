@@ -32,7 +32,6 @@ import numpy as np
 
 from calib.errors import InputError
 from stereodic.workspace.access import Access
-from stereodic.workspace.app import image_pairs
 from stereodic.workspace.page import GRAPH_WIDTH_PX, error_text, image_url
 from stereodic.workspace.region import (HOLE_COLOUR, PART_COLOUR, Polygon, automatic_region, from_json, original_mask,
                                         polygon_shape, rectified_mask, shape_polygon, to_json)
@@ -228,6 +227,14 @@ def reference_figure(ref: Path, shapes: list):
     fig.update_xaxes(range=[-0.5, w - 0.5], showgrid=False, title="x, original left image (px)")
     fig.update_yaxes(range=[h - 0.5, -0.5], scaleanchor="x", showgrid=False, title="y (px)")
     return fig
+
+
+def image_pairs(folder: Path) -> bool:
+    """Whether `folder` holds image pairs named as DICe and VIC-3D name them (NAME_0.tif, NAME_1.tif)."""
+    from calib.imageio import IMAGE_SUFFIXES
+    return any(p.suffix.lower() in IMAGE_SUFFIXES and p.stem.endswith("_0") and
+               any((folder / f"{p.stem[:-2]}_1{s}").is_file() for s in (p.suffix, p.suffix.lower()))
+               for p in folder.iterdir())
 
 
 def holds_images(folder: Path) -> bool:

@@ -628,7 +628,7 @@ def test_set_up_from_patterns_and_from_videos(browser, dic_sim, tmp_path):
             video.write(read_gray(dic_sim / f"s{k:03d}" / f"{cam}.png"))
         video.release()
     ws = start([lab], background=True)
-    polygon = [(40, 40), (190, 45), (185, 150), (45, 150)]
+    polygon = [(70, 60), (170, 60), (170, 130), (70, 130)]
     try:
         d.get(ws.url)
         _wait(lambda: d.find_elements(By.ID, "use-images"), 60)        # no pairs, no dataset: name the images
@@ -647,16 +647,19 @@ def test_set_up_from_patterns_and_from_videos(browser, dic_sim, tmp_path):
             _draw(d, "ref-image", polygon, closed=True)
             _wait(lambda: (_plot(d, "ref-image", "layout") or {}).get("shapes"))
             runs[kind] = lab / f"run-{kind}"
-            command = _start_and_wait(d, runs[kind])
+            command = _start_and_wait(d, runs[kind], step="10")
             assert f"--left {lab / left}" in command.replace("'", "") and f"--right {lab / right}" in \
                 command.replace("'", "")
             record = json.loads((runs[kind] / "workspace.json").read_text())
             assert record["images"] == {"left": str(lab / left), "right": str(lab / right)}
             d.save_screenshot(str(tmp_path / f"setup-{kind}.png"))
+        d.find_element(By.ID, "open-results").click()                  # the video run's results over its frame 0
+        _wait(lambda: _plot(d, "field", "layout"), 60)
+        assert urllib.parse.unquote(_plot(d, "field", "layout")["images"][0]["source"]).endswith("left.avi::0")
     finally:
         ws.stop()
     count, mean = _mean_displacement(runs["patterns"] / "dic.csv", 1)
-    assert count > 50 and np.abs(mean - [0.6, -0.4, 1.2]).max() < 0.01, mean
+    assert count > 30 and np.abs(mean - [0.6, -0.4, 1.2]).max() < 0.01, mean
     a, b = _csv(runs["patterns"] / "dic.csv"), _csv(runs["videos"] / "dic.csv")
     assert len(a) == len(b) and all(ra["dX"] == rb["dX"] and ra["exx"] == rb["exx"] for ra, rb in zip(a, b))
 
