@@ -269,14 +269,19 @@ def layout(path: Path, access: Access, images: dict | None = None):
     rigs = find_files(access.folders, "stereodic.rig/1")
     default = next((r for r in rigs if r.parent == dataset), rigs[0] if rigs else None)
     typed = images
-    images = checked_images(dataset, images, access)
-    if default is None:
-        return rig_maker(dataset, access, images)
-    if images is None and not ((dataset / "capture.json").is_file() or image_pairs(dataset)):
-        return html.Div([images_chooser(dataset, typed), html.Div(
-            "This folder is neither a dataset nor a folder of image pairs NAME_0 / NAME_1: give the left and right "
-            "camera's images, a pattern or a video each.", id="setup-about")])
-    rig, data = _states(dataset, default, images)
+    try:
+        images = checked_images(dataset, images, access)
+        if default is None:
+            return rig_maker(dataset, access, images)
+        if images is None and not ((dataset / "capture.json").is_file() or image_pairs(dataset)):
+            raise InputError(dataset, "is neither a dataset nor a folder of image pairs NAME_0 / NAME_1: give the "
+                                      "left and right camera's images, a pattern or a video each")
+        rig, data = _states(dataset, default, images)
+    except InputError as exc:        # images that do not fit: say so beside the fields where they are typed
+        if typed is None and default is not None and ((dataset / "capture.json").is_file() or image_pairs(dataset)):
+            raise
+        return html.Div([images_chooser(dataset, typed), html.Div(error_text(exc), id="setup-about",
+                                                                  style={"color": "#b00"})])
     shapes = automatic_shapes(data.left[0])
     return html.Div([
         dcc.Store(id="setup-dataset", data=str(dataset)), dcc.Store(id="shapes", data=shapes),

@@ -708,3 +708,28 @@ def test_rig_from_another_programs_calibration(browser, dic_sim, tmp_path):
         d.save_screenshot(str(tmp_path / "imported.png"))
     finally:
         ws.stop()
+
+
+def test_typed_images_stay_in_the_served_folders(tmp_path):
+    """A pattern or video typed on the set-up page is checked file by file before any is read: one that
+    reaches outside the served folders (through `..`, an absolute path, a side-by-side half, a frame
+    reference) is refused with a line naming it; one inside is made absolute."""
+    from calib.errors import InputError
+    from stereodic.workspace.access import Access
+    from stereodic.workspace.setup_view import image_pattern
+    served, outside = tmp_path / "served", tmp_path / "outside"
+    (served / "images").mkdir(parents=True)
+    outside.mkdir()
+    for folder in (served / "images", outside):
+        (folder / "left_0.png").write_bytes(b"")
+    (outside / "stereo.avi").write_bytes(b"")
+    access = Access([served])
+    assert image_pattern(served, "images/left_*.png", access, "left") == str(served / "images" / "left_*.png")
+    for bad in ("../outside/left_*.png", str(outside / "left_*.png"), "images/../../outside/*.png",
+                "../outside/stereo.avi:left", str(outside / "stereo.avi")):
+        with pytest.raises(InputError, match="outside the folders"):
+            image_pattern(served, bad, access, "left")
+    with pytest.raises(InputError, match="outside the folders"):
+        access.resolve(f"{outside / 'stereo.avi'}::0")
+    with pytest.raises(InputError, match="right images"):
+        image_pattern(served, " ", access, "right")
