@@ -39,7 +39,8 @@ from stereodic.workspace.region import (HOLE_COLOUR, PART_COLOUR, Polygon, autom
 RUN_FORMAT = "stereodic.workspace-run/1"
 # `stereodic dic` options the page passes on as typed (none names a file: the run reads only what it serves)
 EXTRA_OPTIONS = {"--vertical-search": 1, "--max-gap": 1, "--prefilter": 1, "--min-zncc": 1, "--disparity": 1,
-                 "--search": 1, "--switch-zncc": 1, "--shape": 1, "--measure": 1, "--incremental": 0}
+                 "--search": 1, "--switch-zncc": 1, "--shape": 1, "--measure": 1, "--incremental": 0,
+                 "--no-plot": 0}
 _RUNS: dict[str, dict] = {}     # output folder -> {"process", "started", "done0"}
 _LOCK = threading.Lock()
 

@@ -560,14 +560,15 @@ def _cells(driver):
     return np.array([np.nan if v is None else v for v in values], np.float64)
 
 
-def _start_and_wait(d, out, step="8"):
-    """The set-up page's output folder and step typed, the run started and followed to its end."""
+def _start_and_wait(d, out, step="8", options=""):
+    """The set-up page's output folder, step and further options typed, the run started and followed to
+    its end; returns the command shown."""
     from selenium.webdriver.common.by import By
     from selenium.webdriver.common.keys import Keys
-    for field_id, value in (("setup-output", str(out)), ("setup-step", step)):
+    for field_id, value in (("setup-output", str(out)), ("setup-step", step), ("setup-options", options)):
         field = d.find_element(By.ID, field_id)
         field.send_keys(Keys.CONTROL, "a")
-        field.send_keys(value)
+        field.send_keys(value or Keys.DELETE, Keys.ENTER)
     d.find_element(By.ID, "start").click()
     _wait(lambda: "stereodic dic" in d.find_element(By.ID, "command").text, 30)
     _wait(lambda: d.find_elements(By.ID, "open-results") or "stopped" in d.find_element(By.ID, "progress").text,
@@ -623,7 +624,7 @@ def test_set_up_from_patterns_and_from_videos(browser, dic_sim, tmp_path):
     for cam, side in (("cam0", "left"), ("cam1", "right")):
         video = cv2.VideoWriter(str(lab / "video" / f"{side}.avi"), cv2.VideoWriter_fourcc(*"FFV1"), 10, (240, 192),
                                 isColor=False)
-        for k in range(3):
+        for k in range(2):                              # the reference and the translation: a short run
             shutil.copy(dic_sim / f"s{k:03d}" / f"{cam}.png", lab / "images" / f"{side}_{k}.png")
             video.write(read_gray(dic_sim / f"s{k:03d}" / f"{cam}.png"))
         video.release()
@@ -637,7 +638,7 @@ def test_set_up_from_patterns_and_from_videos(browser, dic_sim, tmp_path):
         for kind, left, right in (("patterns", "images/left_*.png", "images/right_*.png"),
                                   ("videos", "video/left.avi", "video/right.avi")):
             _use_images(d, left, right)
-            assert d.find_element(By.ID, "setup-about").text.startswith("3 states (--left ")
+            assert d.find_element(By.ID, "setup-about").text.startswith("2 states (--left ")
             source = _plot(d, "ref-image", "layout")["images"][0]["source"]
             assert urllib.parse.unquote(source).endswith("left_0.png" if kind == "patterns" else "left.avi::0")
             status, body, _ = _get(ws.url.rstrip("/") + source)          # the reference image, a video's frame too
@@ -647,11 +648,12 @@ def test_set_up_from_patterns_and_from_videos(browser, dic_sim, tmp_path):
             _draw(d, "ref-image", polygon, closed=True)
             _wait(lambda: (_plot(d, "ref-image", "layout") or {}).get("shapes"))
             runs[kind] = lab / f"run-{kind}"
-            command = _start_and_wait(d, runs[kind], step="10")
+            command = _start_and_wait(d, runs[kind], step="10", options="--no-plot")
             assert f"--left {lab / left}" in command.replace("'", "") and f"--right {lab / right}" in \
                 command.replace("'", "")
             record = json.loads((runs[kind] / "workspace.json").read_text())
             assert record["images"] == {"left": str(lab / left), "right": str(lab / right)}
+            assert command.rstrip().endswith("--no-vtk --no-plot") and not (runs[kind] / "maps").exists()
             d.save_screenshot(str(tmp_path / f"setup-{kind}.png"))
         d.find_element(By.ID, "open-results").click()                  # the video run's results over its frame 0
         _wait(lambda: _plot(d, "field", "layout"), 60)
