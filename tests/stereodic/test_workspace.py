@@ -735,3 +735,26 @@ def test_typed_images_stay_in_the_served_folders(tmp_path):
         access.resolve(f"{outside / 'stereo.avi'}::0")
     with pytest.raises(InputError, match="right images"):
         image_pattern(served, " ", access, "right")
+
+
+def test_area_gauge_in_the_specimen_frame_is_the_gauge_commands(dic_run, tmp_path):
+    """An area drawn on the page with the specimen's x axis set: its mean exx per state is what `stereodic
+    gauge --frame specimen --x-axis` writes for the same polygon; the map's median over the area agrees
+    (the map and the gauges refit the strains alike), and the axis turns exx away from the rig frame's."""
+    from matplotlib.path import Path as MPath
+
+    from stereodic.workspace.dic_view import gauge_curve, source
+    corners = [(60.0, 50.0), (170.0, 55.0), (165.0, 140.0), (65.0, 135.0)]
+    axis = (60.0, 130.0, 160.0, 72.26)
+    shape = {"type": "path", "path": "M" + "L".join(f"{x},{y}" for x, y in corners) + "Z"}
+    _, table, _ = gauge_curve(str(dic_run), shape, "area", "exx", "specimen", axis)
+    page = np.array([row[2] for row in table["rows"]])
+    polygon = ";".join(f"{x},{y}" for x, y in corners)
+    assert main(["gauge", str(dic_run), "--area", f"A1={polygon}", "--frame", "specimen", "--x-axis",
+                 ",".join(map(str, axis)), "-o", str(tmp_path / "g")]) == 0
+    want = np.array([float(r["exx_mean"]) for r in _csv(tmp_path / "g" / "areas.csv")])
+    np.testing.assert_allclose(page, want, rtol=0, atol=2e-9)                 # the CSV's 9 decimals
+    spec, rig = source(dic_run, "specimen", axis), source(dic_run, "rig")
+    inside = MPath(corners).contains_points(np.column_stack([spec.x, spec.y]))
+    assert abs(np.nanmedian(spec.values(2, "exx")[inside]) - 1e6 * want[2]) < 150
+    assert abs(np.nanmedian(rig.values(2, "exx")[inside]) - 1e6 * want[2]) > 2000
