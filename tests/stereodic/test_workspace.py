@@ -534,7 +534,8 @@ def test_strains_in_the_specimen_frame_in_a_browser(browser, dic_sim, dic_run):
         ends = [float(v) for v in d.find_element(By.ID, "x-axis").get_attribute("value").split(",")]
         exx = np.nanmedian(_cells(d))
         d.find_element(By.ID, "quantity").click()
-        _wait(lambda: [o for o in d.find_elements(By.CSS_SELECTOR, ".dash-dropdown-option") if o.text == "exy"])[0].click()
+        options = ".dash-dropdown-option"
+        _wait(lambda: [o for o in d.find_elements(By.CSS_SELECTOR, options) if o.text == "exy"])[0].click()
         _wait(lambda: (_plot(d, "field", "layout") or {}).get("title", {}).get("text", "").startswith("exy"), 30)
         exy = np.nanmedian(_cells(d))
     finally:
