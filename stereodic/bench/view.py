@@ -7,7 +7,8 @@ field, and a 2,000-state run of 5,000 points (the opening reads state 0 and the 
 colour limits, whatever the run's length; 2,000 states of 100,000 points would be 20 GB on disk).
 
 - redraw, server: a state or quantity change's work in the server (one state's one array read, its cells
-  (`dic_view.raster`) serialised as the browser receives them), median CPU time;
+  (`dic_view.raster`) serialised as the browser receives them), median CPU time; the same in the specimen's
+  frame, where a new state's strains are refitted in its axes;
 - redraw, browser (where Debian's chromium and chromedriver are installed): a slider step to the new
   colours plotted in headless Chromium, median wall time of 7 steps, and the browser's CPU time per step
   (all its processes; on a loaded machine the wall time waits for a core, the CPU time does not);
@@ -90,6 +91,7 @@ def run(quick: bool = False) -> list[Figure]:
         cpu = statistics.median(_cpu(lambda k=k: _patch_json(src, k % 8, "exx")) for k in range(10))
         figures.append(Figure("view", f"redraw, {src.x.size} points on 1920x1200, server CPU", cpu, "s",
                               goal=f"<= {GOAL_REDRAW_S} s", ok=cpu <= GOAL_REDRAW_S))
+        figures.append(_specimen_redraw(big, src))
         from stereodic.workspace.access import Access
         states = 2000 if not quick else 400
 
@@ -104,6 +106,22 @@ def run(quick: bool = False) -> list[Figure]:
         if shutil.which("chromium") and shutil.which("chromedriver"):
             figures += _browser(big, long, image, states)
     return figures
+
+
+def _specimen_redraw(run: Path, own) -> Figure:
+    """A state change's server CPU in the specimen's frame: the new state's strains refitted in its axes
+    (`DicSource` with a frame: `SurfaceStrains`) and serialised; states cycled past the four kept, so that
+    every step refits. No goal of its own: the issue's 0.2 s is the rig's frame's."""
+    from stereodic.gauge.frame import specimen_frame
+    from stereodic.workspace.results import DicSource
+    with np.load(run / "states" / "state000000.npz") as z:
+        frame = specimen_frame(z["points"].reshape(-1, 3), np.stack([z["left_x0"], z["left_y0"]], -1).reshape(-1, 2),
+                               x_direction_px=(1.0, 0.5))
+    src = DicSource(run, frame=frame)
+    _patch_json(src, 0, "exx")                    # the fit's local frames made once, at the frame's choice
+    cpu = statistics.median(_cpu(lambda k=k: _patch_json(src, 1 + k % 7, "exx")) for k in range(10))
+    return Figure("view", f"redraw in the specimen's frame (strains refitted), {src.x.size} points, server CPU", cpu,
+                  "s")
 
 
 def _wall(fn) -> float:

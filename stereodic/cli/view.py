@@ -1,7 +1,9 @@
 """`stereodic view [PATH...] [--port N] [--host H --token T] [--no-browser]`: the workspace in the browser.
 
 Serves `stereodic.workspace` on PATH (default: the current folder): a DIC run folder or result, a DIC
-dataset to set a run up, a PRVM or rig file, or a PLY scan; prints the address (with the token where
+dataset, a folder of image pairs or a folder of images or videos to set a run up (its rig made on the page
+from two PRVM files or another program's calibration file where there is none), a PRVM or rig file, or a
+PLY scan; prints the address (with the token where
 there is one) and opens it in the browser where there is one. Ctrl-C stops it. Bound to 127.0.0.1 unless
 --host says otherwise, and then only with a token (`stereodic.workspace.access`).
 """
@@ -15,8 +17,9 @@ def register(sub):
     p = sub.add_parser("view", help="the browser workspace: set up a run, look at results, gauges, calibrations",
                        description="Serve the workspace in the browser on PATH: a DIC run folder, dic.npz or "
                                    "dic2d NPZ (results state by state, points' histories, gauges, stress-strain), "
-                                   "a DIC dataset (draw the region, start the run), a PRVM or rig file, or a "
-                                   "PLY scan. Only the files under the PATHs are served.")
+                                   "a DIC dataset or a folder of images or videos (pick the images, make the rig "
+                                   "from a calibration, draw the region, start the run), a PRVM or rig file, or "
+                                   "a PLY scan. Only the files under the PATHs are served.")
     add_input(p, "paths", kind="any", what="result, dataset, PRVM, rig or PLY", metavar="PATH", nargs="*",
               help="what to open (the first) and serve (all; default: the current folder)")
     p.add_argument("--port", type=int, default=0, help="TCP port (default: a free one)")

@@ -104,7 +104,34 @@ def strains(result: DicResult, window: int, measure: str, *, frame: SpecimenFram
         for u, v in zip(iter_slices(result.path, "u"), iter_slices(result.path, "v")):
             yield measure_strain(strain_2d(g.xs, g.ys, u, v, window=window), measure=measure)
         return
-    points = iter_slices(result.path, "points")
-    fit = StrainFit(next(points) if frame is None else frame.apply(next(points)), window=window)
+    surface = SurfaceStrains(next(iter_slices(result.path, "points")), window=window, measure=measure, frame=frame)
     for disp in iter_slices(result.path, "displacement"):
-        yield measure_strain(fit(disp if frame is None else frame.rotate(disp)), measure=measure)
+        yield surface(disp)
+
+
+class SurfaceStrains:
+    """The strain measure of a stereo result's displacement fields, fitted on its reference shape.
+
+    Parameters
+    ----------
+    points0 : (ny, nx, 3) float
+        State 0's points on the grid, the result's frame, mm; NaN where not measured.
+    window : int
+        Grid points per side of the fit (odd >= 3).
+    measure : str
+        Strain measure (`stereodic.strain.measures.MEASURES`).
+    frame : SpecimenFrame, optional
+        Fit in the specimen's axes: points and displacements turned into it, e1 its x axis projected on
+        the local tangent plane (else the result's own x).
+
+    Calling it with a state's displacement (ny, nx, 3), mm in the result's frame, gives that state's
+    `StrainMeasure` (dimensionless); the fit's frames are shared between states (`StrainFit`).
+    """
+
+    def __init__(self, points0: np.ndarray, *, window: int, measure: str, frame: SpecimenFrame | None = None):
+        self.frame, self.measure = frame, measure
+        self._fit = StrainFit(points0 if frame is None else frame.apply(points0), window=window)
+
+    def __call__(self, displacement: np.ndarray) -> StrainMeasure:
+        d = displacement if self.frame is None else self.frame.rotate(displacement)
+        return measure_strain(self._fit(d), measure=self.measure)

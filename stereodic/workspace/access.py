@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from calib.errors import InputError
+from calib.sequences import frame_ref, parse_frame_ref
 
 LOOPBACK = ("127.0.0.1", "::1", "localhost")
 COOKIE = "stereodic_token"
@@ -69,12 +70,17 @@ class Access:
         return list(self._folders)
 
     def allow_files(self, paths) -> None:
-        """Serve these files too (each alone): the images a result under the served folders names."""
-        self._files.update(Path(p).resolve() for p in paths)
+        """Serve these files too (each alone): the images a result under the served folders names (a frame
+        of a video, `FILE::K`: its file)."""
+        self._files.update(Path(ref[0] if (ref := parse_frame_ref(p)) else p).resolve() for p in paths)
 
     def resolve(self, path: str | os.PathLike) -> Path:
         """`path` (absolute, or relative to the first served folder) resolved, if it lies under a served
-        folder; InputError naming it otherwise (outside, or through `..`)."""
+        folder; InputError naming it otherwise (outside, or through `..`). A frame of a sequence file
+        (`FILE::K[:left|right]`, `calib.sequences`) is its file's frame, the file resolved and checked."""
+        ref = parse_frame_ref(path)
+        if ref is not None:
+            return frame_ref(self.resolve(ref[0]), ref[1], ref[2])
         p = Path(path)
         p = (p if p.is_absolute() else self._folders[0] / p).resolve()
         if p not in self._files and not any(p == f or p.is_relative_to(f) for f in self._folders):

@@ -1,8 +1,9 @@
 """The workspace's pages (Dash): what PATH is decides the page.
 
 - a `dic` run folder, a `dic.npz` or a `dic2d` NPZ: the results (`dic_view`);
-- a `kind: dic` dataset (its folder or capture.json), or a folder of image pairs NAME_0 / NAME_1 (DICe's
-  and VIC-3D's naming): setting up a run (`setup_view`);
+- a `kind: dic` dataset (its folder or capture.json), a folder of image pairs NAME_0 / NAME_1 (DICe's and
+  VIC-3D's naming), or a folder holding images or videos named by two patterns or two videos
+  (`?path=FOLDER&left=PATTERN&right=PATTERN`): setting up a run (`setup_view`);
 - a PRVM file: its distortion, uncertainty and residual maps; a RIG file: its geometry and error vector
   matrices; a PLY point cloud: the cloud in 3D coloured by its distance to a fitted plane or sphere
   (`other_views`).
@@ -21,23 +22,16 @@ from calib.errors import InputError
 from stereodic.workspace.access import Access
 
 
-def image_pairs(folder: Path) -> bool:
-    """Whether `folder` holds image pairs named as DICe and VIC-3D name them (NAME_0.tif, NAME_1.tif)."""
-    from calib.imageio import IMAGE_SUFFIXES
-    return any(p.suffix.lower() in IMAGE_SUFFIXES and p.stem.endswith("_0") and
-               any((folder / f"{p.stem[:-2]}_1{s}").is_file() for s in (p.suffix, p.suffix.lower()))
-               for p in folder.iterdir())
-
-
 def kind_of(path: Path) -> str:
     """What `path` holds: "dic", "setup", "prvm", "rig" or "scan"; InputError naming it otherwise."""
     if path.is_dir():
         if (path / "run.json").is_file() or (path / "dic.npz").is_file():
             return "dic"
-        if (path / "capture.json").is_file() or image_pairs(path):
+        from stereodic.workspace.setup_view import holds_images, image_pairs
+        if (path / "capture.json").is_file() or image_pairs(path) or holds_images(path):
             return "setup"
         raise InputError(path, "is neither a `stereodic dic` output folder nor a DIC dataset (no run.json, "
-                               "dic.npz, capture.json or image pairs NAME_0 / NAME_1)")
+                               "dic.npz, capture.json, image pairs NAME_0 / NAME_1, images or videos)")
     if path.name == "capture.json":
         return "setup"
     if path.suffix.lower() == ".ply":
@@ -76,12 +70,16 @@ def make_app(access: Access):
     @app.callback(Output("page", "children"), Output("page-path", "children"), Input("url", "search"))
     def page(search):
         from urllib.parse import parse_qs
-        asked = parse_qs((search or "").lstrip("?")).get("path", [None])[0]
+        query = parse_qs((search or "").lstrip("?"))
+        asked = query.get("path", [None])[0]
         try:
             path = access.resolve(asked) if asked else access.roots[0]
             if not path.exists():
                 raise InputError(asked or path, "does not exist")
             kind = kind_of(path)
+            if kind == "setup" and ("left" in query or "right" in query):     # two patterns or two videos
+                images = {side: query.get(side, [""])[0] for side in ("left", "right")}
+                return setup_view.layout(path, access, images), f"  {path}"
             return {"dic": dic_view.layout, "setup": setup_view.layout, "prvm": other_views.prvm_layout,
                     "rig": other_views.rig_layout, "scan": other_views.scan_layout}[kind](path, access), f"  {path}"
         except InputError as exc:

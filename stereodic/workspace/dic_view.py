@@ -25,22 +25,40 @@ from stereodic.workspace.access import Access
 from stereodic.workspace.page import GRAPH_WIDTH_PX, error_text, image_url
 from stereodic.workspace.results import DicSource
 
-_SOURCES: dict[tuple[str, str], DicSource] = {}
+_SOURCES: dict[tuple, DicSource] = {}
 _LOCK = threading.Lock()
-TOOLS = {"point": "pan", "extensometer": "drawline", "line": "drawline", "area": "drawclosedpath"}
+TOOLS = {"point": "pan", "extensometer": "drawline", "line": "drawline", "area": "drawclosedpath",
+         "x-axis": "drawline"}
 
 
-def source(path: str | Path, frame: str = "rig") -> DicSource:
-    """The opened result at `path`, its positions and displacements in the rig's (the result's own) or the
-    specimen's frame (`stereodic.strain.results.specimen_frame_of`; a finished stereo run only), opened once
-    per server; a running run's finished states counted again each time."""
-    key = (str(path), frame or "rig")
+def x_axis(text: str | None) -> tuple[float, float, float, float] | None:
+    """The specimen's x axis typed or drawn on the page, "X0,Y0,X1,Y1" (two pixels of the original left
+    reference image, as `--x-axis`), or None for an empty text (the image's columns); InputError naming
+    it otherwise."""
+    if not text or not text.strip():
+        return None
+    try:
+        values = tuple(float(v) for v in text.replace(" ", "").split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 4 or not np.isfinite(values).all() or values[:2] == values[2:]:
+        raise InputError("x axis", f"{text!r}: needs X0,Y0,X1,Y1, two different pixels of the left image")
+    return values
+
+
+def source(path: str | Path, frame: str = "rig", axis: tuple | None = None) -> DicSource:
+    """The opened result at `path`, its positions, displacements and strains in the rig's (the result's own)
+    or the specimen's frame (`stereodic.strain.results.specimen_frame_of`, x along `axis` (X0, Y0, X1, Y1
+    pixels of the left reference image; None: its columns); a finished stereo run only), opened once per
+    server; a running run's finished states counted again each time."""
+    key = (str(path), frame or "rig", axis if frame == "specimen" else None)
     with _LOCK:
         if key not in _SOURCES:
             specimen = None
             if key[1] == "specimen":
                 from stereodic.strain.results import open_result, specimen_frame_of
-                specimen = specimen_frame_of(open_result(path))
+                direction = (1.0, 0.0) if axis is None else (axis[2] - axis[0], axis[3] - axis[1])
+                specimen = specimen_frame_of(open_result(path), x_direction_px=direction)
             _SOURCES[key] = DicSource(path, frame=specimen)
         src = _SOURCES[key]
     src.refresh()
@@ -169,12 +187,17 @@ def layout(path: Path, access: Access):
                      style={"flex": "none"}),
             html.Div([
                 html.Div(["frame of the map and gauges: ", dcc.RadioItems(["rig", "specimen"], "rig", id="frame",
-                                                                            inline=True)],
+                                                                            inline=True),
+                          " specimen's x axis ", dcc.Input(id="x-axis", value="", debounce=True,
+                                                           placeholder="X0,Y0,X1,Y1 px (image columns)",
+                                                           style={"width": "200px"})],
                          style={"display": "none"} if src.kind == "dic2d" else {}),
                 dcc.RadioItems([{"label": " click a point: its history", "value": "point"},
                                 {"label": " draw an extensometer (two ends)", "value": "extensometer"},
                                 {"label": " draw a line: the profile", "value": "line"},
-                                {"label": " draw an area: its mean", "value": "area"}],
+                                {"label": " draw an area: its mean", "value": "area"}] +
+                               ([] if src.kind == "dic2d" else
+                                [{"label": " draw the specimen's x axis (its frame's x)", "value": "x-axis"}]),
                                "point", id="tool"),
                 dcc.Graph(id="curve", style={"height": "330px", "width": "520px"},
                           config={"displaylogo": False, "toImageButtonOptions": {"filename": "curve"}}),
@@ -205,10 +228,10 @@ def register(app, access: Access) -> None:
     @app.callback(Output("field", "figure"), Output("state-label", "children"), Output("message", "children",
                                                                                        allow_duplicate=True),
                   Input("quantity", "value"), Input("state", "value"), Input("frame", "value"),
-                  State("dic-path", "data"), prevent_initial_call=True)
-    def redraw(name, k, frame, path):
+                  Input("x-axis", "value"), State("dic-path", "data"), prevent_initial_call=True)
+    def redraw(name, k, frame, axis, path):
         try:
-            src = source(access.resolve(path), frame)
+            src = source(access.resolve(path), frame, x_axis(axis))
             k = int(k)
             values = src.values(k, name)
             lo, hi = src.limits(name)
@@ -216,7 +239,7 @@ def register(app, access: Access) -> None:
             return no_update, no_update, error_text(exc)
         patch = Patch()
         patch["data"][0]["z"] = raster(src).encoded(values)
-        if ctx.triggered_id in ("quantity", "frame"):
+        if ctx.triggered_id in ("quantity", "frame", "x-axis"):
             patch["data"][0]["zmin"] = lo
             patch["data"][0]["zmax"] = hi
             patch["data"][0]["colorscale"] = colour_scale(src, name)
@@ -256,12 +279,13 @@ def register(app, access: Access) -> None:
     @app.callback(Output("curve", "figure"), Output("curve-data", "data"),
                   Output("message", "children", allow_duplicate=True),
                   Input("field", "clickData"), State("tool", "value"), State("quantity", "value"),
-                  State("frame", "value"), State("dic-path", "data"), prevent_initial_call=True)
-    def history(click, tool_, name, frame, path):
+                  State("frame", "value"), State("x-axis", "value"), State("dic-path", "data"),
+                  prevent_initial_call=True)
+    def history(click, tool_, name, frame, axis, path):
         if tool_ != "point" or not click or not click.get("points"):
             return no_update, no_update, no_update
         try:
-            src = source(access.resolve(path), frame)
+            src = source(access.resolve(path), frame, x_axis(axis))
             p = click["points"][0]
             i = src.nearest(float(p["x"]), float(p["y"]))
             values = src.history(i, name)
@@ -276,16 +300,26 @@ def register(app, access: Access) -> None:
     @app.callback(Output("curve", "figure", allow_duplicate=True), Output("curve-data", "data", allow_duplicate=True),
                   Output("ext-strain", "data"), Output("message", "children", allow_duplicate=True),
                   Input("field", "relayoutData"), State("tool", "value"), State("quantity", "value"),
-                  State("frame", "value"), State("dic-path", "data"), prevent_initial_call=True)
-    def gauge(relayout, tool_, name, frame, path):
-        if tool_ == "point" or not relayout or not relayout.get("shapes"):
+                  State("frame", "value"), State("x-axis", "value"), State("dic-path", "data"),
+                  prevent_initial_call=True)
+    def gauge(relayout, tool_, name, frame, axis, path):
+        if tool_ in ("point", "x-axis") or not relayout or not relayout.get("shapes"):
             return no_update, no_update, no_update, no_update
         try:
             figure, table, strain = gauge_curve(str(access.resolve(path)), relayout["shapes"][-1], tool_, name,
-                                                frame)
+                                                frame, x_axis(axis))
         except (InputError, KeyError, TypeError, ValueError) as exc:
             return no_update, no_update, no_update, error_text(exc)
         return figure, table, strain, ""
+
+    @app.callback(Output("x-axis", "value"), Output("frame", "value"), Input("field", "relayoutData"),
+                  State("tool", "value"), prevent_initial_call=True)
+    def draw_axis(relayout, tool_):
+        """A line drawn with the x-axis tool: the specimen's frame, its x from the line's first end to its second."""
+        shape = (relayout or {}).get("shapes", [None])[-1] if tool_ == "x-axis" else None
+        if not shape or shape.get("type") != "line":
+            return no_update, no_update
+        return ",".join(f"{float(shape[k]):.2f}" for k in ("x0", "y0", "x1", "y1")), "specimen"
 
     @app.callback(Output("stress-strain", "figure"), Output("message", "children", allow_duplicate=True),
                   Input("load-upload", "contents"), Input("load-area", "value"), Input("ext-strain", "data"),
@@ -357,26 +391,28 @@ def rig_health(src: DicSource):
     return fig, f"{report.line()}: {verdict}"
 
 
-_GAUGE_RESULTS: dict[tuple[str, str], object] = {}
+_GAUGE_RESULTS: dict[tuple, object] = {}
 
 
-def gauge_result(path: str, frame: str):
-    """The result opened for gauges (`stereodic.gauge.open_gauge_result`), once per path and frame."""
+def gauge_result(path: str, frame: str, axis: tuple | None = None):
+    """The result opened for gauges (`stereodic.gauge.open_gauge_result`, in the specimen's frame x along
+    `axis` as `source`'s), once per path, frame and axis."""
     from stereodic.gauge.result import open_gauge_result
-    key = (path, frame)
+    key = (path, frame, axis if frame == "specimen" else None)
     with _LOCK:
         if key not in _GAUGE_RESULTS:
-            _GAUGE_RESULTS[key] = open_gauge_result(path, frame=frame)
+            direction = (1.0, 0.0) if key[2] is None else (axis[2] - axis[0], axis[3] - axis[1])
+            _GAUGE_RESULTS[key] = open_gauge_result(path, frame=frame, x_direction_px=direction)
         return _GAUGE_RESULTS[key]
 
 
-def gauge_curve(path: str, shape: dict, tool: str, name: str, frame: str):
+def gauge_curve(path: str, shape: dict, tool: str, name: str, frame: str, axis: tuple | None = None):
     """(figure, CSV table, extensometer strain or None) of the gauge drawn as plotly `shape` with `tool`
     (extensometer, line, area), measured by `stereodic.gauge.measure_gauges` (what `stereodic gauge`
-    writes)."""
+    writes) in the rig's or the specimen's frame (x along `axis`, as `source`)."""
     from stereodic.gauge.gauges import AreaGauge, Extensometer, Gauges, LineGauge, measure_gauges
     from stereodic.workspace.region import shape_polygon
-    res = gauge_result(path, frame or "rig")
+    res = gauge_result(path, frame or "rig", axis)
     if tool in ("extensometer", "line"):
         if shape.get("type") != "line":
             raise InputError(tool, "draw it as a line from one end to the other")

@@ -9,14 +9,16 @@ reads one state's one array, a history one array per state.
 
 Frames and units: positions are the points' places in the original (unrectified) left reference image,
 pixels (a stereo result's left_x0, left_y0 of state 0; a dic2d result's grid, which is in the reference
-image). Displacements dX, dY, dZ in mm in the result's reporting frame (dic2d: u, v in pixels); strains in
-microstrain (the result's measure); ZNCC of the left camera; status the combined status code.
+image). Displacements dX, dY, dZ in mm in the result's reporting frame, or the specimen's (dic2d: u, v in
+pixels); strains in microstrain (the result's measure) on the same frame's axes; ZNCC of the left camera;
+status the combined status code.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,6 +27,8 @@ import numpy as np
 from calib.errors import InputError
 from calib.npz_stream import read_slice, slice_count
 from calib.npzfile import read_npz
+from calib.sequences import parse_frame_ref
+from stereodic.dic.output import STRAIN_COLUMNS
 
 
 @dataclass(frozen=True)
@@ -50,6 +54,8 @@ PLANAR = [Quantity("u", "u", None, 1.0, "px"), Quantity("v", "v", None, 1.0, "px
     [Quantity("zncc", "zncc", None, 1.0, "", signed=False),
      Quantity("status", "status", None, 1.0, "code", signed=False)]
 LIMIT_STATES = 24  # the colour limits come from at most this many states, evenly spread over the run
+MEASURES_KEPT = 4  # states whose specimen-frame strains are kept (a quantity change refits nothing)
+_FIELDS = {column: field for column, field, _ in STRAIN_COLUMNS if column != "e_angle"}  # quantity -> StrainMeasure
 
 
 class DicSource:
@@ -60,8 +66,11 @@ class DicSource:
     path : path
         The result; InputError naming it when it is none of the three, or holds no finished state.
     frame : SpecimenFrame, optional
-        Report positions (Z) and displacements (dX, dY, dZ) in this frame (`stereodic.gauge.frame`: the
-        specimen's) rather than the result's own; strains stay on the result's own axes.
+        Report positions (Z), displacements (dX, dY, dZ) and strains in this frame (`stereodic.gauge.frame`:
+        the specimen's) rather than the result's own: the strains refitted on state 0's shape in its axes
+        over the run's strain window, in the run's measure (`stereodic.strain.results.SurfaceStrains`,
+        what `stereodic dic --frame specimen` and `stereodic gauge --frame specimen` fit), one state at a
+        time (the last few kept).
     """
 
     def __init__(self, path: str | os.PathLike, *, frame=None):
@@ -107,6 +116,9 @@ class DicSource:
         self.x = x0.ravel()[self.index]
         self.y = y0.ravel()[self.index]
         self._limits: dict[str, tuple[float, float]] = {}
+        self._surface = None                                  # the specimen frame's strain fit, made when asked
+        self._measures: dict[int, object] = {}                # state -> its StrainMeasure in that frame
+        self._strain_lock = threading.Lock()
 
     # ------------------------------------------------------------------ reading
     def _count_states(self) -> None:
@@ -158,11 +170,34 @@ class DicSource:
         if not 0 <= k < self.count:
             raise InputError("state", f"{k} is not one of the finished states 0..{self.count - 1}")
         q = self.quantity(name)
-        a = self._read(k, q.key)
+        if self.frame is not None and q.key in _FIELDS:
+            a = getattr(self._frame_measure(k), _FIELDS[q.key])
+        else:
+            a = self._read(k, q.key)
         if self.frame is not None and q.key in ("points", "displacement"):
             a = self.frame.apply(a) if q.key == "points" else self.frame.rotate(a)
         a = a.reshape(-1, 3)[:, q.component] if q.component is not None else a.ravel()
         return a[self.index].astype(np.float64) * q.scale
+
+    def strain_settings(self) -> tuple[int, str]:
+        """(window in grid points, measure) of the run's strains: its own settings (the run folder's
+        manifest, or dic.npz's meta), else 5 and green-lagrange, as `stereodic gauge`."""
+        own = (self.run_settings.get("stereo") if self.run_folder is not None else self.meta.get("settings")) or {}
+        return int(own.get("strain_window") or 5), str(own.get("strain_measure") or "green-lagrange")
+
+    def _frame_measure(self, k: int):
+        """State k's StrainMeasure refitted in `frame`'s axes (class docstring), the last few states kept."""
+        from stereodic.strain.results import SurfaceStrains
+        with self._strain_lock:
+            if k not in self._measures:
+                if self._surface is None:
+                    window, measure = self.strain_settings()
+                    self._surface = SurfaceStrains(self._read(0, "points"), window=window, measure=measure,
+                                                   frame=self.frame)
+                if len(self._measures) >= MEASURES_KEPT:
+                    self._measures.pop(next(iter(self._measures)))
+                self._measures[k] = self._surface(self._read(k, "displacement"))
+            return self._measures[k]
 
     def history(self, point: int, name: str) -> np.ndarray:
         """(count,) float64: quantity `name` at point `point` (an index into `x`, `y`) in every finished
@@ -179,7 +214,9 @@ class DicSource:
         """Fixed colour limits of quantity `name` over the run, in its unit: `stereodic.dic.maps.RunScales`
         (what the run's PNG maps use: the widest of each state's 1st-99th percentiles, symmetric about
         zero for a signed quantity, strains at least +-STRAIN_FLOOR) over up to LIMIT_STATES states spread
-        over the finished ones; the status codes' own range for `status`."""
+        over the finished ones; the status codes' own range for `status`. Strains in the specimen's frame
+        take no refit here: their range is bounded by the principal strains the result holds (in-plane
+        invariants): exx and eyy lie between e_minor and e_major, |exy| within (e_major - e_minor) / 2."""
         if name in self._limits:
             return self._limits[name]
         if name == "status":
@@ -189,13 +226,24 @@ class DicSource:
         q = self.quantity(name)
         scales = RunScales(floor={c: STRAIN_FLOOR for c in ("exx", "eyy", "exy")})    # microstrain, as the maps
         for k in np.unique(np.linspace(0, self.count - 1, min(self.count, LIMIT_STATES)).round().astype(int)):
-            scales.add(name, self.values(int(k), name), signed=q.signed)
+            scales.add(name, self._limit_values(int(k), q), signed=q.signed)
         scale = scales.scale(name)
         lo, hi = (0.0, 1.0) if scale is None else (float(scale.lo), float(scale.hi))
         if hi - lo <= 1e-12 * max(1.0, abs(hi)):
             lo, hi = lo - 0.5, hi + 0.5
         self._limits[name] = (lo, hi)
         return lo, hi
+
+    def _limit_values(self, k: int, q: Quantity) -> np.ndarray:
+        """The values of state k that bound quantity `q`'s colour limits (`limits`), in its unit."""
+        if self.frame is None or q.key not in _FIELDS or not all(self._has(n) for n in ("e_major", "e_minor")):
+            return self.values(k, q.name)
+        major, minor = (self._read(k, n).ravel()[self.index].astype(np.float64) * q.scale
+                        for n in ("e_major", "e_minor"))
+        if q.key == "exy":
+            return np.concatenate([(major - minor) / 2, (minor - major) / 2])
+        return np.concatenate([major, minor]) if q.key in ("exx", "eyy") else self._read(k, q.key).ravel()[
+            self.index].astype(np.float64) * q.scale
 
     # ------------------------------------------------------------------ labels and images
     def labels(self) -> list[str]:
@@ -222,7 +270,10 @@ class DicSource:
             ref = self.meta.get("reference")
         else:
             ref = (self.meta.get("left_images") or self._workspace().get("left_images") or [None])[0]
-        return Path(ref) if ref and Path(ref).is_file() else None
+        if not ref:
+            return None
+        frame = parse_frame_ref(ref)                  # a video's frame, FILE::K
+        return Path(ref) if (frame[0] if frame else Path(ref)).is_file() else None
 
     def unit(self, name: str) -> str:
         return self.quantity(name).unit

@@ -1,8 +1,9 @@
 """The workspace's web server: the Dash application (`app.make_app`) on a threaded WSGI server, with the
 access rules of `access` on every request, the images it shows, and plain one-line errors.
 
-Routes besides Dash's own: `/image?path=P` (an image under the served folders as an 8-bit PNG: 16-bit
-images scaled between their 0.5th and 99.5th percentiles, colour as grey). Every request passes
+Routes besides Dash's own: `/image?path=P` (an image under the served folders, or a frame `FILE::K` of a
+video there, as an 8-bit PNG: 16-bit images scaled between their 0.5th and 99.5th percentiles, colour as
+grey). Every request passes
 `Access.allows` first (403 and one line without the token); a bad parameter answers 400 with one line, and
 an internal error 500 with one line, never a traceback page.
 """
@@ -16,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.errors import InputError
+from calib.sequences import parse_frame_ref
 from stereodic.workspace.access import COOKIE, Access
 
 
@@ -60,7 +62,7 @@ def install_rules(server, access: Access) -> None:
             return plain("stereodic view: /image needs ?path=IMAGE", 400)
         try:
             path = access.resolve(name)
-            if not path.is_file():
+            if not (path.is_file() or parse_frame_ref(path)):    # an image file, or a video's frame FILE::K
                 return plain(f"stereodic view: {name}: no such image", 404)
             data = _png(path)
         except InputError as exc:

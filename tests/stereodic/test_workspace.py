@@ -504,3 +504,258 @@ def test_dic2d_states_number_as_the_gauges_do(tmp_path):
     hist = src.history(i, "u")
     np.testing.assert_allclose(hist, [0.0, float(r["u"])], atol=1e-9)
     assert abs(hist[1] - 3.4) < 0.05 and src.values(0, "status")[i] == 0 and src.values(0, "zncc")[i] == 1.0
+
+
+@pytest.mark.browser
+def test_strains_in_the_specimen_frame_in_a_browser(browser, dic_sim, dic_run):
+    """The specimen's x axis drawn on the map at about 30 degrees to the image's rows: the map turns to the
+    specimen's frame, and its exx and exy in the tension state are the simulated plate strain (truth.npz,
+    Green-Lagrange in the plate's e1, e2) resolved along that axis: the angle is where the simulator's own
+    lens puts the line's two ends on the plate, y = z x x with z towards the cameras (-n)."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+
+    from scanners.sim.dic import load_dic_truth, truth_at_pixels
+    from stereodic.workspace.server import start
+    d = browser
+    ws = start([dic_run, dic_sim], background=True)
+    try:
+        d.get(ws.url + "?path=" + urllib.parse.quote(str(dic_run)))
+        _wait(lambda: _plot(d, "field"), 60)
+        handle = d.find_element(By.CSS_SELECTOR, "#state [role=slider]")
+        handle.click()
+        handle.send_keys(Keys.END)
+        _wait(lambda: "tension" in (_plot(d, "field", "layout") or {}).get("title", {}).get("text", ""))
+        rig_exx = np.nanmedian(_cells(d))
+        d.find_element(By.CSS_SELECTOR, "#tool input[value=x-axis]").click()
+        _wait(lambda: (_plot(d, "field", "layout") or {}).get("dragmode") == "drawline")
+        _draw(d, "field", [(60, 130), (160, 72.26)])
+        _wait(lambda: "frame: specimen" in (_plot(d, "field", "layout") or {}).get("title", {}).get("text", ""), 60)
+        ends = [float(v) for v in d.find_element(By.ID, "x-axis").get_attribute("value").split(",")]
+        exx = np.nanmedian(_cells(d))
+        d.find_element(By.ID, "quantity").click()
+        options = ".dash-dropdown-option"
+        _wait(lambda: [o for o in d.find_elements(By.CSS_SELECTOR, options) if o.text == "exy"])[0].click()
+        _wait(lambda: (_plot(d, "field", "layout") or {}).get("title", {}).get("text", "").startswith("exy"), 30)
+        exy = np.nanmedian(_cells(d))
+    finally:
+        ws.stop()
+    truth = truth_at_pixels(load_dic_truth(dic_sim), np.array([ends[:2], ends[2:], ((ends[0] + ends[2]) / 2,
+                                                                                  (ends[1] + ends[3]) / 2)]))
+    dx, dy = truth["material"][1] - truth["material"][0]
+    c, s = np.array([dx, dy]) / np.hypot(dx, dy)          # the axis in the plate's (e1, e2)
+    Exx, Eyy, Exy = (truth[k][2, 2] for k in ("exx", "eyy", "exy"))
+    want_exx = 1e6 * (c * c * Exx + 2 * c * s * Exy + s * s * Eyy)
+    want_exy = 1e6 * (c * s * (Exx - Eyy) + (s * s - c * c) * Exy)      # y = (s, -c): z x x with z = -n
+    assert abs(np.degrees(np.arctan2(s, c))) > 20              # the axis is well off the plate's e1
+    assert abs(exx - want_exx) < 200 and abs(exy - want_exy) < 200, (exx, want_exx, exy, want_exy)
+    assert abs(rig_exx - 1e6 * Exx) < 200 and abs(rig_exx - exx) > 2000   # the rig's frame: along e1
+
+
+def _cells(driver):
+    """The field's cell values as plotted (the heat map's z), flattened."""
+    values = driver.execute_script(
+        "var z = document.querySelector('#field .js-plotly-plot')._fullData[0].z;"
+        "var out = []; for (var i = 0; i < z.length; i++) for (var j = 0; j < z[i].length; j++) "
+        "out.push(isFinite(z[i][j]) ? z[i][j] : null); return out;")
+    return np.array([np.nan if v is None else v for v in values], np.float64)
+
+
+def _start_and_wait(d, out, step="8", options=""):
+    """The set-up page's output folder, step and further options typed, the run started and followed to
+    its end; returns the command shown."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+    for field_id, value in (("setup-output", str(out)), ("setup-step", step), ("setup-options", options)):
+        field = d.find_element(By.ID, field_id)
+        field.send_keys(Keys.CONTROL, "a")
+        field.send_keys(value or Keys.DELETE, Keys.ENTER)
+    d.find_element(By.ID, "start").click()
+    _wait(lambda: "stereodic dic" in d.find_element(By.ID, "command").text, 30)
+    _wait(lambda: d.find_elements(By.ID, "open-results") or "stopped" in d.find_element(By.ID, "progress").text,
+          240, 1.0)
+    assert d.find_elements(By.ID, "open-results"), d.find_element(By.ID, "progress").text
+    return d.find_element(By.ID, "command").text
+
+
+def _text(d, element_id):
+    """An element's text, "" while it is not there (or the page is being replaced)."""
+    from selenium.common.exceptions import WebDriverException
+    from selenium.webdriver.common.by import By
+    try:
+        return d.find_element(By.ID, element_id).text
+    except WebDriverException:
+        return ""
+
+
+def _use_images(d, left, right):
+    """The left and right images typed on the set-up page (a pattern or a video each), the page reloaded."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+    for field_id, value in (("setup-left", left), ("setup-right", right)):
+        field = d.find_element(By.ID, field_id)
+        field.send_keys(Keys.CONTROL, "a")
+        field.send_keys(value)
+    d.find_element(By.ID, "use-images").click()
+    _wait(lambda: f"{left} --right" in _text(d, "setup-about"), 60)
+    _wait(lambda: _plot(d, "noise"), 90)
+
+
+def _mean_displacement(csv_path, state):
+    rows = [r for r in _csv(csv_path) if r["state"] == str(state) and r["converged"] == "1"]
+    return len(rows), np.array([[float(r[k]) for k in ("dX", "dY", "dZ")] for r in rows]).mean(0)
+
+
+@pytest.mark.browser
+def test_set_up_from_patterns_and_from_videos(browser, dic_sim, tmp_path):
+    """A folder whose images are named by two patterns (images/left_*.png, images/right_*.png) and two
+    lossless videos of the same frames (video/left.avi, video/right.avi): each typed on the set-up page,
+    a region drawn, the run started. The pattern run measures the simulated rigid translation of state 1
+    (0.6, -0.4, 1.2) mm; the video run gives the same numbers as the pattern run (the same pixels)."""
+    import cv2
+    from selenium.webdriver.common.by import By
+
+    from calib.imageio import read_gray
+    from stereodic.workspace.server import start
+    d = browser
+    lab = tmp_path / "lab"
+    (lab / "images").mkdir(parents=True)
+    (lab / "video").mkdir()
+    shutil.copy(dic_sim / "rig.npz", lab / "rig.npz")
+    for cam, side in (("cam0", "left"), ("cam1", "right")):
+        video = cv2.VideoWriter(str(lab / "video" / f"{side}.avi"), cv2.VideoWriter_fourcc(*"FFV1"), 10, (240, 192),
+                                isColor=False)
+        for k in range(2):                              # the reference and the translation: a short run
+            shutil.copy(dic_sim / f"s{k:03d}" / f"{cam}.png", lab / "images" / f"{side}_{k}.png")
+            video.write(read_gray(dic_sim / f"s{k:03d}" / f"{cam}.png"))
+        video.release()
+    ws = start([lab], background=True)
+    polygon = [(70, 60), (170, 60), (170, 130), (70, 130)]
+    try:
+        d.get(ws.url)
+        _wait(lambda: d.find_elements(By.ID, "use-images"), 60)        # no pairs, no dataset: name the images
+        assert "give the left and right" in d.find_element(By.ID, "setup-about").text
+        runs = {}
+        for kind, left, right in (("patterns", "images/left_*.png", "images/right_*.png"),
+                                  ("videos", "video/left.avi", "video/right.avi")):
+            _use_images(d, left, right)
+            assert d.find_element(By.ID, "setup-about").text.startswith("2 states (--left ")
+            source = _plot(d, "ref-image", "layout")["images"][0]["source"]
+            assert urllib.parse.unquote(source).endswith("left_0.png" if kind == "patterns" else "left.avi::0")
+            status, body, _ = _get(ws.url.rstrip("/") + source)          # the reference image, a video's frame too
+            assert status == 200 and body.startswith("\x89PNG")
+            d.find_element(By.ID, "clear-region").click()
+            _wait(lambda: not (_plot(d, "ref-image", "layout") or {}).get("shapes"))
+            _draw(d, "ref-image", polygon, closed=True)
+            _wait(lambda: (_plot(d, "ref-image", "layout") or {}).get("shapes"))
+            runs[kind] = lab / f"run-{kind}"
+            command = _start_and_wait(d, runs[kind], step="10", options="--no-plot")
+            assert f"--left {lab / left}" in command.replace("'", "") and f"--right {lab / right}" in \
+                command.replace("'", "")
+            record = json.loads((runs[kind] / "workspace.json").read_text())
+            assert record["images"] == {"left": str(lab / left), "right": str(lab / right)}
+            assert command.rstrip().endswith("--no-vtk --no-plot") and not (runs[kind] / "maps").exists()
+            d.save_screenshot(str(tmp_path / f"setup-{kind}.png"))
+        d.find_element(By.ID, "open-results").click()                  # the video run's results over its frame 0
+        _wait(lambda: _plot(d, "field", "layout"), 60)
+        assert urllib.parse.unquote(_plot(d, "field", "layout")["images"][0]["source"]).endswith("left.avi::0")
+    finally:
+        ws.stop()
+    count, mean = _mean_displacement(runs["patterns"] / "dic.csv", 1)
+    assert count > 30 and np.abs(mean - [0.6, -0.4, 1.2]).max() < 0.01, mean
+    a, b = _csv(runs["patterns"] / "dic.csv"), _csv(runs["videos"] / "dic.csv")
+    assert len(a) == len(b) and all(ra["dX"] == rb["dX"] and ra["exx"] == rb["exx"] for ra, rb in zip(a, b))
+
+
+@pytest.mark.browser
+def test_rig_from_another_programs_calibration(browser, dic_sim, tmp_path):
+    """A folder of image pairs and an OpenCV stereo calibration (stereo_calib's M1 D1 M2 D2 R T, no image
+    size), no rig: the page finds the file and its format, `stereodic import` (shown, with --size from the
+    images) makes the rig, whose baseline is the file's |T|, and the page goes on to the set-up."""
+    import cv2
+    from selenium.webdriver.common.by import By
+
+    from stereodic.stereo.rig import load_rig
+    from stereodic.workspace.server import start
+    d = browser
+    folder = tmp_path / "lab"
+    folder.mkdir()
+    for k in range(3):
+        for cam, side in (("cam0", 0), ("cam1", 1)):
+            shutil.copy(dic_sim / f"s{k:03d}" / f"{cam}.png", folder / f"img_{k:04d}_{side}.png")
+    phi = np.arctan2(-120.0, 400.0)                  # the right camera 120 mm to the right, turned to the left's target
+    R = np.array([[np.cos(phi), 0, -np.sin(phi)], [0, 1, 0], [np.sin(phi), 0, np.cos(phi)]])     # R_y(-phi)
+    T = -R @ np.array([120.0, 1.5, -4.0])
+    K = np.array([[480.0, 0, 119.5], [0, 480.0, 95.5], [0, 0, 1]])
+    fs = cv2.FileStorage(str(folder / "stereo.yml"), cv2.FILE_STORAGE_WRITE)
+    for key, value in (("M1", K), ("D1", np.zeros((1, 5))), ("M2", K), ("D2", np.array([[-0.05, 0.01, 0, 0, 0]])),
+                       ("R", R), ("T", T.reshape(3, 1))):
+        fs.write(key, value)
+    fs.release()
+    ws = start([folder], background=True)
+    try:
+        d.get(ws.url)
+        _wait(lambda: d.find_elements(By.ID, "import-rig"), 60)
+        assert "(opencv)" in d.find_element(By.ID, "import-file").text
+        assert d.find_element(By.ID, "import-size").get_attribute("value") == "240x192"
+        d.find_element(By.ID, "import-rig").click()
+        _wait(lambda: d.find_elements(By.ID, "open-setup") or d.find_element(By.ID, "rig-message").text, 120)
+        assert d.find_elements(By.ID, "open-setup"), d.find_element(By.ID, "rig-message").text
+        line = d.find_element(By.ID, "rig-command").text.splitlines()[0]
+        assert line == f"stereodic import {folder / 'stereo.yml'} -o {folder / 'rig.npz'} --size 240x192"
+        rig = load_rig(folder / "rig.npz")
+        assert abs(np.linalg.norm(rig.baseline) - np.linalg.norm(T)) < 1e-6 * np.linalg.norm(T)
+        d.find_element(By.ID, "open-setup").click()
+        _wait(lambda: _plot(d, "noise"), 90)
+        assert "3 states" in d.find_element(By.ID, "setup-about").text
+        d.save_screenshot(str(tmp_path / "imported.png"))
+    finally:
+        ws.stop()
+
+
+def test_typed_images_stay_in_the_served_folders(tmp_path):
+    """A pattern or video typed on the set-up page is checked file by file before any is read: one that
+    reaches outside the served folders (through `..`, an absolute path, a side-by-side half, a frame
+    reference) is refused with a line naming it; one inside is made absolute."""
+    from calib.errors import InputError
+    from stereodic.workspace.access import Access
+    from stereodic.workspace.setup_view import image_pattern
+    served, outside = tmp_path / "served", tmp_path / "outside"
+    (served / "images").mkdir(parents=True)
+    outside.mkdir()
+    for folder in (served / "images", outside):
+        (folder / "left_0.png").write_bytes(b"")
+    (outside / "stereo.avi").write_bytes(b"")
+    access = Access([served])
+    assert image_pattern(served, "images/left_*.png", access, "left") == str(served / "images" / "left_*.png")
+    for bad in ("../outside/left_*.png", str(outside / "left_*.png"), "images/../../outside/*.png",
+                "../outside/stereo.avi:left", str(outside / "stereo.avi")):
+        with pytest.raises(InputError, match="outside the folders"):
+            image_pattern(served, bad, access, "left")
+    with pytest.raises(InputError, match="outside the folders"):
+        access.resolve(f"{outside / 'stereo.avi'}::0")
+    with pytest.raises(InputError, match="right images"):
+        image_pattern(served, " ", access, "right")
+
+
+def test_area_gauge_in_the_specimen_frame_is_the_gauge_commands(dic_run, tmp_path):
+    """An area drawn on the page with the specimen's x axis set: its mean exx per state is what `stereodic
+    gauge --frame specimen --x-axis` writes for the same polygon; the map's median over the area agrees
+    (the map and the gauges refit the strains alike), and the axis turns exx away from the rig frame's."""
+    from matplotlib.path import Path as MPath
+
+    from stereodic.workspace.dic_view import gauge_curve, source
+    corners = [(60.0, 50.0), (170.0, 55.0), (165.0, 140.0), (65.0, 135.0)]
+    axis = (60.0, 130.0, 160.0, 72.26)
+    shape = {"type": "path", "path": "M" + "L".join(f"{x},{y}" for x, y in corners) + "Z"}
+    _, table, _ = gauge_curve(str(dic_run), shape, "area", "exx", "specimen", axis)
+    page = np.array([row[2] for row in table["rows"]])
+    polygon = ";".join(f"{x},{y}" for x, y in corners)
+    assert main(["gauge", str(dic_run), "--area", f"A1={polygon}", "--frame", "specimen", "--x-axis",
+                 ",".join(map(str, axis)), "-o", str(tmp_path / "g")]) == 0
+    want = np.array([float(r["exx_mean"]) for r in _csv(tmp_path / "g" / "areas.csv")])
+    np.testing.assert_allclose(page, want, rtol=0, atol=2e-9)                 # the CSV's 9 decimals
+    spec, rig = source(dic_run, "specimen", axis), source(dic_run, "rig")
+    inside = MPath(corners).contains_points(np.column_stack([spec.x, spec.y]))
+    assert abs(np.nanmedian(spec.values(2, "exx")[inside]) - 1e6 * want[2]) < 150
+    assert abs(np.nanmedian(rig.values(2, "exx")[inside]) - 1e6 * want[2]) > 2000
