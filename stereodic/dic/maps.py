@@ -41,6 +41,7 @@ class MapAxes:
     flip_x: bool
     flip_y: bool
     active: np.ndarray | None = None
+    _cache: dict = field(default_factory=dict, compare=False, repr=False)
 
 
 def pixel_axes(xs: np.ndarray, ys: np.ndarray, active: np.ndarray | None = None) -> MapAxes:
@@ -142,8 +143,91 @@ class RunScales:
         return ColourScale(lo, hi, "viridis")
 
 
-# the map over the image is drawn about 600 screen pixels across: its image and field no finer than this
-OVERLAY_PX = 1000
+# the pictures are drawn about 500 screen pixels across: their rasters no finer than this (cells across)
+OVERLAY_PX = 600       # the map over the image: the image averaged down to it, the field on its cells
+MAP_PX = 600           # the plain map
+ALPHA = 0.55           # the field's opacity over the image
+
+
+@dataclass(frozen=True)
+class Cells:
+    """The cells of a raster (`shape`: rows, columns) that fall in the triangles of a structured grid of
+    points (`grid_cells`): cell `index` (m,) (flat) lies in the triangle of the grid points `vertices`
+    (m, 3) (flat indices of the grid) with barycentric `weights` (m, 3)."""
+
+    shape: tuple[int, int]
+    index: np.ndarray
+    vertices: np.ndarray
+    weights: np.ndarray
+
+    def linear(self, values: np.ndarray) -> np.ndarray:
+        """The raster (rows, columns) of the grid's `values` interpolated linearly in each triangle; NaN
+        outside the triangles and in a triangle with an unmeasured (NaN) corner."""
+        out = np.full(self.shape[0] * self.shape[1], np.nan)
+        out[self.index] = (np.asarray(values, float).ravel()[self.vertices] * self.weights).sum(1)
+        return out.reshape(self.shape)
+
+    def nearest(self, values: np.ndarray) -> np.ndarray:
+        """The raster (rows, columns) of the grid's `values`, each cell that of its triangle's corner with
+        the largest weight (the nearest, as a cell of a map of grid points); NaN outside the triangles."""
+        out = np.full(self.shape[0] * self.shape[1], np.nan)
+        corner = self.vertices[np.arange(len(self.index)), self.weights.argmax(1)]
+        out[self.index] = np.asarray(values, float).ravel()[corner]
+        return out.reshape(self.shape)
+
+
+def grid_cells(x: np.ndarray, y: np.ndarray, *, origin: tuple[float, float], cell: float, shape: tuple[int, int],
+               longest: float = np.inf) -> Cells:
+    """The cells of a raster of `shape` (rows, columns) - cell (i, j) centred at origin + (j, i) * cell, in
+    the units of x, y - that fall in the triangles of the grid points x, y (ny, nx; NaN: not placed): two
+    triangles per square of neighbouring points whose corners are all placed, so that a hole in the grid
+    is never bridged; a triangle with a side longer than `longest` (a stray point) is left out. Each
+    triangle's candidate cells are those of its bounding box, tested all at once (numpy)."""
+    h, w = shape
+    ny, nx = np.shape(x)
+    idx = np.arange(ny * nx).reshape(ny, nx)
+    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
+    tri = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([b, d, c], -1).reshape(-1, 3)])
+    tx = ((np.asarray(x, float).ravel() - origin[0]) / cell)[tri]       # (triangles, 3) in cells
+    ty = ((np.asarray(y, float).ravel() - origin[1]) / cell)[tri]
+    side = np.hypot(tx - np.roll(tx, 1, 1), ty - np.roll(ty, 1, 1)).max(1)
+    det = (ty[:, 1] - ty[:, 2]) * (tx[:, 0] - tx[:, 2]) + (tx[:, 2] - tx[:, 1]) * (ty[:, 0] - ty[:, 2])
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(det) & (np.abs(det) > 1e-12) & (side <= longest / cell)
+    tri, tx, ty, det = tri[ok], tx[ok], ty[ok], det[ok]
+    j0, i0 = np.ceil(tx.min(1)).astype(np.intp), np.ceil(ty.min(1)).astype(np.intp)
+    span = int(max((np.floor(tx.max(1)) - j0).max(), (np.floor(ty.max(1)) - i0).max())) + 1 if len(tri) else 0
+    dj, di = (o.ravel() for o in np.meshgrid(np.arange(span), np.arange(span)))
+    # the weights of corners 0 and 1 are affine in the cell's column and row: w = base + a * dj + b * di
+    ex, ey = j0 - tx[:, 2], i0 - ty[:, 2]
+    a0, b0 = (ty[:, 1] - ty[:, 2]) / det, (tx[:, 2] - tx[:, 1]) / det
+    a1, b1 = (ty[:, 2] - ty[:, 0]) / det, (tx[:, 0] - tx[:, 2]) / det
+    base0, base1 = a0 * ex + b0 * ey, a1 * ex + b1 * ey
+    index, vertices, weights = [np.zeros(0, np.intp)], [np.zeros((0, 3), np.intp)], [np.zeros((0, 3))]
+    chunk = max(1, 2 ** 20 // max(1, span * span))
+    tol = 1e-9
+    for s in range(0, len(tri), chunk):
+        t = slice(s, s + chunk)
+        w0 = base0[t, None] + a0[t, None] * dj + b0[t, None] * di
+        w1 = base1[t, None] + a1[t, None] * dj + b1[t, None] * di
+        k, m = np.nonzero((w0 >= -tol) & (w1 >= -tol) & (w0 + w1 <= 1 + tol))
+        cj, ci = j0[t][k] + dj[m], i0[t][k] + di[m]
+        keep = (cj >= 0) & (cj < w) & (ci >= 0) & (ci < h)
+        k, m, cj, ci = k[keep], m[keep], cj[keep], ci[keep]
+        u0, u1 = w0[k, m], w1[k, m]
+        index.append(ci * w + cj)
+        vertices.append(tri[t][k])
+        weights.append(np.column_stack([u0, u1, 1.0 - u0 - u1]))
+    index = np.concatenate(index)
+    index, first = np.unique(index, return_index=True)      # a cell on a shared side: one triangle
+    return Cells((h, w), index, np.concatenate(vertices)[first], np.concatenate(weights)[first])
+
+
+def _spacing(x: np.ndarray, y: np.ndarray) -> float:
+    """The median distance between neighbouring grid points (along rows and columns; inf if none)."""
+    steps = np.concatenate([np.hypot(np.diff(x, axis=a), np.diff(y, axis=a)).ravel() for a in (0, 1)])
+    steps = steps[np.isfinite(steps) & (steps > 0)]
+    return float(np.median(steps)) if steps.size else np.inf
 
 
 @dataclass(frozen=True)
@@ -157,132 +241,290 @@ class Backdrop:
     label: str = "the left camera's image of the state"
     _cache: dict = field(default_factory=dict, compare=False, repr=False)
 
+    def _cells(self) -> tuple[Cells, int]:
+        """The raster's cells among the grid's triangles (`grid_cells`) and their size r (pixels): made
+        once, for every quantity."""
+        c = self._cache
+        if "cells" not in c:
+            h, w = self.image.shape[:2]
+            r = max(1, -(-max(h, w) // OVERLAY_PX))
+            centre = (r - 1) / 2                         # a cell is the mean of r x r pixels
+            c["cells"] = grid_cells(self.x, self.y, origin=(centre, centre), cell=r, shape=(-(-h // r), -(-w // r)),
+                                    longest=3 * _spacing(self.x, self.y)), r
+        return c["cells"]
+
     def raster(self, values: np.ndarray) -> tuple[np.ndarray, tuple[float, float, float, float]]:
         """(field, extent): `values` (ny, nx) interpolated linearly between the points where the camera
-        saw them (their Delaunay triangles) onto a raster of the image (cells half the grid's spacing, at
-        most OVERLAY_PX across; NaN outside the triangles, in a triangle with an unmeasured corner and
-        farther than 1.5 spacings from any point), and the raster's extent in image pixels (for imshow).
-        The triangles and the cells' weights depend on the points alone: made once, for every quantity."""
+        saw them - two triangles per square of neighbouring grid points - onto a raster of the image
+        (cells of r x r pixels, at most OVERLAY_PX across; NaN outside the triangles, in a triangle with
+        an unmeasured corner or a side longer than 3 grid spacings: a hole is not bridged), and the
+        raster's extent in image pixels (imshow's: left, right, bottom, top)."""
+        cells, r = self._cells()
+        h, w = cells.shape
+        return cells.linear(values), (-0.5, w * r - 0.5, h * r - 0.5, -0.5)
+
+    def gray(self) -> np.ndarray:
+        """The image on the raster's cells (each the mean of its r x r pixels), its 0.5-99.5 percentile
+        range stretched to 0..255 (float32)."""
         c = self._cache
-        if "weights" not in c:
-            from scipy.spatial import Delaunay, cKDTree
-            ok = np.isfinite(self.x) & np.isfinite(self.y)
-            pts = np.column_stack([self.x[ok], self.y[ok]])
-            tree = cKDTree(pts)
-            spacing = float(np.median(tree.query(pts, k=2)[0][:, 1]))
-            # cells half the grid's spacing, but no finer than a picture shows (OVERLAY_PX across)
-            r = max(1, int(spacing // 2), -(-max(self.image.shape) // OVERLAY_PX))
-            gy, gx = np.mgrid[0:self.image.shape[0]:r, 0:self.image.shape[1]:r].astype(float)
-            cells = np.column_stack([gx.ravel(), gy.ravel()])
-            tri = Delaunay(pts)
-            found = tri.find_simplex(cells)
-            inside = (found >= 0) & (tree.query(cells)[0] <= 1.5 * spacing)
-            affine = tri.transform[np.maximum(found, 0)]              # barycentric coordinates, qhull's
-            b = np.einsum("nij,nj->ni", affine[:, :2], cells - affine[:, 2])
-            weights = np.column_stack([b, 1 - b.sum(1)])
-            inside &= np.isfinite(weights).all(1)                     # a flat triangle: outside
-            c.update(ok=ok, shape=gx.shape, vertices=tri.simplices[np.maximum(found, 0)],
-                     weights=np.where(inside[:, None], weights, 0.0), inside=inside,
-                     extent=(-r / 2, gx[0, -1] + r / 2, gy[-1, 0] + r / 2, -r / 2))
-        v = values[c["ok"]]
-        out = np.where(c["inside"], (v[c["vertices"]] * c["weights"]).sum(1), np.nan)
-        return out.reshape(c["shape"]), c["extent"]
+        if "gray" not in c:
+            (h, w), r = self._cells()[0].shape, self._cells()[1]
+            img = np.asarray(self.image, np.float32)
+            img = np.pad(img, ((0, h * r - img.shape[0]), (0, w * r - img.shape[1])), mode="edge")
+            img = img.reshape(h, r, w, r).mean((1, 3))
+            lo, hi = np.percentile(img, [0.5, 99.5])
+            c["gray"] = np.clip((img - lo) * (255.0 / max(hi - lo, 1e-9)), 0, 255).astype(np.float32)
+        return c["gray"]
+
+
+def colours(values: np.ndarray, lo: float, hi: float, cmap: str) -> np.ndarray:
+    """RGB (..., 3) uint8 of finite `values` on the colour map `cmap` (matplotlib's, its 256-entry table,
+    as matplotlib colours an image) from `lo` to `hi` (below / above: the ends' colours)."""
+    from matplotlib import colormaps
+    lut = np.rint(colormaps[cmap](np.linspace(0.0, 1.0, 256))[:, :3] * 255.0).astype(np.uint8)
+    t = (np.asarray(values, np.float32) - np.float32(lo)) * np.float32(256 / (hi - lo if hi > lo else 1.0))
+    return lut[np.clip(t, 0, 255).astype(np.intp)]
+
+
+def _ring(a: np.ndarray, *, extend: bool) -> np.ndarray:
+    """A grid array (ny, nx) with a ring of points half a spacing beyond its edges (`extend`: positions
+    carried on linearly; else each edge's value repeated), along each axis of 2 points or more."""
+    for axis in (0, 1):
+        if a.shape[axis] < 2:
+            continue
+        first, second = np.take(a, [0], axis), np.take(a, [1], axis)
+        last, before = np.take(a, [-1], axis), np.take(a, [-2], axis)
+        if extend:
+            first, last = first + (first - second) / 2, last + (last - before) / 2
+        a = np.concatenate([first, a, last], axis)
+    return a
+
+
+def _plain_raster(axes: MapAxes, values: np.ndarray) -> tuple[np.ndarray, tuple[float, float, float, float]]:
+    """The plain map's raster: each grid point of the active box (`active_box`) a cell about it of its
+    value (as matplotlib's pcolormesh with shading "nearest" draws it on a curved grid), on cells about
+    half the grid's spacing (at most MAP_PX across); NaN outside, at inactive points and where not
+    measured; and its extent (left, right, bottom, top; rows run up the axis). The cells are made once
+    per MapAxes (`_cache`), for every state and quantity."""
+    active = np.ones(values.shape, bool) if axes.active is None else np.asarray(axes.active, bool)
+    box = active_box(active)
+    c = axes._cache
+    if "cells" not in c:
+        x, y = _ring(axes.x[box], extend=True), _ring(axes.y[box], extend=True)
+        x0, x1, y0, y1 = np.nanmin(x), np.nanmax(x), np.nanmin(y), np.nanmax(y)
+        size = max(x1 - x0, y1 - y0, 1e-9)
+        cell = max(_spacing(x, y) / 2 if np.isfinite(_spacing(x, y)) else 0.0, size / MAP_PX)
+        shape = (int((y1 - y0) / cell) + 1, int((x1 - x0) / cell) + 1)
+        c["cells"] = grid_cells(x, y, origin=(x0, y0), cell=cell, shape=shape)
+        c["extent"] = (x0 - cell / 2, x0 + (shape[1] - 0.5) * cell, y0 - cell / 2, y0 + (shape[0] - 0.5) * cell)
+        c["limits"] = (x0, x1, y0, y1)
+    return c["cells"].nearest(_ring(np.where(active, values, np.nan)[box], extend=False)), c["extent"]
+
+
+def _rgb(field: np.ndarray, lo: float, hi: float, cmap: str, under: np.ndarray | None = None) -> np.ndarray:
+    """uint8 RGB (h, w, 3) of a raster `field` (NaN: white, or `under`): its colours (`colours`), over
+    the gray image `under` (h, w; 0..255) with opacity ALPHA if given."""
+    ok = np.isfinite(field)
+    if under is None:
+        out = np.full(field.shape + (3,), 255, np.uint8)
+        out[ok] = colours(field[ok], lo, hi, cmap)
+    else:
+        out = np.repeat(np.rint(under)[..., None], 3, -1).astype(np.uint8)
+        g = under[ok][:, None]
+        out[ok] = np.rint(ALPHA * colours(field[ok], lo, hi, cmap) + (1 - ALPHA) * g).astype(np.uint8)
+    return out
+
+
+# the fixed layout (pixels at 100 dpi, from the bottom left): the plain map, its colour bar, the map over
+# the image; the figure's height and the plain map's box are the same with and without the image
+_HEIGHT, _MAP, _BAR, _OVER = 560, (75, 55, 500, 420), (15, 18), (770, 55, 510, 420)
+
+
+@dataclass
+class _Layout:
+    """One of a MapPainter's figures and its parts: the plain map's axes and picture, a colour bar per
+    kind of arrows, the picture over the image (None: no such panel), the words drawn per map, and the
+    figure drawn without those (`background`) for the axes and image size it was drawn for (`drawn`)."""
+
+    figure: object
+    canvas: object
+    ax: object
+    plain: object
+    over: object
+    bars: dict = field(default_factory=dict)
+    words: list = field(default_factory=list)
+    background: object = None
+    drawn: tuple | None = None
+
+
+class MapPainter:
+    """Draws maps (`map_figure`, `draw`) on matplotlib figures made once per layout - a plain map (720 x
+    560 pixels), a map beside its copy over the image (1300 x 560) - and reused: a map sets the pictures'
+    pixels (each a raster coloured by `colours`: one image, not a patch per point), the colour bar's
+    range, map, arrows and ticks, and the words. The layout is fixed (no layout engine runs per map), and
+    what stays over a run - the axes with their ticks and labels, for one MapAxes and one image size - is
+    drawn once and copied (matplotlib's blitting): each map draws its pictures, colour bar and titles on it."""
+
+    def __init__(self):
+        self._layouts: dict[bool, _Layout] = {}
+
+    def _layout(self, over: bool) -> _Layout:
+        if over not in self._layouts:
+            from matplotlib.backends.backend_agg import FigureCanvasAgg
+            from matplotlib.figure import Figure     # not pyplot: the caller's backend (a notebook's) stays
+
+            width = _OVER[0] + _OVER[2] + 20 if over else _MAP[0] + _MAP[2] + _BAR[0] + _BAR[1] + 110
+            fig = Figure(figsize=(width / 100, _HEIGHT / 100), dpi=100)
+            frac = lambda l, b, w, h: (l / width, b / _HEIGHT, w / width, h / _HEIGHT)   # noqa: E731
+            ax = fig.add_axes(frac(*_MAP))
+            ax.set_aspect("equal", adjustable="box", anchor="E")
+            plain = ax.imshow(np.zeros((2, 2, 3), np.uint8), origin="lower", interpolation="nearest")
+            image = None
+            if over:
+                oax = fig.add_axes(frac(*_OVER))
+                image = oax.imshow(np.zeros((2, 2, 3), np.uint8), interpolation="nearest")
+                oax.set_xlabel("x (px)")
+                oax.set_ylabel("y (px)")
+            self._layouts[over] = _Layout(fig, FigureCanvasAgg(fig), ax, plain, image)
+        return self._layouts[over]
+
+    def figure(self, values: np.ndarray, axes: MapAxes, *, title: str, quantity: str, unit: str, decimals: int,
+               signed: bool = True, scale: ColourScale | None = None, backdrop: Backdrop | None = None):
+        """The matplotlib Figure of one map (`save_map`'s options), valid until the next map of this
+        painter with the same layout (`draw` draws it faster than the figure's own savefig)."""
+        from matplotlib.cm import ScalarMappable
+        from matplotlib.colors import Normalize
+        from matplotlib.ticker import FuncFormatter, MaxNLocator
+
+        values = np.asarray(values, float)
+        active = np.ones(values.shape, bool) if axes.active is None else np.asarray(axes.active, bool)
+        finite = values[np.isfinite(values) & active]
+        if finite.size:
+            lo, hi = np.percentile(finite, [1, 99])
+            if hi <= lo:
+                lo, hi = lo - 10.0 ** -decimals, hi + 10.0 ** -decimals
+            cmap = "viridis"
+            if signed and lo < 0 < hi:
+                lo, hi, cmap = -max(-lo, hi), max(-lo, hi), "RdBu_r"
+            median, p5, p95 = np.percentile(finite, [50, 5, 95])
+            units = f" {unit}" if unit else ""
+            summary = (f"median {fixed(median, decimals)}{units}; 90 % within {fixed(p5, decimals)} .. "
+                       f"{fixed(p95, decimals)}; {finite.size} of {active.sum()} points measured")
+        else:
+            lo, hi, cmap, summary = -1.0, 1.0, "viridis", f"no point measured of {active.sum()}"
+        if scale is not None:
+            lo, hi, cmap = scale.lo, scale.hi, scale.cmap
+        lay = self._layout(backdrop is not None)
+        fig, ax, plain, bars, image = lay.figure, lay.ax, lay.plain, lay.bars, lay.over
+
+        field, extent = _plain_raster(axes, values)
+        plain.set_data(_rgb(field, lo, hi, cmap))
+        plain.set_extent(extent)
+        x0, x1, y0, y1 = axes._cache["limits"]
+        ax.set_xlim((x1, x0) if axes.flip_x else (x0, x1))
+        ax.set_ylim((y1, y0) if axes.flip_y else (y0, y1))
+        ax.set_xlabel(f"{axes.names[0]} ({axes.unit})")
+        ax.set_ylabel(f"{axes.names[1]} ({axes.unit})")
+        ax.apply_aspect()
+        box = ax.get_position()          # the colour bar beside the map's box, 90 % of its height
+        width = fig.bbox.width
+
+        extend = {(False, False): "neither", (True, False): "min", (False, True): "max", (True, True): "both"}[
+            (bool(finite.size and finite.min() < lo), bool(finite.size and finite.max() > hi))]
+        if extend not in bars:            # a colour bar per kind of arrows (a bar's arrows are made with it)
+            bars[extend] = fig.colorbar(ScalarMappable(Normalize(lo, hi), cmap), cax=fig.add_axes((0, 0, 1, 1)),
+                                        extend=extend)
+        for kind, other in bars.items():
+            other.ax.set_visible(kind == extend)
+        bar = bars[extend]
+        bar.ax.set_position((box.x1 + _BAR[0] / width, box.y0 + 0.05 * box.height, _BAR[1] / width,
+                             0.9 * box.height))
+        bar.mappable.set_cmap(cmap)
+        bar.mappable.set_clim(lo, hi)
+        bar.locator = MaxNLocator(7)
+        ticks = bar.locator.tick_values(lo, hi)
+        places = _decimals(float(np.min(np.diff(ticks)))) if len(ticks) > 1 else decimals
+        bar.formatter = FuncFormatter(lambda v, _: fixed(v, places))
+        bar.update_ticks()
+        bar.set_label(f"{quantity} ({unit})" if unit else quantity)
+
+        if backdrop is None:
+            lay.words = [ax.set_title(f"{title}\n{summary}", fontsize=9.5)]
+        else:
+            over = image.axes
+            field, extent = backdrop.raster(np.where(active, values, np.nan))
+            image.set_data(_rgb(field, lo, hi, cmap, under=backdrop.gray()))
+            image.set_extent(extent)
+            h, w = backdrop.image.shape[:2]
+            over.set_xlim(-0.5, w - 0.5)
+            over.set_ylim(h - 0.5, -0.5)
+            lay.words = [over.set_title(f"over {backdrop.label}", fontsize=9),
+                         fig.suptitle(f"{title}\n{summary}", fontsize=9.5, y=0.99, va="top")]
+        return fig
+
+
+    def draw(self, values: np.ndarray, axes: MapAxes, **options) -> np.ndarray:
+        """One map (`figure`'s options) drawn: RGB (H, W, 3) uint8."""
+        lay = self._layout(options.get("backdrop") is not None)
+        self.figure(values, axes, **options)
+        backdrop = options.get("backdrop")
+        key = (axes, None if backdrop is None else backdrop.image.shape[:2])
+        parts = [lay.plain] + ([] if lay.over is None else [lay.over]) + \
+            [bar.ax for bar in lay.bars.values() if bar.ax.get_visible()] + lay.words
+        if lay.drawn is None or lay.drawn[0] is not key[0] or lay.drawn[1] != key[1]:
+            for part in parts:
+                part.set_animated(True)           # left out of the background
+            lay.canvas.draw()
+            for part in parts:
+                part.set_animated(False)
+            lay.background, lay.drawn = lay.canvas.copy_from_bbox(lay.figure.bbox), key
+        else:
+            lay.canvas.restore_region(lay.background)
+        frames = [a.spines.values() for a in (lay.ax, None if lay.over is None else lay.over.axes) if a is not None]
+        for part in parts + [spine for spines in frames for spine in spines]:   # the frames over the pictures
+            lay.figure.draw_artist(part)
+        return np.asarray(lay.canvas.buffer_rgba())[..., :3].copy()
+
+
+def write_png(path: str | os.PathLike, rgb: np.ndarray) -> None:
+    """An RGB (H, W, 3) uint8 picture as a PNG (OpenCV's encoder, fast compression; atomic)."""
+    import cv2
+    ok, data = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise RuntimeError(f"{path}: the PNG could not be encoded")
+    with atomic_output(path) as tmp:
+        tmp.write_bytes(data.tobytes())
 
 
 def map_figure(values: np.ndarray, axes: MapAxes, *, title: str, quantity: str, unit: str, decimals: int,
-               signed: bool = True, scale: ColourScale | None = None, backdrop: Backdrop | None = None):
-    """The matplotlib Figure of one map (`save_map`)."""
-    from matplotlib.figure import Figure   # not pyplot: the caller's backend (a notebook's) stays as it is
-    from matplotlib.ticker import FuncFormatter, MaxNLocator
-
-    values = np.asarray(values, float)
-    active = np.ones(values.shape, bool) if axes.active is None else np.asarray(axes.active, bool)
-    finite = values[np.isfinite(values) & active]
-    label = f"{quantity} ({unit})" if unit else quantity
-    if finite.size:
-        lo, hi = np.percentile(finite, [1, 99])
-        if hi <= lo:
-            lo, hi = lo - 10.0 ** -decimals, hi + 10.0 ** -decimals
-        cmap = "viridis"
-        if signed and lo < 0 < hi:
-            lo, hi, cmap = -max(-lo, hi), max(-lo, hi), "RdBu_r"
-        median, p5, p95 = np.percentile(finite, [50, 5, 95])
-        units = f" {unit}" if unit else ""
-        summary = (f"median {fixed(median, decimals)}{units}; 90 % within {fixed(p5, decimals)} .. "
-                   f"{fixed(p95, decimals)}; {finite.size} of {active.sum()} points measured")
-    else:
-        lo, hi, cmap, summary = -1.0, 1.0, "viridis", f"no point measured of {active.sum()}"
-    if scale is not None:
-        lo, hi, cmap = scale.lo, scale.hi, scale.cmap
-    box = active_box(active)
-    fig = Figure(figsize=(7.2 if backdrop is None else 13.0, 5.6), layout="constrained")
-    ax, over = (fig.subplots(), None) if backdrop is None else fig.subplots(1, 2)
-    im = ax.pcolormesh(axes.x[box], axes.y[box], np.ma.masked_invalid(np.where(active, values, np.nan)[box]),
-                       shading="nearest", cmap=cmap, vmin=lo, vmax=hi)
-    extend = {(False, False): "neither", (True, False): "min", (False, True): "max", (True, True): "both"}[
-        (bool(finite.size and finite.min() < lo), bool(finite.size and finite.max() > hi))]
-    bar = fig.colorbar(im, ax=ax, label=label, extend=extend, shrink=0.9)
-    bar.locator = MaxNLocator(7)
-    ticks = bar.locator.tick_values(lo, hi)
-    places = _decimals(float(np.min(np.diff(ticks)))) if len(ticks) > 1 else decimals
-    bar.formatter = FuncFormatter(lambda v, _: fixed(v, places))
-    bar.update_ticks()
-    ax.set_aspect("equal")
-    ax.set_xlabel(f"{axes.names[0]} ({axes.unit})")
-    ax.set_ylabel(f"{axes.names[1]} ({axes.unit})")
-    if axes.flip_x:
-        ax.invert_xaxis()
-    if axes.flip_y:
-        ax.invert_yaxis()
-    if over is None:
-        ax.set_title(f"{title}\n{summary}", fontsize=9.5)
-    else:
-        _draw_over_image(over, backdrop, np.where(active, values, np.nan), lo, hi, cmap)
-        fig.suptitle(f"{title}\n{summary}", fontsize=9.5)
-    return fig
-
-
-def _draw_over_image(ax, backdrop: Backdrop, values: np.ndarray, lo: float, hi: float, cmap: str) -> None:
-    """The field over its image (`Backdrop.raster`), semi-transparent."""
-    import cv2
-    img = np.asarray(backdrop.image, np.float32)
-    h, w = img.shape
-    shown = img
-    if max(h, w) > OVERLAY_PX:       # no finer than the picture shows: the image averaged down to it
-        f = OVERLAY_PX / max(h, w)
-        shown = cv2.resize(img, (max(1, round(w * f)), max(1, round(h * f))), interpolation=cv2.INTER_AREA)
-    ax.imshow(shown, cmap="gray", vmin=np.percentile(shown, 0.5), vmax=np.percentile(shown, 99.5),
-              interpolation="nearest", extent=(-0.5, w - 0.5, h - 0.5, -0.5))
-    ok = np.isfinite(values) & np.isfinite(backdrop.x) & np.isfinite(backdrop.y)
-    if ok.sum() >= 3:
-        field, extent = backdrop.raster(values)
-        ax.imshow(np.ma.masked_invalid(field), cmap=cmap, vmin=lo, vmax=hi, alpha=0.55, interpolation="nearest",
-                  extent=extent)
-    ax.set_xlim(-0.5, w - 0.5)
-    ax.set_ylim(h - 0.5, -0.5)
-    ax.set_xlabel("x (px)")
-    ax.set_ylabel("y (px)")
-    ax.set_title(f"over {backdrop.label}", fontsize=9)
+               signed: bool = True, scale: ColourScale | None = None, backdrop: Backdrop | None = None,
+               painter: MapPainter | None = None):
+    """The matplotlib Figure of one map (`save_map`), drawn by `painter` (reused: valid until its next
+    map of the same layout), else by a new one."""
+    return (painter or MapPainter()).figure(values, axes, title=title, quantity=quantity, unit=unit,
+                                            decimals=decimals, signed=signed, scale=scale, backdrop=backdrop)
 
 
 def save_map(path: str | os.PathLike, values: np.ndarray, axes: MapAxes, *, title: str, quantity: str,
              unit: str, decimals: int, signed: bool = True, scale: ColourScale | None = None,
-             backdrop: Backdrop | None = None) -> None:
-    """One map (matplotlib PNG, atomic) of `values` (ny, nx; NaN where not measured, left blank) on
-    `axes`; `title` names the load case, `quantity` and `unit` label the colour bar ("exx",
-    "microstrain"; unit "" for a pure number), `decimals` is the precision of the title's figures;
-    `signed`: a change (displacement, strain) whose range across zero is centred on zero, not a
-    position or a score; `scale`: the run's colour limits and map (`RunScales`), else the map's own;
-    `backdrop`: also drawn over the state's original left image, beside the plain map."""
-    fig = map_figure(values, axes, title=title, quantity=quantity, unit=unit, decimals=decimals, signed=signed,
-                     scale=scale, backdrop=backdrop)
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, dpi=100)
+             backdrop: Backdrop | None = None, painter: MapPainter | None = None) -> np.ndarray:
+    """One map (PNG, atomic) of `values` (ny, nx; NaN where not measured, left blank) on `axes`; `title`
+    names the load case, `quantity` and `unit` label the colour bar ("exx", "microstrain"; unit "" for a
+    pure number), `decimals` is the precision of the title's figures; `signed`: a change (displacement,
+    strain) whose range across zero is centred on zero, not a position or a score; `scale`: the run's
+    colour limits and map (`RunScales`), else the map's own; `backdrop`: also drawn over the state's
+    original left image, beside the plain map; `painter`: the MapPainter whose figures are reused (a
+    run's maps: one for all). Returns the picture, RGB (H, W, 3) uint8 (a movie's frame)."""
+    rgb = (painter or MapPainter()).draw(values, axes, title=title, quantity=quantity, unit=unit, decimals=decimals,
+                                         signed=signed, scale=scale, backdrop=backdrop)
+    write_png(path, rgb)
+    return rgb
 
 
 class MapMovie:
     """A quantity's maps over a run as an MP4 video (OpenCV's mp4v codec), one frame per state written as
-    it comes (`add(figure)`), so that memory holds one frame; `close()` finishes the file (atomic)."""
+    it comes (`add(picture)`: RGB (H, W, 3) uint8, as `save_map` returns it), so that memory holds one frame;
+    `close()` finishes the file (atomic)."""
 
     def __init__(self, path: str | os.PathLike, *, fps: float = 4.0):
         self.path, self.fps = path, fps
@@ -290,12 +532,8 @@ class MapMovie:
         self._writer = None
         self._size = None
 
-    def add(self, fig) -> None:
+    def add(self, rgb: np.ndarray) -> None:
         import cv2
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
-        canvas = FigureCanvasAgg(fig)
-        canvas.draw()
-        rgb = np.asarray(canvas.buffer_rgba())[..., :3]
         if self._writer is None:
             self._ctx = atomic_output(self.path, suffix=".mp4")
             tmp = self._ctx.__enter__()

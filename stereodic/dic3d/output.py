@@ -31,7 +31,7 @@ from calib.atomic import atomic_output
 from calib.npz_stream import write_stacked_npz
 from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import STATUS_NAMES
-from stereodic.dic.maps import Backdrop, MapAxes, MapMovie, RunScales, map_figure
+from stereodic.dic.maps import Backdrop, MapAxes, MapMovie, MapPainter, RunScales, save_map
 from stereodic.dic.output import STRAIN_COLUMNS, fmt
 from stereodic.dic3d.stereo import NO_REFERENCE, RAY_GAP, CameraMatch, StereoSettings, StereoState
 from stereodic.strain.measures import StrainMeasure
@@ -184,26 +184,27 @@ STRAIN_FLOOR = 100.0   # microstrain: the least half-range of a strain map's col
 
 def plot_state(folder: str | os.PathLike, st: StereoState, axes: MapAxes, label: str, *,
                scales: RunScales | None = None, image: np.ndarray | None = None, frame: str = "rig's frame",
-               movies: dict[str, MapMovie] | None = None) -> None:
+               movies: dict[str, MapMovie] | None = None, painter: MapPainter | None = None) -> None:
     """PNG maps of one state k, named `label` (its load case): state{k}_{Z,dX,dY,dZ}.png [+ _exx, _eyy,
     _exy, microstrain] on `axes` (stereodic.dic.maps.surface_axes: the reference surface's X, Y in mm),
     titled with the reporting `frame`; with `scales`, the run's colour limits (`RunScales`); with
     `image` (the state's original left image), each map also drawn over it; `movies`: quantity ->
-    the MapMovie each of its maps is added to. State 0's strains are labelled: zero by definition (the
+    the MapMovie each of its maps is added to; `painter`: the MapPainter whose figures are reused (one
+    for the run), else a new one for the state. State 0's strains are labelled: zero by definition (the
     measurement's noise floor shows in a second image of the specimen at rest). None for a state that
     measured no point (its diagnosis says why: `stereodic.dic3d.diagnose`)."""
     if not st.converged.any():
         return
     folder = Path(folder)
+    painter = painter or MapPainter()
     backdrop = None if image is None else Backdrop(image, st.left.real[..., 0], st.left.real[..., 1])
     for name, (arr, unit, decimals) in state_maps(st).items():
         what = f"{name}, {st.measure.measure} strain" if name.startswith("e") else name
         title = f"{label} - {what} ({frame})"
         if st.state == 0 and name.startswith("e"):
             title += "\nthe reference: strain 0 by definition (its noise floor shows in a second image at rest)"
-        fig = map_figure(arr, axes, title=title, quantity=name, unit=unit, decimals=decimals, signed=name != "Z",
-                         scale=None if scales is None else scales.scale(name), backdrop=backdrop)
-        with atomic_output(folder / f"state{st.state}_{name}.png") as tmp:
-            fig.savefig(tmp, dpi=100)
+        rgb = save_map(folder / f"state{st.state}_{name}.png", arr, axes, title=title, quantity=name, unit=unit,
+                       decimals=decimals, signed=name != "Z", scale=None if scales is None else scales.scale(name),
+                       backdrop=backdrop, painter=painter)
         if movies and name in movies:
-            movies[name].add(fig)
+            movies[name].add(rgb)

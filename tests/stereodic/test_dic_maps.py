@@ -127,47 +127,97 @@ def test_run_scales_fix_each_quantitys_colours_over_the_run():
     assert (scales.scale("dY").lo, scales.scale("dY").hi) == (-0.5, 0.8) and scales.scale("dZ") is None
     for v in states:                                  # every state's map drawn with the run's limits
         fig = map_figure(v, pixel_axes(XS, YS), title="t", quantity="exx", unit="microstrain", decimals=0, scale=s)
-        assert fig.axes[0].collections[0].get_clim() == (s.lo, s.hi)
+        bars = {c.get_clim() for a in fig.axes if a.get_visible() for c in a.collections}   # the colour bar's
+        assert bars - {(None, None)} == {(s.lo, s.hi)}                                      # (and its arrows)
 
 
 def test_map_over_the_image_and_a_movie(tmp_path):
     import cv2
 
-    from stereodic.dic.maps import Backdrop, MapMovie, map_figure
+    from stereodic.dic.maps import Backdrop, MapMovie, MapPainter, map_figure
     image = (np.random.default_rng(1).random((220, 320)) * 255).astype(np.uint8)
     x, y = np.meshgrid(XS, YS)
     movie = MapMovie(tmp_path / "exx.mp4")
+    painter = MapPainter()
     for k in range(3):
-        fig = map_figure(np.full(x.shape, 100.0 * k), pixel_axes(XS, YS), title=f"state {k}", quantity="exx",
-                         unit="microstrain", decimals=0, backdrop=Backdrop(image, x + 0.5 * k, y))
-        assert len(fig.axes) == 3                     # the map, its colour bar, the map over the image
-        over = fig.axes[1] if fig.axes[1].images else fig.axes[2]
-        assert over.images[0].get_array().shape == image.shape
-        movie.add(fig)
+        options = dict(title=f"state {k}", quantity="exx", unit="microstrain", decimals=0,
+                       backdrop=Backdrop(image, x + 0.5 * k, y))
+        fig = map_figure(np.full(x.shape, 100.0 * k), pixel_axes(XS, YS), **options)
+        assert len(fig.axes) == 3                     # the map, the map over the image, its colour bar
+        assert fig.axes[1].images[0].get_array().shape[:2] == image.shape     # the image, pixel for pixel
+        rgb = save_map(tmp_path / f"{k}.png", np.full(x.shape, 100.0 * k), pixel_axes(XS, YS), painter=painter,
+                       **options)
+        assert rgb.shape == (560, 1300, 3) and np.array_equal(cv2.imread(str(tmp_path / f"{k}.png"))[..., ::-1], rgb)
+        movie.add(rgb)
     movie.close()
     cap = cv2.VideoCapture(str(tmp_path / "exx.mp4"))
     assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 3
 
 
+def _slanted():
+    """The grid XS x YS seen slanted in an image: x, y (ny, nx) pixels."""
+    x, y = np.meshgrid(XS, YS)
+    return 1.1 * x + 0.05 * y + 3.0, 0.97 * y - 0.04 * x + 8.0
+
+
 def test_the_field_over_the_image_is_the_linear_interpolation_between_the_points():
-    """Backdrop.raster against scipy's griddata (an independent linear interpolation on the same
-    Delaunay points), a hole in the grid left blank, not bridged."""
-    from scipy.interpolate import griddata
+    """Backdrop.raster against matplotlib's LinearTriInterpolator (an independent linear interpolation) on
+    the same triangles, two per square of neighbouring grid points; a hole in the grid left blank, not
+    bridged, and a stray point's long triangles left out."""
+    from matplotlib.tri import LinearTriInterpolator, Triangulation
 
     from stereodic.dic.maps import Backdrop
-    x, y = np.meshgrid(XS, YS)
-    x, y = 1.1 * x + 0.05 * y + 3.0, 0.97 * y - 0.04 * x + 8.0          # seen slanted
+    x, y = _slanted()
     values = np.sin(x / 40.0) + y / 100.0
     hx, hy = x[10, 13], y[10, 13]
     x[8:13, 10:16] = np.nan                                             # not seen: a hole
+    x[3, 20] += 60.0                                                    # a stray point
     b = Backdrop(np.zeros((230, 340), np.uint8), x, y)
     field, extent = b.raster(values)
-    ok = np.isfinite(x)
-    step = int(round(-2 * extent[0]))
-    gy, gx = np.mgrid[0:230:step, 0:340:step].astype(float)
-    ref = griddata(np.column_stack([x[ok], y[ok]]), values[ok], (gx, gy))
-    both = np.isfinite(field)
-    assert both.sum() > 0.5 * np.isfinite(ref).sum()
-    assert np.abs(field[both] - ref[both]).max() < 1e-9
+    assert extent == (-0.5, 339.5, 229.5, -0.5)                         # one cell a pixel below 600 px
+    idx = np.arange(x.size).reshape(x.shape)
+    a, c, d, e = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
+    tri = np.concatenate([np.stack([a, c, d], -1).reshape(-1, 3), np.stack([c, e, d], -1).reshape(-1, 3)])
+    ok = np.isfinite(x.ravel()[tri]).all(1) & ~np.isin(tri, idx[3, 20]).any(1)
+    gy, gx = np.mgrid[0:230, 0:340].astype(float)
+    ref = LinearTriInterpolator(Triangulation(np.nan_to_num(x.ravel()), y.ravel(), tri[ok]), values.ravel())(gx, gy)
+    ref = ref.filled(np.nan)
+    assert np.isfinite(ref).sum() > 50000
+    assert (np.isfinite(field) != np.isfinite(ref)).sum() <= 5          # cells on the outer edges, either way
+    assert np.nanmax(np.abs(field - ref)) < 1e-9
     hole = (np.abs(gx - hx) < 5) & (np.abs(gy - hy) < 5)
     assert hole.any() and np.isnan(field[hole]).all()
+
+
+def test_a_maps_pixels_are_the_colour_maps_colours_of_the_values(tmp_path):
+    """The PNG's pixel at a grid point, in the plain map and over the image, is matplotlib's colour of
+    the point's value: exactly in the plain map (the pixel is in the point's cell, 17 pixels across),
+    within the change over one image pixel over the image (mixed with the image's gray at 55 %
+    opacity), both within 2 of the colour table's 256 steps."""
+    import cv2
+    from matplotlib import colormaps
+
+    from stereodic.dic.maps import Backdrop, ColourScale, MapPainter, map_figure
+    x, y = _slanted()
+    values = np.sin(np.meshgrid(XS, YS)[0] / 25.0)                     # up to 0.4 from a column to the next
+    image = np.tile(np.linspace(0, 255, 340), (230, 1)).astype(np.uint8)
+    painter = MapPainter()
+    options = dict(title="state 1", quantity="u", unit="px", decimals=3, backdrop=Backdrop(image, x, y),
+                   painter=painter, scale=ColourScale(-1.0, 1.0, "RdBu_r"))
+    save_map(tmp_path / "u.png", values, pixel_axes(XS, YS), **options)
+    png = cv2.imread(str(tmp_path / "u.png"))[..., ::-1].astype(float)
+    fig = map_figure(values, pixel_axes(XS, YS), **options)
+    plain, over = fig.axes[0], fig.axes[1]
+    cmap = colormaps["RdBu_r"]
+    rgb = lambda v: np.array(cmap((v + 1) / 2)[:3]) * 255                # noqa: E731
+    for i, j in [(5, 7), (10, 14), (15, 22), (2, 3), (17, 25)]:
+        v = values[i, j]
+        per_px = abs(values[i, j + 1] - v) / (x[i, j + 1] - x[i, j])   # the value's change per image pixel
+        change = lambda dv: max(np.abs(rgb(v + s) - rgb(v)).max() for s in (-dv, dv))   # noqa: E731
+        gray = image[0, int(round(x[i, j]))]
+        for ax, point, want, spread in [(plain, (XS[j], YS[i]), rgb(v), change(4 / 256) + 1),
+                                        (over, (x[i, j], y[i, j]), 0.55 * rgb(v) + 0.45 * gray,
+                                         0.55 * change(per_px + 4 / 256) + 0.45 * 2 + 1)]:
+            cx, cy = ax.transData.transform(point)
+            pixel = png[int(png.shape[0] - cy), int(cx)]
+            assert np.abs(pixel - want).max() <= spread, (i, j, pixel, want)
