@@ -97,7 +97,7 @@ def run(args) -> int:
     from calib.sequences import frame_times
     from stereodic.cli.common import dic_grid, wrote
     from stereodic.dic import STATUS_NAMES, DicSettings, correlate_sequence
-    from stereodic.dic.maps import RunScales
+    from stereodic.dic.maps import MapPainter, RunScales, pixel_axes
     from stereodic.dic.output import CsvWriter, image_arrays, image_maps, plot_image, write_npz
     from stereodic.dic3d.diagnose import diagnosis
     if args.strain_window:  # strain (and its scipy) only when asked for
@@ -175,11 +175,13 @@ def run(args) -> int:
             if why is not None:
                 note(why)
         if args.plot:      # after every image: the maps share the run's colour scale per quantity
+            axes, painter = pixel_axes(grid.xs, grid.ys, grid.active), MapPainter()   # for every image's maps
             for k in progress(range(len(defs)), "maps", total=len(defs), unit="image"):
                 with np.load(Path(tmp) / f"{k}.npz") as z:
                     if (z["status"] == 0).any():     # none for an image that measured nothing (its diagnosis says why)
                         plot_image(args.plot, k, dict(z), grid, Path(defs[k]).name,
-                                   args.measure if has_strain else None, scales=scales, image=read(defs[k]))
+                                   args.measure if has_strain else None, scales=scales, image=read(defs[k]),
+                                   axes=axes, painter=painter)
         if args.npz or args.mat:
             def values(key):
                 for k in range(len(defs)):

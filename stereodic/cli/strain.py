@@ -42,7 +42,7 @@ def run(args) -> int:
     from calib.npz_stream import write_stacked_npz
     from calib.progress import progress
     from stereodic.cli.common import frame_options, wrote
-    from stereodic.dic.maps import RunScales, save_map
+    from stereodic.dic.maps import MapPainter, RunScales, save_map
     from stereodic.dic.output import STRAIN_COLUMNS, fmt
     from stereodic.strain.results import map_axes, open_result, specimen_frame_of, state_labels, strains
 
@@ -78,13 +78,14 @@ def run(args) -> int:
                 for name in MAPS:
                     scales.add(name, getattr(m, fields[name]) * 1e6, signed=name != "e_vm", active=g.active)
         if not args.no_plot:   # after every state: the maps share the run's colour scale per quantity
+            painter = MapPainter()
             for k in progress(range(result.states), "maps", total=result.states, unit="state"):
                 with np.load(tmp_dir / f"{k}.npz") as z:
                     for name in MAPS:
                         save_map(out / "maps" / f"{label}{k}_{name}.png", z[name] * 1e6, axes,
                                  title=f"{titles[k]} - {name}, {args.measure} strain ({args.frame}'s frame)",
                                  quantity=name, unit="microstrain", decimals=0, signed=name != "e_vm",
-                                 scale=scales.scale(name))
+                                 scale=scales.scale(name), painter=painter)
 
         def values(key):
             for k in range(result.states):

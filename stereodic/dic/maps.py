@@ -487,9 +487,11 @@ class MapPainter:
 
 
 def write_png(path: str | os.PathLike, rgb: np.ndarray) -> None:
-    """An RGB (H, W, 3) uint8 picture as a PNG (OpenCV's encoder, fast compression; atomic)."""
+    """An RGB (H, W, 3) uint8 picture as a PNG (OpenCV's encoder: each row less the one above, fast
+    compression, twice as fast as its default for the same size; atomic)."""
     import cv2
-    ok, data = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    ok, data = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]), [cv2.IMWRITE_PNG_COMPRESSION, 1,
+                                                                           cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP])
     if not ok:
         raise RuntimeError(f"{path}: the PNG could not be encoded")
     with atomic_output(path) as tmp:

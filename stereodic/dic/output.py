@@ -138,18 +138,19 @@ def image_maps(arrays: dict[str, np.ndarray]) -> dict[str, tuple[np.ndarray, str
 
 
 def plot_image(folder: str | os.PathLike, k: int, arrays: dict[str, np.ndarray], grid, name: str,
-               measure: str | None, *, scales=None, image: np.ndarray | None = None) -> None:
+               measure: str | None, *, scales=None, image: np.ndarray | None = None, axes=None, painter=None) -> None:
     """PNG maps of deformed image k, whose file is `name`, from its arrays (`image_arrays`):
     image{k}_u.png, _v, _zncc [, _exx, _eyy, _exy] (stereodic.dic.maps: axes in reference-image pixels,
     strains in microstrain); `scales`: the run's colour scales (`maps.RunScales`); `image`: the deformed
-    image, each map also drawn over it (each point at x + u, y + v)."""
+    image, each map also drawn over it (each point at x + u, y + v); `axes` (`maps.pixel_axes` of the
+    grid) and `painter` (`maps.MapPainter`): made once for the run's images (default: here)."""
     from stereodic.dic.maps import Backdrop, pixel_axes, save_map
     folder = Path(folder)
-    axes = pixel_axes(grid.xs, grid.ys, grid.active)
+    axes = axes or pixel_axes(grid.xs, grid.ys, grid.active)
     x, y = np.meshgrid(grid.xs, grid.ys)
     backdrop = None if image is None else Backdrop(image, x + arrays["u"], y + arrays["v"], "the deformed image")
     for q, (arr, unit, decimals) in image_maps(arrays).items():
         what = f"{q}, {measure} strain" if q.startswith("e") and measure else q
         save_map(folder / f"image{k}_{q}.png", arr, axes, title=f"deformed image {k} ({name}) - {what}", quantity=q,
                  unit=unit, decimals=decimals, signed=q != "zncc", scale=None if scales is None else scales.scale(q),
-                 backdrop=backdrop)
+                 backdrop=backdrop, painter=painter)

@@ -23,7 +23,7 @@ from calib.atomic import write_npz as save_npz
 from calib.progress import progress
 from stereodic.dic.background import Background, threads
 from stereodic.dic.grid import Grid
-from stereodic.dic.maps import MapAxes, MapMovie, RunScales, surface_axes
+from stereodic.dic.maps import MapAxes, MapMovie, MapPainter, RunScales, surface_axes
 from stereodic.dic.sequence import prefetch
 from stereodic.dic3d.dataset import DicStates
 from stereodic.dic3d.output import (STRAIN_FLOOR, csv_rows, plot_state, state_arrays, state_maps, write_csv,
@@ -153,21 +153,23 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
             maps = {}
             if plot_every:
                 maps = dict(scales=_run_scales(store, plot_every, grid.active, limits), frame=frame_name,
-                            movies={q: MapMovie(folder / "maps" / f"{q}.mp4") for q in animate})
+                            movies={q: MapMovie(folder / "maps" / f"{q}.mp4") for q in animate},
+                            painter=MapPainter())
             try:
                 for st in progress(store.states(), "writing", total=n, unit="state"):
-                    if vtk_here or plot_every:
-                        if axes is None:  # state 0: the reference surface gives every map its mm axes
-                            axes = surface_axes(grid.xs, grid.ys, st.points, grid.active)
-                        image = image_of(st.state) if image_of is not None and plot_every and \
-                            st.state % plot_every == 0 else None
-                        write = functools.partial(write_state_files, folder, st, vtk=vtk_here, plot_every=plot_every,
-                                                  axes=axes, image=image, **maps,
-                                                  label=labels[st.state] if labels else f"state {st.state}")
-                        if maps.get("movies"):
-                            write()     # a movie takes its frames in order, in this process
-                        else:
-                            bg.submit(write, f"the files of state {st.state}")
+                    if axes is None and plot_every:  # state 0: the reference surface gives every map its mm axes
+                        axes = surface_axes(grid.xs, grid.ys, st.points, grid.active)
+                    if vtk_here:
+                        bg.submit(functools.partial(write_state, folder / "vtk", st),
+                                  f"the VTK file of state {st.state}")
+                    if plot_every and st.state % plot_every == 0:
+                        draw = functools.partial(plot_state, folder / "maps", st, axes,
+                                                 labels[st.state] if labels else f"state {st.state}",
+                                                 image=None if image_of is None else image_of(st.state), **maps)
+                        if maps["movies"]:
+                            draw()      # a movie takes its frames in order, in this process
+                        else:           # a child forked after this process drew a map starts with its figures
+                            bg.submit(draw, f"the maps of state {st.state}")
                     if dice is not None:
                         dice(st)
             finally:
