@@ -19,6 +19,7 @@ run as an MP4 video.
 
 from __future__ import annotations
 
+import functools
 import os
 from dataclasses import dataclass, field
 
@@ -152,10 +153,11 @@ ALPHA = 0.55           # the field's opacity over the image
 @dataclass(frozen=True)
 class Cells:
     """The cells of a raster (`shape`: rows, columns) that fall in the triangles of a structured grid of
-    points (`grid_cells`): cell `index` (m,) (flat) lies in the triangle of the grid points `vertices`
-    (m, 3) (flat indices of the grid) with barycentric `weights` (m, 3)."""
+    points (`grid_cells`; `columns`: the grid's): cell `index` (m,) (flat) lies in the triangle of the
+    grid points `vertices` (m, 3) (flat indices of the grid) with barycentric `weights` (m, 3)."""
 
     shape: tuple[int, int]
+    columns: int
     index: np.ndarray
     vertices: np.ndarray
     weights: np.ndarray
@@ -168,12 +170,19 @@ class Cells:
         return out.reshape(self.shape)
 
     def nearest(self, values: np.ndarray) -> np.ndarray:
-        """The raster (rows, columns) of the grid's `values`, each cell that of its triangle's corner with
-        the largest weight (the nearest, as a cell of a map of grid points); NaN outside the triangles."""
+        """The raster (rows, columns) of the grid's `values`, each cell that of the grid point nearest to
+        it in the grid's rows and columns (the cell's row and column interpolated in its triangle and
+        rounded: the grid's cells, as pcolormesh's "nearest" shading draws them); NaN outside."""
         out = np.full(self.shape[0] * self.shape[1], np.nan)
-        corner = self.vertices[np.arange(len(self.index)), self.weights.argmax(1)]
-        out[self.index] = np.asarray(values, float).ravel()[corner]
+        out[self.index] = np.asarray(values, float).ravel()[self.corner]
         return out.reshape(self.shape)
+
+    @functools.cached_property
+    def corner(self) -> np.ndarray:
+        """(m,) the grid point (flat index) nearest to each cell in the grid's rows and columns."""
+        row, col = np.divmod(self.vertices, self.columns)
+        near = lambda a: np.rint((a * self.weights).sum(1)).astype(np.intp)   # noqa: E731
+        return near(row) * self.columns + near(col)
 
 
 def grid_cells(x: np.ndarray, y: np.ndarray, *, origin: tuple[float, float], cell: float, shape: tuple[int, int],
@@ -220,7 +229,7 @@ def grid_cells(x: np.ndarray, y: np.ndarray, *, origin: tuple[float, float], cel
         weights.append(np.column_stack([u0, u1, 1.0 - u0 - u1]))
     index = np.concatenate(index)
     index, first = np.unique(index, return_index=True)      # a cell on a shared side: one triangle
-    return Cells((h, w), index, np.concatenate(vertices)[first], np.concatenate(weights)[first])
+    return Cells((h, w), nx, index, np.concatenate(vertices)[first], np.concatenate(weights)[first])
 
 
 def _spacing(x: np.ndarray, y: np.ndarray) -> float:
@@ -277,13 +286,20 @@ class Backdrop:
         return c["gray"]
 
 
-def colours(values: np.ndarray, lo: float, hi: float, cmap: str) -> np.ndarray:
-    """RGB (..., 3) uint8 of finite `values` on the colour map `cmap` (matplotlib's, its 256-entry table,
-    as matplotlib colours an image) from `lo` to `hi` (below / above: the ends' colours)."""
+@functools.lru_cache(maxsize=8)
+def _table(cmap: str) -> np.ndarray:
+    """(257, 3) float32: the colour map's 256 colours (matplotlib's table, 0..255) and white."""
     from matplotlib import colormaps
-    lut = np.rint(colormaps[cmap](np.linspace(0.0, 1.0, 256))[:, :3] * 255.0).astype(np.uint8)
+    return np.vstack([np.rint(colormaps[cmap](np.linspace(0.0, 1.0, 256))[:, :3] * 255.0), [[255.0] * 3]]).astype(np.float32)
+
+
+def colours(values: np.ndarray, lo: float, hi: float, cmap: str) -> np.ndarray:
+    """RGB (..., 3) float32 0..255 of `values` on the colour map `cmap` (matplotlib's 256-entry table, as
+    matplotlib colours an image) from `lo` to `hi` (below / above: the ends' colours); NaN: white."""
     t = (np.asarray(values, np.float32) - np.float32(lo)) * np.float32(256 / (hi - lo if hi > lo else 1.0))
-    return lut[np.clip(t, 0, 255).astype(np.intp)]
+    with np.errstate(invalid="ignore"):
+        index = np.where(np.isfinite(t), np.clip(t, 0, 255), 256).astype(np.intp)
+    return _table(cmap)[index]
 
 
 def _ring(a: np.ndarray, *, extend: bool) -> np.ndarray:
@@ -312,11 +328,12 @@ def _plain_raster(axes: MapAxes, values: np.ndarray) -> tuple[np.ndarray, tuple[
     if "cells" not in c:
         x, y = _ring(axes.x[box], extend=True), _ring(axes.y[box], extend=True)
         x0, x1, y0, y1 = np.nanmin(x), np.nanmax(x), np.nanmin(y), np.nanmax(y)
-        size = max(x1 - x0, y1 - y0, 1e-9)
-        cell = max(_spacing(x, y) / 2 if np.isfinite(_spacing(x, y)) else 0.0, size / MAP_PX)
-        shape = (int((y1 - y0) / cell) + 1, int((x1 - x0) / cell) + 1)
-        c["cells"] = grid_cells(x, y, origin=(x0, y0), cell=cell, shape=shape)
-        c["extent"] = (x0 - cell / 2, x0 + (shape[1] - 0.5) * cell, y0 - cell / 2, y0 + (shape[0] - 0.5) * cell)
+        spacing = _spacing(axes.x[box], axes.y[box])
+        cell = max(spacing / 2 if np.isfinite(spacing) else 0.0, max(x1 - x0, y1 - y0, 1e-9) / MAP_PX)
+        # cells from the ring's edge: on a regular grid 2 x 2 a point, none half-way between two points
+        shape = (max(1, int(np.ceil((y1 - y0) / cell))), max(1, int(np.ceil((x1 - x0) / cell))))
+        c["cells"] = grid_cells(x, y, origin=(x0 + cell / 2, y0 + cell / 2), cell=cell, shape=shape)
+        c["extent"] = (x0, x0 + shape[1] * cell, y0, y0 + shape[0] * cell)
         c["limits"] = (x0, x1, y0, y1)
     return c["cells"].nearest(_ring(np.where(active, values, np.nan)[box], extend=False)), c["extent"]
 
@@ -324,15 +341,11 @@ def _plain_raster(axes: MapAxes, values: np.ndarray) -> tuple[np.ndarray, tuple[
 def _rgb(field: np.ndarray, lo: float, hi: float, cmap: str, under: np.ndarray | None = None) -> np.ndarray:
     """uint8 RGB (h, w, 3) of a raster `field` (NaN: white, or `under`): its colours (`colours`), over
     the gray image `under` (h, w; 0..255) with opacity ALPHA if given."""
-    ok = np.isfinite(field)
-    if under is None:
-        out = np.full(field.shape + (3,), 255, np.uint8)
-        out[ok] = colours(field[ok], lo, hi, cmap)
-    else:
-        out = np.repeat(np.rint(under)[..., None], 3, -1).astype(np.uint8)
-        g = under[ok][:, None]
-        out[ok] = np.rint(ALPHA * colours(field[ok], lo, hi, cmap) + (1 - ALPHA) * g).astype(np.uint8)
-    return out
+    rgb = colours(field, lo, hi, cmap)
+    if under is not None:
+        alpha = np.where(np.isfinite(field), np.float32(ALPHA), np.float32(0.0))[..., None]
+        rgb = alpha * rgb + (1 - alpha) * under[..., None]
+    return np.rint(rgb).astype(np.uint8)
 
 
 # the fixed layout (pixels at 100 dpi, from the bottom left): the plain map, its colour bar, the map over
@@ -400,13 +413,12 @@ class MapPainter:
         active = np.ones(values.shape, bool) if axes.active is None else np.asarray(axes.active, bool)
         finite = values[np.isfinite(values) & active]
         if finite.size:
-            lo, hi = np.percentile(finite, [1, 99])
+            lo, hi, median, p5, p95 = np.percentile(finite, [1, 99, 50, 5, 95])
             if hi <= lo:
                 lo, hi = lo - 10.0 ** -decimals, hi + 10.0 ** -decimals
             cmap = "viridis"
             if signed and lo < 0 < hi:
                 lo, hi, cmap = -max(-lo, hi), max(-lo, hi), "RdBu_r"
-            median, p5, p95 = np.percentile(finite, [50, 5, 95])
             units = f" {unit}" if unit else ""
             summary = (f"median {fixed(median, decimals)}{units}; 90 % within {fixed(p5, decimals)} .. "
                        f"{fixed(p95, decimals)}; {finite.size} of {active.sum()} points measured")
@@ -439,8 +451,9 @@ class MapPainter:
         bar = bars[extend]
         bar.ax.set_position((box.x1 + _BAR[0] / width, box.y0 + 0.05 * box.height, _BAR[1] / width,
                              0.9 * box.height))
+        with bar.mappable.norm.callbacks.blocked():     # the bar redrawn once, by set_cmap
+            bar.mappable.norm.vmin, bar.mappable.norm.vmax = lo, hi
         bar.mappable.set_cmap(cmap)
-        bar.mappable.set_clim(lo, hi)
         bar.locator = MaxNLocator(7)
         ticks = bar.locator.tick_values(lo, hi)
         places = _decimals(float(np.min(np.diff(ticks)))) if len(ticks) > 1 else decimals

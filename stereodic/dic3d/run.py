@@ -159,9 +159,6 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
                 for st in progress(store.states(), "writing", total=n, unit="state"):
                     if axes is None and plot_every:  # state 0: the reference surface gives every map its mm axes
                         axes = surface_axes(grid.xs, grid.ys, st.points, grid.active)
-                    if vtk_here:
-                        bg.submit(functools.partial(write_state, folder / "vtk", st),
-                                  f"the VTK file of state {st.state}")
                     if plot_every and st.state % plot_every == 0:
                         draw = functools.partial(plot_state, folder / "maps", st, axes,
                                                  labels[st.state] if labels else f"state {st.state}",
@@ -170,6 +167,9 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
                             draw()      # a movie takes its frames in order, in this process
                         else:           # a child forked after this process drew a map starts with its figures
                             bg.submit(draw, f"the maps of state {st.state}")
+                    if vtk_here:
+                        bg.submit(functools.partial(write_state, folder / "vtk", st),
+                                  f"the VTK file of state {st.state}")
                     if dice is not None:
                         dice(st)
             finally:
