@@ -200,34 +200,55 @@ def grid_cells(x: np.ndarray, y: np.ndarray, *, origin: tuple[float, float], cel
     the units of x, y - that fall in the triangles of the grid points x, y (ny, nx; NaN: not placed): two
     triangles per square of neighbouring points whose corners are all placed, so that a hole in the grid
     is never bridged; a triangle with a side longer than `longest` (a stray point) is left out. Each
-    triangle's candidate cells are those of its bounding box, tested all at once (numpy)."""
-    h, w = shape
+    triangle's candidate cells are those of its bounding box, tested all at once (numpy), the triangles
+    taken a band of grid rows at a time and grouped by the size of their box."""
     ny, nx = np.shape(x)
+    px = (np.asarray(x, float).ravel() - origin[0]) / cell              # in cells
+    py = (np.asarray(y, float).ravel() - origin[1]) / cell
     idx = np.arange(ny * nx).reshape(ny, nx)
-    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
-    tri = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([b, d, c], -1).reshape(-1, 3)])
-    tx = ((np.asarray(x, float).ravel() - origin[0]) / cell)[tri]       # (triangles, 3) in cells
-    ty = ((np.asarray(y, float).ravel() - origin[1]) / cell)[tri]
-    side = np.hypot(tx - np.roll(tx, 1, 1), ty - np.roll(ty, 1, 1)).max(1)
-    det = (ty[:, 1] - ty[:, 2]) * (tx[:, 0] - tx[:, 2]) + (tx[:, 2] - tx[:, 1]) * (ty[:, 0] - ty[:, 2])
-    with np.errstate(invalid="ignore"):
-        ok = np.isfinite(det) & (np.abs(det) > 1e-12) & (side <= longest / cell)
-    tri, tx, ty, det = tri[ok], tx[ok], ty[ok], det[ok]
-    j0, i0 = np.ceil(tx.min(1)).astype(np.intp), np.ceil(ty.min(1)).astype(np.intp)
-    span = int(max((np.floor(tx.max(1)) - j0).max(), (np.floor(ty.max(1)) - i0).max())) + 1 if len(tri) else 0
+    found = [(np.zeros(0, np.intp), np.zeros((0, 3), np.intp), np.zeros((0, 3)))]
+    band = max(1, 2 ** 18 // max(1, nx))
+    for r in range(0, ny - 1, band):
+        q = idx[r:r + band + 1]
+        a, b, c, d = q[:-1, :-1], q[:-1, 1:], q[1:, :-1], q[1:, 1:]
+        tri = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([b, d, c], -1).reshape(-1, 3)])
+        tx, ty = px[tri], py[tri]
+        side = np.hypot(tx - np.roll(tx, 1, 1), ty - np.roll(ty, 1, 1)).max(1)
+        det = (ty[:, 1] - ty[:, 2]) * (tx[:, 0] - tx[:, 2]) + (tx[:, 2] - tx[:, 1]) * (ty[:, 0] - ty[:, 2])
+        with np.errstate(invalid="ignore"):
+            ok = np.isfinite(det) & (np.abs(det) > 1e-12) & (side <= longest / cell)
+        tri, tx, ty, det = tri[ok], tx[ok], ty[ok], det[ok]
+        j0, i0 = np.ceil(tx.min(1)).astype(np.intp), np.ceil(ty.min(1)).astype(np.intp)
+        span = np.maximum(np.floor(tx.max(1)) - j0, np.floor(ty.max(1)) - i0).astype(np.intp) + 1
+        # the weights of corners 0 and 1 are affine in the cell's column and row: w = base + a * dj + b * di
+        ex, ey = j0 - tx[:, 2], i0 - ty[:, 2]
+        a0, b0 = (ty[:, 1] - ty[:, 2]) / det, (tx[:, 2] - tx[:, 1]) / det
+        a1, b1 = (ty[:, 2] - ty[:, 0]) / det, (tx[:, 0] - tx[:, 2]) / det
+        coef = np.column_stack([a0 * ex + b0 * ey, a0, b0, a1 * ex + b1 * ey, a1, b1])
+        size = np.ceil(np.log2(np.maximum(span, 1))).astype(int)      # boxes of up to 2**size cells a side
+        for group in np.unique(size):
+            t = np.flatnonzero(size == group)
+            found.append(_cells_in(tri[t], j0[t], i0[t], coef[t], 2 ** int(group), shape))
+    index = np.concatenate([f[0] for f in found])
+    index, first = np.unique(index, return_index=True)      # a cell on a shared side: one triangle
+    return Cells(tuple(shape), nx, index, np.concatenate([f[1] for f in found])[first],
+                 np.concatenate([f[2] for f in found])[first])
+
+
+def _cells_in(tri: np.ndarray, j0: np.ndarray, i0: np.ndarray, coef: np.ndarray, span: int,
+              shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`grid_cells` for triangles whose boxes are at most `span` cells a side from (j0, i0): the raster
+    cells (flat) inside them, their triangles' corners and their weights."""
+    h, w = shape
     dj, di = (o.ravel() for o in np.meshgrid(np.arange(span), np.arange(span)))
-    # the weights of corners 0 and 1 are affine in the cell's column and row: w = base + a * dj + b * di
-    ex, ey = j0 - tx[:, 2], i0 - ty[:, 2]
-    a0, b0 = (ty[:, 1] - ty[:, 2]) / det, (tx[:, 2] - tx[:, 1]) / det
-    a1, b1 = (ty[:, 2] - ty[:, 0]) / det, (tx[:, 0] - tx[:, 2]) / det
-    base0, base1 = a0 * ex + b0 * ey, a1 * ex + b1 * ey
-    index, vertices, weights = [np.zeros(0, np.intp)], [np.zeros((0, 3), np.intp)], [np.zeros((0, 3))]
-    chunk = max(1, 2 ** 20 // max(1, span * span))
+    index, vertices, weights = [], [], []
+    chunk = max(1, 2 ** 20 // (span * span))
     tol = 1e-9
     for s in range(0, len(tri), chunk):
         t = slice(s, s + chunk)
-        w0 = base0[t, None] + a0[t, None] * dj + b0[t, None] * di
-        w1 = base1[t, None] + a1[t, None] * dj + b1[t, None] * di
+        c = coef[t]
+        w0 = c[:, 0:1] + c[:, 1:2] * dj + c[:, 2:3] * di
+        w1 = c[:, 3:4] + c[:, 4:5] * dj + c[:, 5:6] * di
         k, m = np.nonzero((w0 >= -tol) & (w1 >= -tol) & (w0 + w1 <= 1 + tol))
         cj, ci = j0[t][k] + dj[m], i0[t][k] + di[m]
         keep = (cj >= 0) & (cj < w) & (ci >= 0) & (ci < h)
@@ -236,9 +257,7 @@ def grid_cells(x: np.ndarray, y: np.ndarray, *, origin: tuple[float, float], cel
         index.append(ci * w + cj)
         vertices.append(tri[t][k])
         weights.append(np.column_stack([u0, u1, 1.0 - u0 - u1]))
-    index = np.concatenate(index)
-    index, first = np.unique(index, return_index=True)      # a cell on a shared side: one triangle
-    return Cells((h, w), nx, index, np.concatenate(vertices)[first], np.concatenate(weights)[first])
+    return np.concatenate(index), np.concatenate(vertices), np.concatenate(weights)
 
 
 def _spacing(x: np.ndarray, y: np.ndarray) -> float:
@@ -325,6 +344,18 @@ def _ring(a: np.ndarray, *, extend: bool) -> np.ndarray:
     return a
 
 
+def _line(x: np.ndarray, y: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A grid of one row or column (positions x, y and values, after `_ring`) doubled across its line,
+    half a spacing to either side, so that its cells have a width; other grids as they are."""
+    for axis in (0, 1):
+        if x.shape[axis] == 1 and x.shape[1 - axis] > 1:
+            dx, dy = x.ravel()[-1] - x.ravel()[0], y.ravel()[-1] - y.ravel()[0]
+            f = _spacing(x, y) / 2 / max(float(np.hypot(dx, dy)), 1e-12)
+            x, y = np.concatenate([x + dy * f, x - dy * f], axis), np.concatenate([y - dx * f, y + dx * f], axis)
+            values = np.repeat(values, 2, axis)
+    return x, y, values
+
+
 def _plain_raster(axes: MapAxes, values: np.ndarray) -> tuple[np.ndarray, tuple[float, float, float, float]]:
     """The plain map's raster: each grid point of the active box (`active_box`) a cell about it of its
     value (as matplotlib's pcolormesh with shading "nearest" draws it on a curved grid), on cells about
@@ -334,8 +365,9 @@ def _plain_raster(axes: MapAxes, values: np.ndarray) -> tuple[np.ndarray, tuple[
     active = np.ones(values.shape, bool) if axes.active is None else np.asarray(axes.active, bool)
     box = active_box(active)
     c = axes._cache
+    x, y, values = _line(_ring(axes.x[box], extend=True), _ring(axes.y[box], extend=True),
+                         _ring(np.where(active, values, np.nan)[box], extend=False))
     if "cells" not in c:
-        x, y = _ring(axes.x[box], extend=True), _ring(axes.y[box], extend=True)
         x0, x1, y0, y1 = np.nanmin(x), np.nanmax(x), np.nanmin(y), np.nanmax(y)
         spacing = _spacing(axes.x[box], axes.y[box])
         cell = max(spacing / 2 if np.isfinite(spacing) else 0.0, max(x1 - x0, y1 - y0, 1e-9) / MAP_PX)
@@ -344,7 +376,7 @@ def _plain_raster(axes: MapAxes, values: np.ndarray) -> tuple[np.ndarray, tuple[
         c["cells"] = grid_cells(x, y, origin=(x0 + cell / 2, y0 + cell / 2), cell=cell, shape=shape)
         c["extent"] = (x0, x0 + shape[1] * cell, y0, y0 + shape[0] * cell)
         c["limits"] = (x0, x1, y0, y1)
-    return c["cells"].nearest(_ring(np.where(active, values, np.nan)[box], extend=False)), c["extent"]
+    return c["cells"].nearest(values), c["extent"]
 
 
 def _rgb(field: np.ndarray, lo: float, hi: float, cmap: str, under: np.ndarray | None = None) -> np.ndarray:
@@ -458,8 +490,8 @@ class MapPainter:
         for kind, other in bars.items():
             other.ax.set_visible(kind == extend)
         bar = bars[extend]
-        bar.ax.set_position((box.x1 + _BAR[0] / width, box.y0 + 0.05 * box.height, _BAR[1] / width,
-                             0.9 * box.height))
+        tall = max(0.9 * box.height, 0.5 * _MAP[3] / _HEIGHT)         # a flat map's bar still readable
+        bar.ax.set_position((box.x1 + _BAR[0] / width, (box.y0 + box.y1 - tall) / 2, _BAR[1] / width, tall))
         with bar.mappable.norm.callbacks.blocked():     # the bar redrawn once, by set_cmap
             bar.mappable.norm.vmin, bar.mappable.norm.vmax = lo, hi
         bar.mappable.set_cmap(cmap)
