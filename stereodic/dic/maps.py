@@ -305,7 +305,8 @@ class Backdrop:
         range stretched to 0..255 (float32)."""
         c = self._cache
         if "gray" not in c:
-            (h, w), r = self._cells()[0].shape, self._cells()[1]
+            cells, r = self._cells()
+            h, w = cells.shape
             img = np.asarray(self.image, np.float32)
             img = np.pad(img, ((0, h * r - img.shape[0]), (0, w * r - img.shape[1])), mode="edge")
             img = img.reshape(h, r, w, r).mean((1, 3))
