@@ -520,8 +520,14 @@ class MapPainter:
 
     def draw(self, values: np.ndarray, axes: MapAxes, **options) -> np.ndarray:
         """One map (`figure`'s options) drawn: RGB (H, W, 3) uint8."""
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+
         lay = self._layout(options.get("backdrop") is not None)
         self.figure(values, axes, **options)
+        if lay.figure.canvas is not lay.canvas:     # the caller gave the figure another canvas: draw afresh
+            lay.canvas = lay.figure.canvas if isinstance(lay.figure.canvas, FigureCanvasAgg) else \
+                FigureCanvasAgg(lay.figure)
+            lay.drawn = None
         backdrop = options.get("backdrop")
         key = (axes, None if backdrop is None else backdrop.image.shape[:2])
         parts = [lay.plain] + ([] if lay.over is None else [lay.over]) + \
@@ -535,10 +541,34 @@ class MapPainter:
             lay.background, lay.drawn = lay.canvas.copy_from_bbox(lay.figure.bbox), key
         else:
             lay.canvas.restore_region(lay.background)
-        frames = [a.spines.values() for a in (lay.ax, None if lay.over is None else lay.over.axes) if a is not None]
-        for part in parts + [spine for spines in frames for spine in spines]:   # the frames over the pictures
+        buffer = np.asarray(lay.canvas.buffer_rgba())
+        pictures = [lay.plain] + ([] if lay.over is None else [lay.over])
+        for picture in pictures:
+            _paste(buffer, picture)
+        frames = [spine for picture in pictures for spine in picture.axes.spines.values()]
+        for part in parts[len(pictures):] + frames:         # the bar, the words, the frames over the pictures
             lay.figure.draw_artist(part)
-        return np.asarray(lay.canvas.buffer_rgba())[..., :3].copy()
+        return buffer[..., :3].copy()
+
+
+def _paste(buffer: np.ndarray, image) -> None:
+    """Draw matplotlib's AxesImage `image` (RGB uint8 data, drawn with nearest interpolation) into the
+    figure's pixels `buffer` (H, W, 4; Agg's) within its axes: each screen pixel the raster cell under
+    its centre (what matplotlib's resampling gives, without its per-image pipeline: a tenth of the time)."""
+    ax, rgb = image.axes, np.asarray(image.get_array())
+    box = ax.get_window_extent()
+    cols = np.arange(int(np.ceil(box.x0 - 0.5)), int(np.floor(box.x1 - 0.5)) + 1)   # pixels with centres inside
+    rows = np.arange(int(np.ceil(box.y0 - 0.5)), int(np.floor(box.y1 - 0.5)) + 1)   # from the bottom
+    inverse = ax.transData.inverted()
+    x = inverse.transform(np.column_stack([cols + 0.5, np.full(cols.shape, box.y0)]))[:, 0]
+    y = inverse.transform(np.column_stack([np.full(rows.shape, box.x0), rows + 0.5]))[:, 1]
+    left, right, bottom, top = image.get_extent()
+    first, last = (bottom, top) if image.origin == "lower" else (top, bottom)      # the rows' edges: row 0's first
+    h, w = rgb.shape[:2]
+    j = np.floor((x - left) / (right - left) * w).astype(np.intp)
+    i = np.floor((y - first) / (last - first) * h).astype(np.intp)
+    cin, rin = (j >= 0) & (j < w), (i >= 0) & (i < h)
+    buffer[(buffer.shape[0] - 1 - rows[rin])[:, None], cols[cin][None, :], :3] = rgb[i[rin]][:, j[cin]]
 
 
 def write_png(path: str | os.PathLike, rgb: np.ndarray) -> None:
