@@ -23,7 +23,7 @@ never bridged): once per run for the plain map (each cell the grid point nearest
 columns), once per state for the map over the image (the values interpolated linearly, the image
 averaged over the same cells). A `MapPainter` keeps its figures from map to map, with a fixed layout,
 draws what stays (the axes, ticks and labels) once and copies it for each map (matplotlib's blitting),
-and the PNG is encoded by OpenCV.
+pastes the pictures into the figure's pixels, and the PNG is encoded by OpenCV.
 """
 
 from __future__ import annotations
