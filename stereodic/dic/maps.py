@@ -419,7 +419,8 @@ class MapPainter:
     pixels (each a raster coloured by `colours`: one image, not a patch per point), the colour bar's
     range, map, arrows and ticks, and the words. The layout is fixed (no layout engine runs per map), and
     what stays over a run - the axes with their ticks and labels, for one MapAxes and one image size - is
-    drawn once and copied (matplotlib's blitting): each map draws its pictures, colour bar and titles on it."""
+    drawn once and copied (matplotlib's blitting): on it each map pastes its pictures (`_paste`) and draws
+    its colour bar and titles."""
 
     def __init__(self):
         self._layouts: dict[bool, _Layout] = {}
