@@ -3,12 +3,15 @@
 Each state's file holds the measured surface: the converged points (mm, the rig's reporting frame, their
 position in that state), quads between grid neighbours whose four corners converged, and point data:
 displacement (3 components, mm), exx, eyy, exy (the run's strain measure, NaN where not valid),
-zncc_left, zncc_right, gap_mm. ASCII, written atomically; open the .pvd in ParaView to step through the
+zncc_left, zncc_right, gap_mm. Arrays in VTK's inline binary form (base64 of a UInt64 byte count and the
+little-endian values: a state of 90,000 points in milliseconds, where decimal text took half a second),
+written atomically; open the .pvd in ParaView to step through the
 states (warp by `displacement` on state 0 to see the deformation).
 """
 
 from __future__ import annotations
 
+import base64
 import os
 from pathlib import Path
 from typing import Iterable
@@ -19,10 +22,11 @@ from calib.atomic import write_text
 from stereodic.dic3d.stereo import StereoState
 
 
-def _array(name: str, a: np.ndarray, ncomp: int = 1) -> str:
-    body = " ".join(f"{v:.9g}" for v in np.asarray(a, np.float64).ravel())
-    return (f'<DataArray type="Float64" Name="{name}" NumberOfComponents="{ncomp}" format="ascii">'
-            f"{body}</DataArray>")
+def _array(name: str, a: np.ndarray, ncomp: int = 1, kind: str = "Float64") -> str:
+    """One DataArray: `a` as little-endian `kind` (Float64 or Int64), inline binary (module docstring)."""
+    raw = np.ascontiguousarray(a, "<f8" if kind == "Float64" else "<i8").tobytes()
+    body = base64.b64encode(np.uint64(len(raw)).astype("<u8").tobytes() + raw).decode("ascii")
+    return f'<DataArray type="{kind}" Name="{name}" NumberOfComponents="{ncomp}" format="binary">{body}</DataArray>'
 
 
 def polydata(state: StereoState) -> str:
@@ -36,9 +40,9 @@ def polydata(state: StereoState) -> str:
             _array("zncc_right", state.right.zncc[ok]), _array("gap_mm", state.gap_mm[ok])]
     if state.measure is not None:
         data += [_array(c, getattr(state.measure, c)[ok]) for c in ("exx", "eyy", "exy")]
-    ints = lambda name, a: (f'<DataArray type="Int64" Name="{name}" format="ascii">'  # noqa: E731
-                            f'{" ".join(map(str, np.asarray(a).ravel()))}</DataArray>')
-    return ('<?xml version="1.0"?>\n<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian">\n<PolyData>\n'
+    ints = lambda name, a: _array(name, a, 1, "Int64")  # noqa: E731
+    return ('<?xml version="1.0"?>\n<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" '
+            'header_type="UInt64">\n<PolyData>\n'
             f'<Piece NumberOfPoints="{int(ok.sum())}" NumberOfPolys="{len(conn)}">\n'
             f'<PointData Vectors="displacement">\n' + "\n".join(data) + "\n</PointData>\n"
             f"<Points>{_array('points', state.points[ok], 3)}</Points>\n"

@@ -92,6 +92,22 @@ def _rows(path):
         return list(csv.DictReader(fh))
 
 
+def _vtp_arrays(path) -> dict:
+    """The DataArrays of a VTK XML file in inline binary form, read as VTK's file format describes it
+    (base64 of a header_type byte count, then the values in byte_order), by name."""
+    import base64
+    import xml.etree.ElementTree as ET
+    root = ET.parse(path).getroot()
+    assert root.get("byte_order") == "LittleEndian" and root.get("header_type") == "UInt64"
+    out = {}
+    for a in root.iter("DataArray"):
+        assert a.get("format") == "binary"
+        raw = base64.b64decode(a.text)
+        n = int(np.frombuffer(raw[:8], "<u8")[0])
+        out[a.get("Name")] = np.frombuffer(raw[8:8 + n], {"Float64": "<f8", "Int64": "<i8"}[a.get("type")])
+    return out
+
+
 def test_command_writes_csv_npz_vtk_png(small, tmp_path):
     out = tmp_path / "out"
     assert main(["dic", str(small / "rig.npz"), str(small), "--step", "10", "--strain-window", "5",
@@ -108,8 +124,15 @@ def test_command_writes_csv_npz_vtk_png(small, tmp_path):
     assert np.mean([float(r["dZ"]) for r in ok]) == pytest.approx(1.5, abs=0.01)
     with np.load(out / "dic.npz") as z:
         assert z["points"].shape[0] == 3 and json.loads(str(z["meta"]))["format"] == "stereodic.dic/1"
-    vtp = (out / "vtk" / "state001.vtp").read_text()
-    assert "<Polys>" in vtp and 'Name="displacement"' in vtp
+    arrays = _vtp_arrays(out / "vtk" / "state001.vtp")
+    with np.load(out / "dic.npz") as z:
+        ok = z["converged"][1]
+        assert np.array_equal(arrays["points"].reshape(-1, 3), z["points"][1][ok])
+        assert np.array_equal(arrays["displacement"].reshape(-1, 3), z["displacement"][1][ok])
+        assert np.array_equal(arrays["exx"], z["exx"][1][ok], equal_nan=True)
+    quads = (ok[:-1, :-1] & ok[1:, :-1] & ok[1:, 1:] & ok[:-1, 1:]).sum()
+    assert arrays["connectivity"].size == 4 * quads and arrays["offsets"][-1] == 4 * quads
+    assert arrays["connectivity"].max() == ok.sum() - 1
     assert (out / "vtk" / "states.pvd").read_text().count("<DataSet") == 3
     assert (out / "maps" / "state2_exx.png").stat().st_size > 1000
 
