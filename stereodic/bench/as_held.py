@@ -16,7 +16,7 @@ capture's ray errors are mostly a few numbers: the poses' errors, carried into e
 error moves all its points together). One capture's ratio is therefore itself a random number (on
 the non-central lens at 640 x 512, over six captures with other sensor noise: 2.47, 0.88, 1.17, 1.05,
 1.58, 0.83; the first capture's pose errors are 7.1 for 6 x 6 numbers in Mahalanobis distance,
-chi^2 50.6, a 1-in-20 draw; docs/calibration.md).
+chi^2 50.6 for 36, p = 0.054; docs/calibration.md).
 """
 
 from __future__ import annotations
