@@ -102,7 +102,7 @@ def test_adaptive_does_not_bias_local_bumps(adaptive_runs):
 def test_adaptive_uncertainty_with_its_bias_covers_the_error(adaptive_runs):
     """The reported error of the adaptive fit (the noise after smoothing and the estimated bias) against
     its RMS error over the eight realisations and the whole field: the noise alone covers 73 % of it
-    (the bumps and the long wave bend the larger windows), the two together 93 %."""
+    (the bumps and the long wave bend the larger windows), the two together 94 %."""
     field, smooth, ada, fix, last = adaptive_runs
     err = np.sqrt(np.mean((ada - field) ** 2))
     noise = np.sqrt(np.mean((last.noise[0] * last.gain[0]) ** 2))
