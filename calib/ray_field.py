@@ -127,12 +127,13 @@ def smooth_plane(raw: Lines, z_mm: float, smoother: Smoother | Adaptive,
 
     regularised: whether the smoothed points are the result (else the raw points stay, and only their
     noise is estimated). Returns (the smoothed (H, W, 2) points, None unless regularised; the (H, W)
-    float32 1-sigma uncertainty (mm, RMS over x and y) of the resulting points; the mean window
+    float32 1-sigma uncertainty (mm, RMS over x and y) of the resulting points (the noise after
+    smoothing and the smoothing's estimated bias, `calib.regularise.Regularised.bias`); the mean window
     (pixels)). Each field is smoothed on its own, so smoothing the two planes one after the other gives
     the same result as together with half the working arrays (at 5 MP they set the peak memory).
     """
     reg = smooth_fields(raw.at(z_mm).transpose(2, 0, 1), raw.valid, smoother)
-    noise = reg.noise * reg.gain if regularised else reg.noise
+    noise = np.hypot(reg.noise * reg.gain, reg.bias[:, None, None]) if regularised else reg.noise
     sigma = np.sqrt((noise[0] ** 2 + noise[1] ** 2) / 2)
     return reg.fields.transpose(1, 2, 0) if regularised else None, sigma, float(np.nanmean(reg.window))
 

@@ -20,6 +20,14 @@ noise of the smaller window (the balance that makes the method near-optimal). Th
 median-filtered (isolated false alarms of the test), eroded (never above the median) and blurred, and
 the fit interpolated between the two neighbouring windows of the ladder, so the result has no seams.
 
+The bias the chosen windows let through is estimated after the fact (`_bias`): where the field bends
+within a window its fit departs from the next smaller window's by the bias (a local cubic's bias
+grows as the window's fourth power, so the smaller window's is a sixteenth of it) plus the noise of
+their difference, sigma^2 (v_smaller - v_chosen) (nested fits); the mean over the image of the squared
+step, less that noise, is the fields' mean squared bias, which the uncertainty adds to the noise. On a
+field with local bumps (`tests/calib/test_regularise.py`) the noise alone covers 73 % of the RMS error,
+the two together 94 %.
+
 A global polynomial (`_base`) is removed first and the local fits smooth the remainder: of degree 3,
 or up to 6 where that models the field to within its noise (a Brown-Conrady lens's r^4 terms; not a
 free-form lens's bumps), so that what is left for the local fits is small and the large windows fit it
@@ -446,12 +454,15 @@ class Adaptive:
 class Regularised:
     """Result of `smooth_fields`. fields: (K, H, W) float64 smoothed, NaN outside valid; noise: (K, H, W)
     float32 estimated 1-sigma noise of the raw fields; gain: (K, H, W) float32 the noise after / before
-    at each pixel; window: (H, W) float32 the effective window (pixels) used, averaged over the fields."""
+    at each pixel; window: (H, W) float32 the effective window (pixels) used, averaged over the fields;
+    bias: (K,) the RMS bias of each smoothed field, estimated (`_bias`; 0 with one window), in the
+    fields' units."""
 
     fields: np.ndarray
     noise: np.ndarray
     gain: np.ndarray
     window: np.ndarray
+    bias: np.ndarray
 
 
 def window_halves(h: int, w: int) -> list[int]:
@@ -730,6 +741,7 @@ def smooth_fields(fields: np.ndarray, valid: np.ndarray, smoother: Smoother | Ad
     noise = np.empty((k, h, w), np.float32)
     gain = np.empty((k, h, w), np.float32)
     window = np.zeros((h, w), np.float32)
+    bias = np.zeros(k)
     for i in range(k):
         base = _base(fields[i], valid)
         rem = fitter.filled(_masked(fields[i] - base, valid))
@@ -744,4 +756,18 @@ def smooth_fields(fields: np.ndarray, valid: np.ndarray, smoother: Smoother | Ad
         out[i], gain[i], win = _blend(fits, index, pv, pu, base, valid, windows)
         noise[i] = np.where(valid, sigma, np.nan)
         window += win / k
-    return Regularised(out, noise, gain, window)
+        if nw > 1:
+            smaller = _blend(fits, np.maximum(index - 1, 0).astype(np.float32), pv, pu, base, valid, windows)
+            bias[i] = _bias(out[i], gain[i], smaller[0], smaller[1], sigma, valid)
+    return Regularised(out, noise, gain, window, bias)
+
+
+def _bias(value: np.ndarray, gain: np.ndarray, smaller: np.ndarray, smaller_gain: np.ndarray, sigma: np.ndarray,
+          valid: np.ndarray) -> float:
+    """The RMS bias of a smoothed field `value` (H, W) of noise gain `gain` (noise after / before), from
+    its fit at one window of the ladder smaller, `smaller` with its gain `smaller_gain`, and the raw
+    noise `sigma` (module docstring): sqrt(max(0, mean (value - smaller)^2 - mean sigma^2 (g_s^2 -
+    g^2))) over the valid pixels."""
+    step = (value - smaller)[valid]
+    noise = sigma[valid] ** 2 * np.maximum(smaller_gain[valid].astype(np.float64) ** 2 - gain[valid] ** 2, 0.0)
+    return float(np.sqrt(max(np.mean(step ** 2) - np.mean(noise), 0.0))) if step.size else 0.0

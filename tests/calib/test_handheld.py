@@ -216,14 +216,25 @@ def test_reduced_prvm_of_one_pose(synthetic, tmp_path, capsys):
 
 
 @pytest.mark.slow
+def test_simulated_as_held_noncentral_uncertainty_covers_the_errors(tmp_path):
+    """The simulator's as-held capture of the non-central lens, small (320 x 256; two captures with
+    other sensor noise): the rays' errors over their reported 1-sigma (which holds the regularisation's
+    estimated bias) and the poses' within 0.5-2, pooled over the captures and for each."""
+    from stereodic.bench.as_held import held_accuracy
+    r = held_accuracy("noncentral", 320, 256, tmp_path)
+    assert 0.5 <= r["ray_ratio"] <= 2 and 0.5 <= r["pose_ratio"] <= 2
+    assert all(0.5 <= x <= 2 for x in r["ray_ratios"] + r["pose_ratios"])
+
+
+@pytest.mark.slow
 def test_simulated_as_held_noncentral_full_size(tmp_path):
     """The simulator's as-held capture (7 poses about 420 mm, tipped 4-15 degrees, 0.5 mm cover glass,
     defocus, gamma 2.2, 90 % fill) of the non-central lens at 640 x 512: the rays over the poses' depth
     range within 2x of a staged calibration of the same lens with as many frames and within 0.006 px; the
-    poses' errors 0.5-2 times their reported 1-sigma, the rays' below 3 times (measured: 1.7x, 0.0016 px,
-    1.6, 2.5; docs/calibration.md)."""
+    poses' and the rays' errors 0.5-2 times their reported 1-sigma, over the two captures (the first
+    capture's rays alone: 2.5, an unlucky draw of its poses' errors; docs/calibration.md)."""
     from stereodic.bench.as_held import held_accuracy
     r = held_accuracy("noncentral", 640, 512, tmp_path)
     assert r["total"] <= 2 * r["staged"] and r["total"] <= 0.006
-    assert 0.5 <= r["pose_ratio"] <= 2 and 0.5 <= r["ray_ratio"] <= 3
+    assert 0.5 <= r["pose_ratio"] <= 2 and 0.5 <= r["ray_ratio"] <= 2
     assert not any("directions are uncertain" in n for n in r["notes"])

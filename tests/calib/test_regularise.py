@@ -99,6 +99,29 @@ def test_adaptive_does_not_bias_local_bumps(adaptive_runs):
         assert np.median(last.window[near]) <= 41                          # small windows chosen there
 
 
+def test_adaptive_uncertainty_with_its_bias_covers_the_error(adaptive_runs):
+    """The reported error of the adaptive fit (the noise after smoothing and the estimated bias) against
+    its RMS error over the eight realisations and the whole field: the noise alone covers 73 % of it
+    (the bumps and the long wave bend the larger windows), the two together 94 %."""
+    field, smooth, ada, fix, last = adaptive_runs
+    err = np.sqrt(np.mean((ada - field) ** 2))
+    noise = np.sqrt(np.mean((last.noise[0] * last.gain[0]) ** 2))
+    assert noise < 0.8 * err
+    assert np.hypot(noise, last.bias[0]) == pytest.approx(err, rel=0.12)
+
+
+def test_bias_of_a_field_the_windows_follow_exactly_is_zero():
+    """A cubic with white noise: every window follows it, so the fits differ by their noise alone and
+    the estimated bias is 0 (the error is the noise after smoothing, to 15 %)."""
+    v, u = np.mgrid[0:H, 0:W].astype(float)
+    cubic = 1e-6 * (u ** 3 - 2 * v ** 3) + 1e-4 * u * v - 0.01 * u + 3.0
+    reg = smooth_fields((cubic + np.random.default_rng(2).normal(0, SIGMA, (H, W)))[None], np.ones((H, W), bool),
+                        Adaptive(half_window=10))
+    noise = np.sqrt(np.mean((reg.noise[0] * reg.gain[0]) ** 2))
+    assert reg.bias[0] < 0.2 * noise
+    assert np.sqrt(np.mean((reg.fields[0] - cubic) ** 2)) == pytest.approx(noise, rel=0.15)
+
+
 def _lstsq_polynomial(field: np.ndarray, valid: np.ndarray, degree: int) -> np.ndarray:
     """The least-squares polynomial of total degree `degree` over the valid pixels (numpy's lstsq on a
     monomial design matrix): the independent reference for `_base`."""
