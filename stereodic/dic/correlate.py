@@ -223,14 +223,29 @@ class _PairSolver:
         if idx.size == 0:
             return
         matches = consistent_matches(ref_features, dfm_features)
+        self._lattice_first(idx, lambda i: self._solve_from(i, matches))
+
+    def start_from_warps(self, idx: np.ndarray) -> None:
+        """Solve the pending points `idx` from the warps in self.warp (a start: e.g. the previous image's
+        warps) as `start_from_features` does from the feature guess: on large grids the lattice points
+        from their start, then every other point from the blend of its solved lattice corners (closer
+        than a start that the motion has since left), the points no solved corner reaches from their
+        own start. Points that fail or end below the seed ZNCC stay pending."""
+        self._lattice_first(idx, lambda i: self._solve_from(i, None))
+
+    def _lattice_first(self, idx: np.ndarray, own: Callable[[np.ndarray], None]) -> None:
+        """Solve the pending points `idx`: `own(points)` solves points from their own start; on large
+        grids the lattice's first, then the others from their lattice corners (`start_from_features`)."""
         ny, nx = self.grid.shape
         if min(ny, nx) >= 4 * LATTICE:
             r, c = np.divmod(idx, nx)
-            self._solve_from(idx[(r % LATTICE == 0) & (c % LATTICE == 0)], matches)
+            own(idx[(r % LATTICE == 0) & (c % LATTICE == 0)])
             blended = guesses_from_lattice(self.xs, self.ys, nx, LATTICE, self.warp, self.zncc, self.status,
                                            self.done)
-            self._solve_from(blended, None)
-        self._solve_from(idx[(self.done[idx] == 0) & (self.status[idx] == UNREACHED)], matches)
+            member = np.zeros(self.xs.size, bool)
+            member[idx] = True
+            self._solve_from(blended[member[blended]], None)
+        own(idx[(self.done[idx] == 0) & (self.status[idx] == UNREACHED)])
 
     def _solve_from(self, idx: np.ndarray, matches: tuple[np.ndarray, np.ndarray] | None) -> None:
         """Solve points `idx` from their feature guess (`feature_guess` of `matches`; None: from
@@ -461,8 +476,9 @@ def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid
     order, pixels), in the deformed image (`def_img` and its B-spline).
 
     start: warps to start from (points with status OK), e.g. the previous image's result (only its
-    translations with `translation_only`); points that fail from there, or end below the seed ZNCC,
-    start again from their neighbours. Without a start (or one that measured nothing), or when it fails
+    translations with `translation_only`; on large grids the lattice's points from there, the others
+    from the blend of their solved lattice corners where they have one: `_PairSolver.start_from_warps`);
+    points that fail from there, or end below the seed ZNCC, start again from their neighbours. Without a start (or one that measured nothing), or when it fails
     on more than JUMP_SHARE of its points (the motion jumped), every pending point is first solved from its feature guess
     (`settings.feature_guess`: `initial_guess.feature_guess`), all in one batch. The others are reached by reliability-guided propagation from
     these and from seeds (`seeds`: flat grid indices; `search`: the seeds' integer search, see
@@ -487,11 +503,10 @@ def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid
             solver.warp[carry, nb] = start.warp[carry, nb]
         else:
             solver.warp[carry] = start.warp[carry]
-        solver.solve(carry)
+        solver.start_from_warps(carry)
         # a second chance from their neighbours for the failed points, and for those below the seed
         # ZNCC: a stale start (a larger motion than the last image's) can end in a false optimum
-        redo = carry[(solver.status[carry] != OK) | ~(solver.zncc[carry] >= s.seed_zncc)]
-        solver.done[redo] = 0
+        redo = carry[solver.done[carry] == 0]
     if s.feature_guess and (start is None or carry.size == 0 or redo.size > JUMP_SHARE * carry.size):
         # both images' features at once, and the reference's noise estimate (needed after the solve)
         # meanwhile: OpenCV and numpy's loops release the GIL
