@@ -466,6 +466,12 @@ class ImageRef:
         self._subsets[key] = (np.array(xs, np.float64), np.array(ys, np.float64), data)
         return data
 
+    def status(self, xs: np.ndarray, ys: np.ndarray, settings: DicSettings) -> np.ndarray:
+        """`subset_status` of the points (xs, ys): read from the kept subsets (`subsets`) where they are
+        kept, computed otherwise."""
+        data = self.subsets(xs, ys, settings)
+        return subset_status(self.bspline, xs, ys, settings) if data is None else data[:, 0].astype(np.int8)
+
 
 def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid: Grid, xs: np.ndarray,
                    ys: np.ndarray, settings: DicSettings = DicSettings(), *, seeds: Sequence[int] = (),
