@@ -20,6 +20,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
+
+from stereodic.dic.background import threads
 
 MAX_FEATURES = 4000   # ORB features kept per image (the strongest corners)
 DETECT_SIDE = 1024    # features are found on the image shrunk until its longer side is at most this (pixels)
@@ -205,14 +208,12 @@ def feature_guess(matches: tuple[np.ndarray, np.ndarray], xs: np.ndarray, ys: np
 
 
 def _nearest(p: np.ndarray, xs: np.ndarray, ys: np.ndarray, k: int) -> np.ndarray:
-    """(N, k) indices of the k points of p (M, 2) nearest to each (xs, ys), by blocks of rows of the
-    distance matrix (at most 2^22 distances at a time)."""
-    out = np.empty((xs.size, k), np.int64)
-    block = max(1, 2 ** 22 // len(p))
-    for a in range(0, xs.size, block):
-        d = (xs[a:a + block, None] - p[:, 0]) ** 2 + (ys[a:a + block, None] - p[:, 1]) ** 2
-        out[a:a + block] = np.argpartition(d, k - 1, axis=1)[:, :k] if k < len(p) else np.arange(k)
-    return out
+    """(N, k) indices of the k points of p (M, 2) nearest to each (xs, ys) (a k-d tree, queried on the
+    run's threads)."""
+    if k >= len(p):
+        return np.broadcast_to(np.arange(len(p)), (xs.size, len(p))).copy()
+    _, idx = cKDTree(p).query(np.stack([xs, ys], 1), k=k, workers=threads())
+    return idx.reshape(xs.size, k).astype(np.int64)
 
 
 def _robust_affine(p: np.ndarray, q: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
