@@ -16,11 +16,11 @@ Positions in pixels, (x, y) = (column, row) of the reference image.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.spatial import cKDTree
 
 from stereodic.dic.background import threads
 
@@ -208,12 +208,19 @@ def feature_guess(matches: tuple[np.ndarray, np.ndarray], xs: np.ndarray, ys: np
 
 
 def _nearest(p: np.ndarray, xs: np.ndarray, ys: np.ndarray, k: int) -> np.ndarray:
-    """(N, k) indices of the k points of p (M, 2) nearest to each (xs, ys) (a k-d tree, queried on the
-    run's threads)."""
-    if k >= len(p):
-        return np.broadcast_to(np.arange(len(p)), (xs.size, len(p))).copy()
-    _, idx = cKDTree(p).query(np.stack([xs, ys], 1), k=k, workers=threads())
-    return idx.reshape(xs.size, k).astype(np.int64)
+    """(N, k) indices of the k points of p (M, 2) nearest to each (xs, ys), by blocks of rows of the
+    distance matrix (at most 2^20 distances at a time), the blocks side by side on the run's threads
+    (numpy releases the GIL)."""
+    out = np.empty((xs.size, k), np.int64)
+    block = max(1, 2 ** 20 // len(p))
+
+    def rows(a: int) -> None:
+        d = (xs[a:a + block, None] - p[:, 0]) ** 2 + (ys[a:a + block, None] - p[:, 1]) ** 2
+        out[a:a + block] = np.argpartition(d, k - 1, axis=1)[:, :k] if k < len(p) else np.arange(k)
+
+    with ThreadPoolExecutor(threads()) as pool:
+        list(pool.map(rows, range(0, xs.size, block)))
+    return out
 
 
 def _robust_affine(p: np.ndarray, q: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
