@@ -9,12 +9,12 @@ Displacements in pixels, u along x (columns), v along y (rows), at points of the
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
+from stereodic.dic.background import side_by_side
 from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import (INCONSISTENT, LOW_TEXTURE, LOW_ZNCC, OK, SHAPE_PARAMS, UNREACHED,
                                 quadratic_fit_matrix, reference_status, reference_width, shift_warp, solve_points)
@@ -516,10 +516,9 @@ def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid
     if s.feature_guess and (start is None or carry.size == 0 or redo.size > JUMP_SHARE * carry.size):
         # both images' features at once, and the reference's noise estimate (needed after the solve)
         # meanwhile: OpenCV and numpy's loops release the GIL
-        with ThreadPoolExecutor(2) as pool:
-            dfm_features = pool.submit(image_features, def_img)
-            pool.submit(lambda: ref.sigma)
-            solver.start_from_features(ref.features(), dfm_features.result())
+        ref_features, dfm_features, _ = side_by_side(ref.features, lambda: image_features(def_img),
+                                                     lambda: ref.sigma)
+        solver.start_from_features(ref_features, dfm_features)
     solver.fill(seeds)
     noise = ref.noise(xs, ys, s.half)
     solver.screen(noise)

@@ -16,13 +16,12 @@ Positions in pixels, (x, y) = (column, row) of the reference image.
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from stereodic.dic.background import threads
+from stereodic.dic.background import thread_map
 
 MAX_FEATURES = 4000   # ORB features kept per image (the strongest corners)
 DETECT_SIDE = 1024    # features are found on the image shrunk until its longer side is at most this (pixels)
@@ -218,8 +217,7 @@ def _nearest(p: np.ndarray, xs: np.ndarray, ys: np.ndarray, k: int) -> np.ndarra
         d = (xs[a:a + block, None] - p[:, 0]) ** 2 + (ys[a:a + block, None] - p[:, 1]) ** 2
         out[a:a + block] = np.argpartition(d, k - 1, axis=1)[:, :k] if k < len(p) else np.arange(k)
 
-    with ThreadPoolExecutor(threads()) as pool:
-        list(pool.map(rows, range(0, xs.size, block)))
+    thread_map(rows, range(0, xs.size, block))
     return out
 
 

@@ -8,13 +8,12 @@ for non-central ones the EVM says how far off, see `stereodic.stereo.triangulate
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from stereodic.dic.background import threads
+from stereodic.dic.background import thread_map
 from stereodic.stereo.rig import Rig
 from stereodic.virtual.undistort import undistort_image
 
@@ -101,8 +100,7 @@ def row_alignment(left: np.ndarray, right: np.ndarray, *, max_dy: int | None = N
     inside = [(x, y) for x, y in ([] if corners is None else np.rint(corners[:, 0]).astype(int))
               if half + max_dy <= y < h - half - max_dy and half <= x < w - half]
     # the searches are independent and OpenCV releases the GIL: side by side on the run's threads
-    with ThreadPoolExecutor(threads()) as pool:
-        seeds = [m for m in pool.map(lambda xy: _band_match(lf, rf, *xy, half, max_dy), inside) if m is not None]
+    seeds = [m for m in thread_map(lambda xy: _band_match(lf, rf, *xy, half, max_dy), inside) if m is not None]
     if not seeds:
         return RowAlignment(*(np.empty(0) for _ in range(5)))
     x, y, du, dv = np.array(seeds, np.float64).T
