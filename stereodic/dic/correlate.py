@@ -484,10 +484,11 @@ def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid
     start: warps to start from (points with status OK), e.g. the previous image's result (only its
     translations with `translation_only`; on large grids the lattice's points from there, the others
     from the blend of their solved lattice corners where they have one: `_PairSolver.start_from_warps`);
-    points that fail from there, or end below the seed ZNCC, start again from their neighbours. Without a start (or one that measured nothing), or when it fails
-    on more than JUMP_SHARE of its points (the motion jumped), every pending point is first solved from its feature guess
-    (`settings.feature_guess`: `initial_guess.feature_guess`), all in one batch. The others are reached by reliability-guided propagation from
-    these and from seeds (`seeds`: flat grid indices; `search`: the seeds' integer search, see
+    points that fail from there, or end below the seed ZNCC, start again from their neighbours. Without
+    a start (or one that measured nothing), or when it fails on more than JUMP_SHARE of its points (the
+    motion jumped), every pending point is first solved from its feature guess (`settings.feature_guess`:
+    `initial_guess.feature_guess`), in a few large batches. The others are reached by reliability-guided
+    propagation from these and from seeds (`seeds`: flat grid indices; `search`: the seeds' integer search, see
     `correlate_sequence`); with a start that measured points, automatic seeds are tried only at those
     (a point that failed in the previous image is reached from its neighbours, not searched for again at
     every image). skip: (N,) bool points left alone, reported with `skip_status` (N,) int8 (default
