@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import keyword
+import os
 import sys
 
 from calib import __version__
@@ -41,6 +42,16 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def thread_limits() -> None:
+    """OMP_NUM_THREADS, when set, for OpenCV's and numba's own thread pools too (OPENCV_FOR_THREADS_NUM,
+    NUMBA_NUM_THREADS, unless set: both are read when the library loads, after this), so that a run
+    told to use n threads (`stereodic.dic.background.threads`) uses n cores in every library."""
+    n = os.environ.get("OMP_NUM_THREADS", "").strip()
+    if n.isdigit() and int(n) > 0:
+        os.environ.setdefault("OPENCV_FOR_THREADS_NUM", n)
+        os.environ.setdefault("NUMBA_NUM_THREADS", n)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one `stereodic` command, as the shell does (`stereodic COMMAND ARGS...`).
 
@@ -57,6 +68,7 @@ def main(argv: list[str] | None = None) -> int:
         written), 1 a hardware or cluster fault or an internal error, 130 interrupted.
     """
     argv = sys.argv[1:] if argv is None else list(argv)
+    thread_limits()
     parser = build_parser(argv[0] if argv and argv[0] in COMMANDS else None)
     args = parser.parse_args(argv)
     from stereodic.cli.common import check_paths, new_folders, remove_empty

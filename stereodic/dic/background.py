@@ -1,4 +1,10 @@
-"""Output work off the critical path: tasks run in forked child processes beside the caller.
+"""Work beside the caller: the threads a run may use (`threads`), work that releases the GIL (OpenCV,
+numpy, the compiled kernels) spread over them (`thread_map`, `side_by_side`), and output work off the
+critical path in forked child processes (`Background`).
+
+Every pool here keeps to `threads()` busy threads, the caller's included, so that a run at
+OMP_NUM_THREADS=1 uses one core (the command line passes the same limit to OpenCV's and numba's own
+pools: `stereodic.cli.thread_limits`).
 
 Formatting a CSV, drawing PNG maps with matplotlib and writing VTK files are Python work that holds the
 interpreter's lock, so threads would not overlap them; forked processes do, each with a copy-on-write view
@@ -16,7 +22,10 @@ from __future__ import annotations
 
 import multiprocessing
 import os
-from typing import Callable
+from concurrent.futures import ThreadPoolExecutor
+from typing import Callable, Iterable, TypeVar
+
+T = TypeVar("T")
 
 
 def threads() -> int:
@@ -25,6 +34,27 @@ def threads() -> int:
         return max(1, int(os.environ.get("OMP_NUM_THREADS", "")))
     except ValueError:
         return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
+
+
+def thread_map(func: Callable[..., T], items: Iterable) -> list[T]:
+    """[func(item) for item in items], in order, on `threads()` threads (the caller waits; with one
+    thread the caller runs them)."""
+    n = threads()
+    if n < 2:
+        return [func(item) for item in items]
+    with ThreadPoolExecutor(n) as pool:
+        return list(pool.map(func, items))
+
+
+def side_by_side(*tasks: Callable[[], T]) -> list[T]:
+    """The results of `tasks` (callables without arguments), in order: the caller runs the first, at
+    most `threads()` - 1 pool threads the others meanwhile (with one thread, the caller runs them all)."""
+    n = min(threads(), len(tasks))
+    if n < 2:
+        return [task() for task in tasks]
+    with ThreadPoolExecutor(n - 1) as pool:
+        later = [pool.submit(task) for task in tasks[1:]]
+        return [tasks[0]()] + [f.result() for f in later]
 
 
 class Background:

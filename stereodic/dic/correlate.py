@@ -9,12 +9,12 @@ Displacements in pixels, u along x (columns), v along y (rows), at points of the
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
+from stereodic.dic.background import side_by_side
 from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import (INCONSISTENT, LOW_TEXTURE, LOW_ZNCC, OK, SHAPE_PARAMS, UNREACHED,
                                 quadratic_fit_matrix, reference_status, reference_width, shift_warp, solve_points)
@@ -223,14 +223,29 @@ class _PairSolver:
         if idx.size == 0:
             return
         matches = consistent_matches(ref_features, dfm_features)
+        self._lattice_first(idx, lambda i: self._solve_from(i, matches))
+
+    def start_from_warps(self, idx: np.ndarray) -> None:
+        """Solve the pending points `idx` from the warps in self.warp (a start: e.g. the previous image's
+        warps) as `start_from_features` does from the feature guess: on large grids the lattice points
+        from their start, then every other point from the blend of its solved lattice corners (closer
+        than a start that the motion has since left), the points no solved corner reaches from their
+        own start. Points that fail or end below the seed ZNCC stay pending."""
+        self._lattice_first(idx, lambda i: self._solve_from(i, None))
+
+    def _lattice_first(self, idx: np.ndarray, own: Callable[[np.ndarray], None]) -> None:
+        """Solve the pending points `idx`: `own(points)` solves points from their own start; on large
+        grids the lattice's first, then the others from their lattice corners (`start_from_features`)."""
         ny, nx = self.grid.shape
         if min(ny, nx) >= 4 * LATTICE:
             r, c = np.divmod(idx, nx)
-            self._solve_from(idx[(r % LATTICE == 0) & (c % LATTICE == 0)], matches)
+            own(idx[(r % LATTICE == 0) & (c % LATTICE == 0)])
             blended = guesses_from_lattice(self.xs, self.ys, nx, LATTICE, self.warp, self.zncc, self.status,
                                            self.done)
-            self._solve_from(blended, None)
-        self._solve_from(idx[(self.done[idx] == 0) & (self.status[idx] == UNREACHED)], matches)
+            member = np.zeros(self.xs.size, bool)
+            member[idx] = True
+            self._solve_from(blended[member[blended]], None)
+        own(idx[(self.done[idx] == 0) & (self.status[idx] == UNREACHED)])
 
     def _solve_from(self, idx: np.ndarray, matches: tuple[np.ndarray, np.ndarray] | None) -> None:
         """Solve points `idx` from their feature guess (`feature_guess` of `matches`; None: from
@@ -451,6 +466,12 @@ class ImageRef:
         self._subsets[key] = (np.array(xs, np.float64), np.array(ys, np.float64), data)
         return data
 
+    def status(self, xs: np.ndarray, ys: np.ndarray, settings: DicSettings) -> np.ndarray:
+        """`subset_status` of the points (xs, ys): read from the kept subsets (`subsets`) where they are
+        kept, computed otherwise."""
+        data = self.subsets(xs, ys, settings)
+        return subset_status(self.bspline, xs, ys, settings) if data is None else data[:, 0].astype(np.int8)
+
 
 def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid: Grid, xs: np.ndarray,
                    ys: np.ndarray, settings: DicSettings = DicSettings(), *, seeds: Sequence[int] = (),
@@ -461,11 +482,13 @@ def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid
     order, pixels), in the deformed image (`def_img` and its B-spline).
 
     start: warps to start from (points with status OK), e.g. the previous image's result (only its
-    translations with `translation_only`); points that fail from there, or end below the seed ZNCC,
-    start again from their neighbours. Without a start (or one that measured nothing), or when it fails
-    on more than JUMP_SHARE of its points (the motion jumped), every pending point is first solved from its feature guess
-    (`settings.feature_guess`: `initial_guess.feature_guess`), all in one batch. The others are reached by reliability-guided propagation from
-    these and from seeds (`seeds`: flat grid indices; `search`: the seeds' integer search, see
+    translations with `translation_only`; on large grids the lattice's points from there, the others
+    from the blend of their solved lattice corners where they have one: `_PairSolver.start_from_warps`);
+    points that fail from there, or end below the seed ZNCC, start again from their neighbours. Without
+    a start (or one that measured nothing), or when it fails on more than JUMP_SHARE of its points (the
+    motion jumped), every pending point is first solved from its feature guess (`settings.feature_guess`:
+    `initial_guess.feature_guess`), in a few large batches. The others are reached by reliability-guided
+    propagation from these and from seeds (`seeds`: flat grid indices; `search`: the seeds' integer search, see
     `correlate_sequence`); with a start that measured points, automatic seeds are tried only at those
     (a point that failed in the previous image is reached from its neighbours, not searched for again at
     every image). skip: (N,) bool points left alone, reported with `skip_status` (N,) int8 (default
@@ -487,18 +510,16 @@ def register_image(ref: ImageRef, def_img: np.ndarray, def_b: BSplineImage, grid
             solver.warp[carry, nb] = start.warp[carry, nb]
         else:
             solver.warp[carry] = start.warp[carry]
-        solver.solve(carry)
+        solver.start_from_warps(carry)
         # a second chance from their neighbours for the failed points, and for those below the seed
         # ZNCC: a stale start (a larger motion than the last image's) can end in a false optimum
-        redo = carry[(solver.status[carry] != OK) | ~(solver.zncc[carry] >= s.seed_zncc)]
-        solver.done[redo] = 0
+        redo = carry[solver.done[carry] == 0]
     if s.feature_guess and (start is None or carry.size == 0 or redo.size > JUMP_SHARE * carry.size):
         # both images' features at once, and the reference's noise estimate (needed after the solve)
         # meanwhile: OpenCV and numpy's loops release the GIL
-        with ThreadPoolExecutor(2) as pool:
-            dfm_features = pool.submit(image_features, def_img)
-            pool.submit(lambda: ref.sigma)
-            solver.start_from_features(ref.features(), dfm_features.result())
+        ref_features, dfm_features, _ = side_by_side(ref.features, lambda: image_features(def_img),
+                                                     lambda: ref.sigma)
+        solver.start_from_features(ref_features, dfm_features)
     solver.fill(seeds)
     noise = ref.noise(xs, ys, s.half)
     solver.screen(noise)

@@ -21,6 +21,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from stereodic.dic.background import thread_map
+
 MAX_FEATURES = 4000   # ORB features kept per image (the strongest corners)
 DETECT_SIDE = 1024    # features are found on the image shrunk until its longer side is at most this (pixels)
 RATIO = 0.8           # Lowe's ratio test: best match distance below RATIO times the second best
@@ -206,12 +208,16 @@ def feature_guess(matches: tuple[np.ndarray, np.ndarray], xs: np.ndarray, ys: np
 
 def _nearest(p: np.ndarray, xs: np.ndarray, ys: np.ndarray, k: int) -> np.ndarray:
     """(N, k) indices of the k points of p (M, 2) nearest to each (xs, ys), by blocks of rows of the
-    distance matrix (at most 2^22 distances at a time)."""
+    distance matrix (at most 2^20 distances at a time), the blocks side by side on the run's threads
+    (numpy releases the GIL)."""
     out = np.empty((xs.size, k), np.int64)
-    block = max(1, 2 ** 22 // len(p))
-    for a in range(0, xs.size, block):
+    block = max(1, 2 ** 20 // len(p))
+
+    def rows(a: int) -> None:
         d = (xs[a:a + block, None] - p[:, 0]) ** 2 + (ys[a:a + block, None] - p[:, 1]) ** 2
         out[a:a + block] = np.argpartition(d, k - 1, axis=1)[:, :k] if k < len(p) else np.arange(k)
+
+    thread_map(rows, range(0, xs.size, block))
     return out
 
 

@@ -29,6 +29,7 @@ from typing import Callable, Iterable, Iterator, Sequence
 import cv2
 import numpy as np
 
+from stereodic.dic.background import threads
 from stereodic.dic.correlate import DicField, DicSettings, ImageRef, PointResult, register_image, seed_indices
 from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import DIVERGED, INCONSISTENT, LOW_ZNCC, OK, OUTSIDE, UNREACHED
@@ -250,7 +251,10 @@ def track_image(ref: ImageRef, previous: ImageRef, img: np.ndarray, img_b: BSpli
 
 def prefetch(items: Iterable, prepare: Callable) -> Iterator:
     """Yield (item, prepare(item)) for each item, preparing the next item in a worker thread while the
-    caller works on the current one."""
+    caller works on the current one (with one thread, `background.threads`, each in turn by the caller)."""
+    if threads() < 2:
+        yield from ((item, prepare(item)) for item in items)
+        return
     with ThreadPoolExecutor(1) as pool:
         it = iter(items)
         nxt = next(it, None)

@@ -18,7 +18,8 @@ InputError names the file (or pattern) and the problem.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+import weakref
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
@@ -42,9 +43,13 @@ class DicStates:
     right: list[Path]
     source: str
     names: list[str] | None = None
+    _last: tuple | None = field(default=None, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.left)
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_last": None}     # the kept pair stays in this process
 
     def label(self, k: int) -> str:
         """State k in words, for titles: "state 3: tension", or "state 3 (img_0003_0.tif)"."""
@@ -56,8 +61,16 @@ class DicStates:
 
     def rectified_pair(self, rig: Rig, k: int) -> tuple[np.ndarray, np.ndarray]:
         """The rectified (left, right) images of state k, float32 (`rectify_pair(exact=True)`: grey levels
-        not rounded, which would add noise to every match)."""
-        return rectify_pair(rig, *self.read(k), where=(str(self.left[k]), str(self.right[k])), exact=True)
+        not rounded, which would add noise to every match). The last pair is kept (the reference pair is
+        asked for by the rig check, the specimen's region and the run), read-only."""
+        last = self._last
+        if last is not None and last[0] == k and last[1]() is rig:
+            return last[2]
+        pair = rectify_pair(rig, *self.read(k), where=(str(self.left[k]), str(self.right[k])), exact=True)
+        for image in pair:
+            image.flags.writeable = False
+        self._last = (k, weakref.ref(rig), pair)
+        return pair
 
     def rectified(self, rig: Rig) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         """The rectified (left, right) images of each state, in order, read one state at a time."""

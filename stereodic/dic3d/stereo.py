@@ -51,7 +51,7 @@ import cv2
 import numpy as np
 
 from stereodic.dic import BSplineImage, DicSettings, ImageRef, PointResult, correlate_points, row_seed_search
-from stereodic.dic.correlate import register_image, seed_indices, subset_status
+from stereodic.dic.correlate import register_image, seed_indices
 from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import OK, OUTSIDE, STATUS_NAMES, UNREACHED
 from stereodic.dic.sequence import (DECORRELATED, SWITCH_ZNCC, TrackCarry, merge_track, prefetch, register_direct,
@@ -325,7 +325,7 @@ def _reference_state(run: StereoRun, pair: PreparedPair) -> tuple[StereoState, S
     g, s = run.grid, run.settings.dic
     X, Y = g.points()
     stereo, noise = stereo_match(run, pair)
-    ref_st = subset_status(run.ref.bspline, X, Y, s)
+    ref_st = run.ref.status(X, Y, s)
     ref_st[~g.active.ravel()] = UNREACHED
     zero = np.where(ref_st == OK, 0.0, np.nan).reshape(g.shape)
     left_noise = run.ref.noise(X, Y, s.half).reshape(g.shape)

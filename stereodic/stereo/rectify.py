@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from stereodic.dic.background import thread_map
 from stereodic.stereo.rig import Rig
 from stereodic.virtual.undistort import undistort_image
 
@@ -81,8 +82,9 @@ def row_alignment(left: np.ndarray, right: np.ndarray, *, max_dy: int | None = N
 
     Corners of the left image (Shi-Tomasi, at most `count`, whole subsets of half-width `half` inside
     both images' valid areas) are searched for in the right image over the whole width and rows within
-    `max_dy` of their own (ZNCC, cv2.matchTemplate; None: an eighth of the height, at least 16 rows: a
-    rig whose calibration no longer fits its images can put them tens of rows apart); a match with a
+    `max_dy` of their own (ZNCC, cv2.matchTemplate, several corners at once on the run's `threads()`;
+    None: an eighth of the height, at least 16 rows: a rig whose calibration no longer fits its images
+    can put them tens of rows apart); a match with a
     second peak nearly as good elsewhere along the rows (a periodic or stripe pattern: no reliable
     position) is dropped; the rest are refined to sub-pixel by IC-GN with an affine subset (the 2D DIC
     engine, `stereodic.dic`: the two views foreshorten a surface differently) and kept where they
@@ -94,18 +96,11 @@ def row_alignment(left: np.ndarray, right: np.ndarray, *, max_dy: int | None = N
     side = 2 * half + 1
     valid = cv2.erode(((left > 0) & (right > 0)).astype(np.uint8), np.ones((side + 2, side + 2), np.uint8))
     corners = cv2.goodFeaturesToTrack(lf, count, 0.05, 2 * half, mask=valid)
-    seeds = []
     h, w = left.shape
-    for x, y in ([] if corners is None else np.rint(corners[:, 0]).astype(int)):
-        if not (half + max_dy <= y < h - half - max_dy and half <= x < w - half):
-            continue
-        tpl = lf[y - half:y + half + 1, x - half:x + half + 1]
-        score = np.nan_to_num(cv2.matchTemplate(rf[y - half - max_dy:y + half + max_dy + 1], tpl,
-                                                cv2.TM_CCOEFF_NORMED), nan=-1.0)
-        r, c = np.unravel_index(int(np.argmax(score)), score.shape)
-        away = np.abs(np.arange(score.shape[1]) - c) > half
-        if not away.any() or score[:, away].max() < score[r, c] - 0.1:
-            seeds.append((x, y, c + half - x, r - max_dy))
+    inside = [(x, y) for x, y in ([] if corners is None else np.rint(corners[:, 0]).astype(int))
+              if half + max_dy <= y < h - half - max_dy and half <= x < w - half]
+    # the searches are independent and OpenCV releases the GIL: side by side on the run's threads
+    seeds = [m for m in thread_map(lambda xy: _band_match(lf, rf, *xy, half, max_dy), inside) if m is not None]
     if not seeds:
         return RowAlignment(*(np.empty(0) for _ in range(5)))
     x, y, du, dv = np.array(seeds, np.float64).T
@@ -115,6 +110,21 @@ def row_alignment(left: np.ndarray, right: np.ndarray, *, max_dy: int | None = N
                            np.stack([du, dv], 1), settings=settings)
     ok = np.isfinite(res.u) & (np.abs(res.v) <= max_dy)
     return RowAlignment(x[ok], y[ok], x[ok] + res.u[ok], res.v[ok], res.zncc[ok])
+
+
+def _band_match(lf: np.ndarray, rf: np.ndarray, x: int, y: int, half: int, max_dy: int
+                ) -> tuple[int, int, int, int] | None:
+    """`row_alignment`'s search of the left feature at pixel (x, y) in the right image's band of rows
+    y +- max_dy (float32 images): (x, y, du, dv) of the best ZNCC, None where a second peak along the rows
+    is nearly as good."""
+    tpl = lf[y - half:y + half + 1, x - half:x + half + 1]
+    score = np.nan_to_num(cv2.matchTemplate(rf[y - half - max_dy:y + half + max_dy + 1], tpl, cv2.TM_CCOEFF_NORMED),
+                          nan=-1.0)
+    r, c = np.unravel_index(int(np.argmax(score)), score.shape)
+    away = np.abs(np.arange(score.shape[1]) - c) > half
+    if not away.any() or score[:, away].max() < score[r, c] - 0.1:
+        return x, y, c + half - x, r - max_dy
+    return None
 
 
 def offset_text(match: RowAlignment) -> str:

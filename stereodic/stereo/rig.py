@@ -509,7 +509,7 @@ def load_rig(path: str | os.PathLike) -> Rig:
             raise InputError(path, f"{side} arrays do not match the {sensor.width}x{sensor.height} sensor")
         imm = IMM(arrays[f"{side}_map_x"], arrays[f"{side}_map_y"], arrays[f"{side}_valid"].astype(bool),
                   (int(info["real_width"]), int(info["real_height"])))
-        cams.append(RigCamera(name, centre, imm, arrays[f"{side}_direction"].astype(np.float64), im, info))
+        cams.append(RigCamera(name, centre, imm, arrays[f"{side}_direction"].astype(np.float64, copy=False), im, info))
     return Rig(sensor, cams[0], cams[1], meta.get("model", "pinhole"), frame)
 
 

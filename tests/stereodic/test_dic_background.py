@@ -1,12 +1,16 @@
-"""Output work in forked children (`stereodic.dic.background`): the files are those written in the caller,
-and a task that fails is reported by name."""
+"""Work beside the caller (`stereodic.dic.background`): output work in forked children writes the files
+the caller would, and a task that fails is reported by name; the thread pools keep to the run's threads,
+and so do OpenCV's and numba's own (`stereodic.cli.thread_limits`)."""
 
 import os
+import subprocess
+import sys
+import threading
 import time
 
 import pytest
 
-from stereodic.dic.background import Background, threads
+from stereodic.dic.background import Background, side_by_side, thread_map, threads
 
 
 def _write(path, text, seconds=0.0):
@@ -44,3 +48,30 @@ def test_threads_follow_omp_num_threads(monkeypatch):
     assert threads() == 3
     monkeypatch.delenv("OMP_NUM_THREADS")
     assert threads() == len(os.sched_getaffinity(0))
+
+
+def test_thread_pools_keep_to_the_runs_threads(monkeypatch):
+    def square(x):
+        seen.add(threading.get_ident())
+        time.sleep(0.02)
+        return x * x
+
+    for n, most in (("2", 2), ("1", 1)):
+        monkeypatch.setenv("OMP_NUM_THREADS", n)
+        seen = set()
+        assert thread_map(square, range(8)) == [x * x for x in range(8)]
+        assert 1 <= len(seen) <= most
+    assert seen == {threading.get_ident()}       # one thread: the caller's
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")
+    me = threading.get_ident()
+    first, second, third = side_by_side(threading.get_ident, threading.get_ident, threading.get_ident)
+    assert first == me and second == third != me  # the caller runs the first, one pool thread the others
+
+
+def test_one_thread_is_one_core_in_opencv_and_numba():
+    code = ("from stereodic.cli import thread_limits; thread_limits(); import cv2, numba; "
+            "print(cv2.getNumThreads(), numba.config.NUMBA_NUM_THREADS)")
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENCV_FOR_THREADS_NUM", "NUMBA_NUM_THREADS")}
+    out = subprocess.run([sys.executable, "-c", code], env={**env, "OMP_NUM_THREADS": "1"}, capture_output=True,
+                         text=True, timeout=120)
+    assert out.stdout.split() == ["1", "1"], out.stderr
