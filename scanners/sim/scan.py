@@ -254,7 +254,8 @@ def standard_scenes(*, objects=("sphere", "ballbar", "plane", "freeform"), backg
     objects : sequence of str
         Which: "sphere" (a 50 mm sphere at the centre and 30 mm nearer: 2 scenes), "ballbar" (a bar of
         two 25 mm spheres 150 mm apart in 7 orientations), "plane" (a 180 x 40 mm plate in 4 poses),
-        "freeform" (a smooth part 90 mm wide).
+        "freeform" (a smooth part 90 mm wide), "turntable" (`turntable_scenes`: a closed free-form part
+        all the way round, TURNTABLE_VIEWS scenes; not among the default acceptance scenes).
     background : bool
         The sphere and free-form scenes stand in front of a plate that takes their shadows.
 
@@ -278,6 +279,8 @@ def standard_scenes(*, objects=("sphere", "ballbar", "plane", "freeform"), backg
     if "freeform" in objects:
         scenes.append(Scene([HeightField(centre=TARGET + [0, 0, 10.0], rotation=np.diag([1.0, -1, -1]) @ _rot_x(10),
                                          half_mm=45.0)] + back, "free-form"))
+    if "turntable" in objects:
+        scenes += turntable_scenes()
     return scenes
 
 
