@@ -127,9 +127,9 @@ def _sampled_view(scene: Scene, rng, *, step_mm: float = 0.8, max_incidence_deg:
 def test_whole_turn_registers_closes_and_meshes():
     """6 views of the free-form part all the way round (sampled from its exact surface, 2 um noise),
     started from a nominal turntable 1 mm and 0.5 degree off: every rotation within the issue's 0.02
-    degree (measured 0.010: the 1 mm sampling's curvature bias, far above the noise's ~0.001), the merged
-    cloud within 2 x the noise of the surface (voxel averaging lowers it, registration adds to it), the
-    Poisson mesh on it (median 4 um) and covering the data, not ballooned where no view looked."""
+    degree (measured 0.010: the 0.8 mm sampling's curvature bias, far above the noise's ~0.001), the
+    merged cloud within 2 x the noise of the surface (voxel averaging lowers it, registration adds to
+    it) and its normals all outwards, as Poisson needs (the slow test meshes it)."""
     rng = np.random.default_rng(1)
     scenes = turntable_scenes(views=6)
     sampled = [_sampled_view(sc, rng) for sc in scenes]
@@ -139,26 +139,23 @@ def test_whole_turn_registers_closes_and_meshes():
     assert errors.max() < 0.02
     assert np.all(reg.residual_mm < 5 * SIGMA_MM) and np.all(reg.fitness > 0.5)
 
-    merged = merged_cloud([p for p, _ in sampled], reg, normals=[n for _, n in sampled], voxel_mm=0.5)
-    points = merged.point.positions.numpy()
-    rms = np.sqrt(np.mean(_exact_distance(points, scenes[0]) ** 2))
-    mesh = poisson_mesh(merged, depth=8, max_gap_mm=2.0)
-    vertices = np.asarray(mesh.vertices)
-    off = np.abs(_exact_distance(vertices, scenes[0]))
-    covered, _ = cKDTree(vertices).query(points)
-    print(f"merged RMS {1000 * rms:.1f} um; mesh: {len(vertices)} vertices, median {1000 * np.median(off):.1f} um, "
-          f"99 % {1000 * np.quantile(off, 0.99):.0f} um")
+    merged = merged_cloud([p for p, _ in sampled], reg, normals=[n for _, n in sampled], voxel_mm=1.0)
+    rms = np.sqrt(np.mean(_exact_distance(merged.point.positions.numpy(), scenes[0]) ** 2))
+    print(f"merged RMS {1000 * rms:.1f} um")
     assert rms < 2 * SIGMA_MM
-    assert np.median(off) < 3 * SIGMA_MM                  # Poisson's smoothing of 1 mm samples
-    assert np.quantile(off, 0.99) < 0.25                   # the ball's crease rounded off, no balloon
-    assert np.quantile(covered, 0.99) < 1.0                 # no hole where the data (vertices 0.5 mm apart)
+    points, h = merged.point.positions.numpy(), 1e-4      # outwards normals (the exact distance's gradient)
+    exact = np.stack([_exact_distance(points + h * e, scenes[0]) - _exact_distance(points - h * e, scenes[0])
+                      for e in np.eye(3)], axis=1)
+    assert np.mean(np.einsum("ij,ij->i", merged.point.normals.numpy(), exact) > 0) > 0.999
 
 
 @pytest.mark.slow
 def test_whole_turn_of_rendered_scans_merges_within_0p02_degrees(tmp_path):
     """8 rendered scans (640 x 512) of the free-form part with its ball, all the way round, from a
     nominal turntable 1 mm and 0.5 degree off: rotations within 0.02 degree, the object's centre within
-    20 um, and the merged ball's form against one view's."""
+    20 um, the merged ball's form against one view's (the issue asks 1.5 x; measured 1.7 x, 1.3 x with
+    the true poses: each view's ball is biased ~+12 um in radius, differently from each side), and the
+    Poisson mesh against the exact surface, covering the data and trimmed where no view looked."""
     scenes = turntable_scenes()
     simulate_scan(tmp_path, scenes=scenes, rig=default_scan_rig(width=640, height=512))
     save_rig(tmp_path / "rig.npz", rig_from_files(tmp_path / "truth_cam0.npz", tmp_path / "truth_cam1.npz"))
@@ -190,6 +187,11 @@ def test_whole_turn_of_rendered_scans_merges_within_0p02_degrees(tmp_path):
     print(f"ball PF: merged {1000 * pf:.1f} um, one view (median) {1000 * single:.1f} um; ball {ball}")
     assert pf <= 2.0 * single
     mesh = poisson_mesh(merged, max_gap_mm=1.0)
-    off = np.abs(_exact_distance(np.asarray(mesh.vertices), scenes[0]))
-    print(f"mesh: median {1000 * np.median(off):.1f} um, 99 % {1000 * np.quantile(off, 0.99):.0f} um")
-    assert np.median(off) < 0.01
+    vertices = np.asarray(mesh.vertices)
+    off = np.abs(_exact_distance(vertices, scenes[0]))
+    covered, _ = cKDTree(vertices).query(merged.point.positions.numpy())
+    print(f"mesh: median {1000 * np.median(off):.1f} um, 99 % {1000 * np.quantile(off, 0.99):.0f} um, "
+          f"99 % of the points within {1000 * np.quantile(covered, 0.99):.0f} um of a vertex")
+    assert np.median(off) < 0.01                           # the scans' own ~5-10 um view-dependent bias
+    assert np.quantile(off, 0.99) < 0.05                   # the ball's crease rounded off, no balloon
+    assert np.quantile(covered, 0.99) < 0.5                # no hole where the data is
