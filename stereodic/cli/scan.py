@@ -169,6 +169,7 @@ def run(args) -> int:
 
     from calib import __version__
     from calib.batch import BatchRecord, file_sha256
+    from calib.errors import InputError
     from calib.image_files import expand_datasets
     from stereodic.cluster.batch import Task, run_batch
     from stereodic.stereo.rig import load_rig
