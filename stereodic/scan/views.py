@@ -282,7 +282,8 @@ def merged_cloud(views: list[np.ndarray], registration: Registration, *, normals
     Returns
     -------
     cloud : open3d.t.geometry.PointCloud
-        float64 positions (view 0's frame, mm) and, with `normals`, their unit normals.
+        float32 positions (view 0's frame, mm; as `make_cloud`'s, for the PLY) and, with `normals`, their unit
+        normals.
     """
     import open3d as o3d
     r = [t[:3, :3] for t in registration.transforms]
@@ -294,4 +295,4 @@ def merged_cloud(views: list[np.ndarray], registration: Registration, *, normals
     merged = legacy.voxel_down_sample(voxel_mm)
     if normals is not None:
         merged.normalize_normals()
-    return o3d.t.geometry.PointCloud.from_legacy(merged, o3d.core.float64)
+    return o3d.t.geometry.PointCloud.from_legacy(merged, o3d.core.float32)
