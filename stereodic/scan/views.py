@@ -287,8 +287,8 @@ def merged_cloud(views: list[np.ndarray], registration: Registration, *, normals
     """
     import open3d as o3d
     r = [t[:3, :3] for t in registration.transforms]
-    legacy = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(
-        np.vstack([np.asarray(v, np.float64) @ rk.T + t[:3, 3] for v, rk, t in zip(views, r, registration.transforms)])))
+    moved = [np.asarray(v, np.float64) @ rk.T + t[:3, 3] for v, rk, t in zip(views, r, registration.transforms)]
+    legacy = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.vstack(moved)))
     if normals is not None:
         legacy.normals = o3d.utility.Vector3dVector(np.vstack([np.asarray(n, np.float64) @ rk.T
                                                                for n, rk in zip(normals, r)]))
