@@ -38,7 +38,7 @@ from scanners.sim.camera import SimCamera
 from scanners.sim.defocus import blur_and_integrate
 from scanners.sim.lenses import DEFAULT_TARGET_MM, Lens
 from scanners.sim.projector import Projector, make_projector
-from scanners.sim.scan_scene import HeightField, Plane, Scene, Sphere, ball_bar
+from scanners.sim.scan_scene import Blob, HeightField, Plane, Scene, Sphere, ball_bar
 from scanners.sim.screens import fringe_shifts
 from scanners.sim.sensor import Sensor
 from scanners.sim.stereo import CAMERAS, stereo_lenses
@@ -199,6 +199,53 @@ PLANE_POSES = (((0, 0, 0), (0, 0, -1)), ((0, 0, -30), (0.3, 0, -1)), ((0, 0, 30)
                ((0, 0, 0), (0, 0.3, -1)))
 
 
+TURNTABLE_VIEWS = 8                     # a whole turn in steps of 45 degrees
+# the turntable's part, in its own frame (x right, y down, z away from the scanner at 0 degrees): a blob
+# of radius 35 mm with lobes (direction, angular width rad, relative height) and a 25 mm ball on its top
+TURNTABLE_LOBES = ((0.2, 0.1, -1, 0.28, 0.3), (1, 0.3, -0.2, 0.3, -0.15), (0.6, -0.1, 0.8, 0.25, 0.3),
+                   (-0.7, 0.4, 0.6, 0.3, 0.25), (-1, -0.2, -0.5, 0.25, 0.3), (0.1, 0.6, 1, 0.3, -0.15),
+                   (-0.3, -0.5, -0.8, 0.25, 0.25), (0.8, 0.5, -0.9, 0.22, 0.25), (0.9, -0.4, 0.3, 0.25, 0.3),
+                   (-0.9, 0.1, 0.1, 0.3, -0.12), (-0.2, 0.3, 0.9, 0.25, 0.3), (0.5, 0.7, 0.2, 0.3, 0.25))
+TURNTABLE_BALL = (np.array([0.0, -41.0, 0.0]), 12.5)     # centre about the blob's, radius, mm
+
+
+def turntable_transform(deg: float) -> np.ndarray:
+    """(4, 4) the turntable turned by `deg` degrees: a rotation about the vertical (y) axis through the
+    target, WCS mm (applied to the part's points at 0 degrees, it gives them at `deg`)."""
+    a = np.radians(deg)
+    t = np.eye(4)
+    t[:3, :3] = [[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]]
+    t[:3, 3] = TARGET - t[:3, :3] @ TARGET
+    return t
+
+
+def turntable_scenes(*, views: int = TURNTABLE_VIEWS) -> list[Scene]:
+    """A free-form part on a turntable scanned all the way round: `views` scenes, the part turned by
+    360 / views degrees from one to the next (`turntable_transform`), no background.
+
+    Parameters
+    ----------
+    views : int
+        The number of views of the whole turn.
+
+    Returns
+    -------
+    scenes : list of Scene
+        Scene k: the blob (TURNTABLE_LOBES, centred on the target) and its ball, turned by 360 k / views
+        degrees, WCS mm.
+    """
+    scenes = []
+    for k in range(views):
+        t = turntable_transform(360.0 * k / views)
+        lobes = np.array(TURNTABLE_LOBES, np.float64)
+        lobes[:, :3] = lobes[:, :3] @ t[:3, :3].T
+        ball, radius = TURNTABLE_BALL
+        scenes.append(Scene([Blob(centre=TARGET, radius_mm=35.0, lobes=lobes, seed=4),
+                             Sphere(centre=t[:3, :3] @ (TARGET + ball) + t[:3, 3], radius_mm=radius, seed=5)],
+                            f"turntable {360.0 * k / views:g} deg"))
+    return scenes
+
+
 def standard_scenes(*, objects=("sphere", "ballbar", "plane", "freeform"), background: bool = True) -> list[Scene]:
     """The acceptance scenes (VDI/VDE 2634-2 style), in the measuring volume VOLUME_MM about the target.
 
@@ -207,7 +254,8 @@ def standard_scenes(*, objects=("sphere", "ballbar", "plane", "freeform"), backg
     objects : sequence of str
         Which: "sphere" (a 50 mm sphere at the centre and 30 mm nearer: 2 scenes), "ballbar" (a bar of
         two 25 mm spheres 150 mm apart in 7 orientations), "plane" (a 180 x 40 mm plate in 4 poses),
-        "freeform" (a smooth part 90 mm wide).
+        "freeform" (a smooth part 90 mm wide), "turntable" (`turntable_scenes`: a closed free-form part
+        all the way round, TURNTABLE_VIEWS scenes; not among the default acceptance scenes).
     background : bool
         The sphere and free-form scenes stand in front of a plate that takes their shadows.
 
@@ -231,6 +279,8 @@ def standard_scenes(*, objects=("sphere", "ballbar", "plane", "freeform"), backg
     if "freeform" in objects:
         scenes.append(Scene([HeightField(centre=TARGET + [0, 0, 10.0], rotation=np.diag([1.0, -1, -1]) @ _rot_x(10),
                                          half_mm=45.0)] + back, "free-form"))
+    if "turntable" in objects:
+        scenes += turntable_scenes()
     return scenes
 
 

@@ -1,7 +1,8 @@
 """Scenes for the simulated scanner: exact surfaces, ray-traced analytically (WCS, mm).
 
 Surfaces: `Plane` (a rectangular plate), `Sphere`, `HeightField` (a smooth free-form part z = h(x, y) in
-its own frame, intersected by bisection and Newton). A `Scene` is a list of surfaces; a ball bar is two
+its own frame, intersected by bisection and Newton), `Blob` (a closed smooth free-form part, star-shaped
+about its centre, intersected by marching and bisection). A `Scene` is a list of surfaces; a ball bar is two
 spheres (`ball_bar`). Every surface has a Lambertian albedo that varies smoothly over it (a printed
 texture of +-`texture`) and optionally a specular lobe (a metal part: Blinn-Phong, `specular` the lobe's
 peak reflectance, `shininess` its exponent), and a `distance` to its exact shape: the truth the scans are
@@ -213,6 +214,90 @@ class HeightField(Surface):
 
 
 @dataclass
+class Blob(Surface):
+    """A closed free-form part, star-shaped about `centre` (3,) WCS mm: in the direction of unit u from
+    the centre its surface is at r(u) = radius_mm * (1 + sum_k a_k exp(-(1 - u.c_k) / s_k^2)), lobes of
+    relative height a_k about unit directions c_k, of angular width about s_k (radians). `lobes`: (n, 5)
+    rows (c_x, c_y, c_z, s, a) in the WCS (c normalised here); r must stay positive."""
+
+    centre: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    radius_mm: float = 35.0
+    lobes: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))
+
+    def __post_init__(self):
+        self.centre = np.asarray(self.centre, np.float64)
+        self.lobes = np.asarray(self.lobes, np.float64).reshape(-1, 5).copy()
+        self.lobes[:, :3] /= np.linalg.norm(self.lobes[:, :3], axis=1, keepdims=True)
+        # r over 20000 near-uniform directions (Fibonacci sphere), far closer than the lobes' widths
+        k = np.arange(20000) + 0.5
+        z, phi = 1 - 2 * k / k.size, np.pi * (1 + 5 ** 0.5) * k
+        u = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], axis=1)
+        r = 1 - self._g(self.centre + u)
+        if r.min() <= 0:
+            raise ValueError(f"the lobes make r(u) negative ({r.min():g} mm): r(u) must stay positive")
+        self._r_max = 1.02 * r.max()
+
+    def _g(self, points: np.ndarray, gradient: bool = False):
+        """g = |q| - r(q/|q|), q = points - centre (mm; negative inside) and, with `gradient`, its gradient."""
+        q = points - self.centre
+        rho = np.linalg.norm(q, axis=-1)
+        u = q / np.maximum(rho, 1e-12)[:, None]
+        w = self.lobes[:, 4] * np.exp(-(1 - u @ self.lobes[:, :3].T) / self.lobes[:, 3] ** 2)   # (N, n)
+        g = rho - self.radius_mm * (1 + w.sum(axis=1))
+        if not gradient:
+            return g
+        dr_du = self.radius_mm * (w / self.lobes[:, 3] ** 2) @ self.lobes[:, :3]        # (N, 3)
+        tangential = dr_du - np.einsum("ij,ij->i", dr_du, u)[:, None] * u
+        return g, u - tangential / np.maximum(rho, 1e-12)[:, None]
+
+    def intersect(self, o, d):
+        w = o - self.centre
+        b = np.einsum("ij,ij->i", w, d)
+        disc = b * b - (np.einsum("ij,ij->i", w, w) - self._r_max ** 2)
+        idx = np.flatnonzero(disc > 0)
+        t_out, n_out = np.full(len(o), np.inf), np.zeros((len(o), 3))
+        if idx.size == 0:
+            return t_out, n_out
+        root = np.sqrt(disc[idx])
+        a, b = np.maximum(-b[idx] - root, 0), -b[idx] + root
+        po, pd = o[idx], d[idx]
+
+        def g(t, sel=slice(None)):
+            return self._g(po[sel] + t[:, None] * pd[sel])
+
+        # first crossing from outside: march in steps short enough for the lobes (the rays not yet in),
+        # then bisect
+        n = 64
+        hit = np.zeros(len(a), bool)
+        lo, hi = a.copy(), b.copy()
+        for k in range(1, n + 1):
+            todo = np.flatnonzero(~hit)
+            tk = a[todo] + (b[todo] - a[todo]) * k / n
+            new = todo[g(tk, todo) <= 0]
+            lo[new], hi[new] = a[new] + (b[new] - a[new]) * (k - 1) / n, a[new] + (b[new] - a[new]) * k / n
+            hit[new] = True
+        for _ in range(24):
+            mid = (lo + hi) / 2
+            inside = g(mid) <= 0
+            lo, hi = np.where(inside, lo, mid), np.where(inside, mid, hi)
+        t = (lo + hi) / 2
+        _, grad = self._g(po + t[:, None] * pd, gradient=True)
+        t_out[idx] = np.where(hit & (t > EPS_MM), t, np.inf)
+        n_out[idx] = grad / np.linalg.norm(grad, axis=1, keepdims=True)
+        return t_out, n_out
+
+    def distance(self, points):
+        """Signed distance (mm, positive outside) from the surface to first order: g / |grad g|, with g the
+        radial distance |q| - r(u) (exact to within g^2 times the surface's curvature)."""
+        g, grad = self._g(np.asarray(points, np.float64).reshape(-1, 3), gradient=True)
+        return g / np.linalg.norm(grad, axis=1)
+
+    def describe(self) -> dict:
+        return {"type": "blob", "centre_mm": self.centre.tolist(), "radius_mm": self.radius_mm,
+                "lobes": self.lobes.tolist()}
+
+
+@dataclass
 class Hit:
     """Nearest hits of N rays: t (N,) mm (inf: miss), point (N, 3), normal (N, 3) unit facing the ray,
     albedo (N,), surface (N,) index into the scene's surfaces (-1: miss), specular and shininess (N,) of
@@ -289,7 +374,7 @@ def surface_from_dict(d: dict):
 
     Returns
     -------
-    surface : Plane, Sphere or HeightField
+    surface : Plane, Sphere, HeightField or Blob
         The exact surface. ValueError for an unknown type.
     """
     kind = d["type"]
@@ -297,6 +382,8 @@ def surface_from_dict(d: dict):
         return Plane(centre=d["centre_mm"], normal=d["normal"], axis=d["axis"], size_mm=tuple(d["size_mm"]))
     if kind == "sphere":
         return Sphere(centre=d["centre_mm"], radius_mm=d["radius_mm"])
+    if kind == "blob":
+        return Blob(centre=d["centre_mm"], radius_mm=d["radius_mm"], lobes=np.asarray(d["lobes"]))
     if kind == "heightfield":
         return HeightField(centre=d["centre_mm"], rotation=np.asarray(d["rotation"]), half_mm=d["half_mm"],
                            bumps=np.asarray(d["bumps_mm"]))

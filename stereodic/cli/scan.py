@@ -8,7 +8,10 @@ the two cameras (`stereodic rig`). Each state of the dataset is one scan: the ab
 both cameras is mapped into the rectified virtual images, matched along rows, triangulated with the
 EVM-corrected rays, cleaned of statistical outliers and written as a binary float32 PLY with normals and
 the per-point scalars `quality` (fringe modulation, fraction of full scale) and `gap_mm` (ray gap).
-A dataset with several states gives one file per state, CLOUD_s<state>.ply. Several datasets (or a
+A dataset with several states gives one file per state, CLOUD_s<state>.ply; with --merge its states are
+views of one object taken round it in order (a turntable): registered view to view, the loop closed by a
+pose graph, merged into the one cloud CLOUD.ply (and --mesh MESH.ply, its Poisson surface), each view's
+rotation, residual and overlap printed. Several datasets (or a
 quoted pattern naming them) are a batch into the folder -o DIR: DIR/<dataset folder name>.ply (or
 _s<state>.ply per state). A batch of several scans records each one done (CLOUD.batch.json, or
 DIR/scan.batch.json: calib.batch), so that the same command after a stop does only the rest; with
@@ -20,7 +23,8 @@ from __future__ import annotations
 
 import argparse
 
-from stereodic.cli.common import add_input, add_output, add_scheduler_option, deprecated, parse_size, wrote
+from stereodic.cli.common import (add_input, add_output, add_scheduler_option, deprecated, parse_floats,
+                                  parse_size, wrote)
 
 RECORD = "scan.batch.json"
 
@@ -47,6 +51,13 @@ def register(sub):
     deprecated(p, "--cameras", "--camera")
     add_output(p, "--mesh", kind="any", metavar="MESH.ply|DIR",
                help="also write a Poisson surface mesh (named like the clouds; a folder for several datasets)")
+    p.add_argument("--merge", action="store_true",
+                   help="the dataset's states are views of one object taken round it in order (a turntable): "
+                        "register them (loop closed), write one merged cloud and, with --mesh, its surface")
+    p.add_argument("--turntable", type=parse_floats, metavar="X,Y,Z,DX,DY,DZ",
+                   help="with --merge: the views are a whole turn of a turntable in equal steps (360/views "
+                        "degrees, right-handed about the direction) about this axis (a point and a direction in "
+                        "the rig's WCS, mm): the nominal turn starts the registration instead of a global search")
     p.add_argument("--projector", type=parse_size, metavar="WxH",
                    help="a DATASET folder without capture.json holds OpenCV's GrayCodePattern sequence for a "
                         "projector of this size, read as it is")
@@ -107,6 +118,40 @@ def _inputs(job, cameras) -> dict:
     return {"capture": manifest, "frames": [fingerprint(cap.path(f)) for f in frames]}
 
 
+def _merge(args, rig, datasets) -> int:
+    """--merge: the states of one dataset registered and merged (stereodic.scan.pipeline.merge_to_files)."""
+    import numpy as np
+
+    from calib.errors import InputError
+    from stereodic.cli.common import check_file_output
+    from stereodic.scan.pipeline import SMOOTH_PX, merge_to_files
+    if len(datasets) != 1:
+        raise InputError("--merge", f"merges the states of one dataset, got {len(datasets)} datasets")
+    if args.scheduler is not None:
+        raise InputError("--merge", "runs in this process: drop --scheduler")
+    axis = args.turntable
+    if axis is not None and (len(axis) != 6 or not np.all(np.isfinite(axis)) or not np.any(axis[3:])):
+        raise InputError("--turntable", f"need a point and a non-zero direction X,Y,Z,DX,DY,DZ (mm), got {axis}")
+    check_file_output(args.output, "-o/--output")
+    if args.mesh is not None:
+        check_file_output(args.mesh, "--mesh")
+    written, states, reg = merge_to_files(
+        rig, datasets[0], args.output, states=args.state, cameras=args.camera, mesh=args.mesh,
+        projector=args.projector, corrected=not args.no_evm, neighbours=args.outlier_neighbours,
+        std_ratio=args.outlier_std, smooth_px=SMOOTH_PX if args.smooth is None else args.smooth,
+        turntable=None if axis is None else (axis[:3], axis[3:]))
+    from scipy.spatial.transform import Rotation
+    turn = Rotation.from_matrix(reg.transforms[:, :3, :3]).inv().as_rotvec()      # view 0 -> view k
+    axis = turn[1] / max(np.linalg.norm(turn[1]), 1e-12)
+    for k, state in enumerate(states):
+        angle = np.degrees(np.linalg.norm(turn[k])) * (1 if turn[k] @ axis >= 0 else -1) % 360
+        print(f"view {k} (state {state}): turned {angle:.3f} deg from view 0, residual "
+              f"{1000 * reg.residual_mm[k]:.1f} um, {100 * reg.fitness[k]:.0f} % of its points overlap the others")
+    for path, count, what in written:
+        wrote(path, f"{count} {what}")
+    return 0
+
+
 def scan_task(rig_path: str, rig_sha256: str, job, options: dict):
     """One scan where it runs (in this process or on a worker: the rig loaded once per process)."""
     from stereodic.cluster.batch import Done
@@ -124,12 +169,17 @@ def run(args) -> int:
 
     from calib import __version__
     from calib.batch import BatchRecord, file_sha256
+    from calib.errors import InputError
     from calib.image_files import expand_datasets
     from stereodic.cluster.batch import Task, run_batch
     from stereodic.stereo.rig import load_rig
     from stereodic.scan.pipeline import SMOOTH_PX
     rig = load_rig(args.rig)
     datasets = [d for v in args.dataset for d in expand_datasets(v)]
+    if args.merge:
+        return _merge(args, rig, datasets)
+    if args.turntable is not None:
+        raise InputError("--turntable", "goes with --merge")
     jobs = _jobs(args, rig, datasets)
     cameras = args.camera or (rig.left.name, rig.right.name)
     options = {"cameras": cameras, "corrected": not args.no_evm, "neighbours": args.outlier_neighbours,

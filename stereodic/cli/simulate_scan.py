@@ -6,6 +6,7 @@ from __future__ import annotations
 from stereodic.cli.common import add_simulation_options, parse_floats, wrote
 
 OBJECTS = ("sphere", "ballbar", "plane", "freeform")
+KNOWN = OBJECTS + ("turntable",)     # turntable: a closed free-form part in 8 views all the way round
 
 
 def register(modes) -> None:
@@ -13,12 +14,14 @@ def register(modes) -> None:
         "scan", help="structured-light scan dataset: projector + two cameras, objects with known shape",
         description="Render a scan dataset: a fringe projector (own lens and gamma) between two cameras casts "
                     "multi-period N-step fringes on objects (spheres, ball bar in 7 poses, plane in 4 poses, a "
-                    "free-form part; with shadows, occlusion, varying albedo, ambient light, sensor noise). "
+                    "free-form part; or, --objects turntable, a closed free-form part with a ball on top in 8 "
+                    "views turned 45 degrees apart about the vertical axis through the target; with shadows, "
+                    "occlusion, varying albedo, ambient light, sensor noise). "
                     "One state per object pose. Writes capture.json (kind scan), the images, truth.npz (the exact "
                     "surfaces), the true camera PRVMs truth_cam0/1.npz and rig.npz (their rectified pair), so "
                     "that `stereodic scan DIR/rig.npz DIR -o cloud.ply` runs at once. See docs/scanner.md.")
     s.add_argument("--objects", default=",".join(OBJECTS),
-                   help=f"comma-separated objects to scan (default {','.join(OBJECTS)})")
+                   help=f"comma-separated objects to scan, of {','.join(KNOWN)} (default {','.join(OBJECTS)})")
     s.add_argument("--periods", type=parse_floats, default=None,
                    help="projector fringe periods in panel pixels, the longest >= 1280 (default 1280,160,32,8)")
     s.add_argument("--steps", type=parse_floats, default=None,
@@ -36,9 +39,9 @@ def run(args) -> int:
     from scanners.sim.scan import DEFAULT_PERIODS, default_scan_rig, simulate_scan, standard_scenes
     from stereodic.stereo.rig import rig_from_files, save_rig
     objects = [o.strip() for o in args.objects.split(",") if o.strip()]
-    bad = sorted(set(objects) - set(OBJECTS))
+    bad = sorted(set(objects) - set(KNOWN))
     if bad or not objects:
-        raise InputError("--objects", f"unknown object(s) {', '.join(bad) or '(none)'}; known: {', '.join(OBJECTS)}")
+        raise InputError("--objects", f"unknown object(s) {', '.join(bad) or '(none)'}; known: {', '.join(KNOWN)}")
     if args.width < 16 or args.height < 16:
         raise InputError("--width/--height", f"sensor must be at least 16x16, got {args.width}x{args.height}")
     rig = default_scan_rig(width=args.width, height=args.height, seed=args.seed, lens=args.lens,

@@ -80,28 +80,37 @@ def write_cloud(path: str | os.PathLike, cloud) -> None:
             raise OSError(f"Open3D could not write {path}")
 
 
-def poisson_mesh(cloud, *, depth: int = 9, trim_quantile: float = 0.02):
-    """The Poisson surface of a cloud with normals.
+def poisson_mesh(cloud, *, depth: int = 9, trim_quantile: float = 0.02, max_gap_mm: float | None = None):
+    """The Poisson surface of a cloud with normals, trimmed where it balloons beyond the data.
 
     Parameters
     ----------
     cloud : open3d.t.geometry.PointCloud
-        A cloud with normals (`make_cloud`), WCS mm.
+        A cloud with consistently oriented normals (`make_cloud`, `stereodic.scan.views.merged_cloud`), mm.
     depth : int
         The Poisson octree depth.
     trim_quantile : float
         The vertices of this lowest quantile of density (far from any point) are removed.
+    max_gap_mm : float, optional
+        The vertices farther than this from every point of the cloud (mm) are removed too: the surface
+        Poisson closes over the parts no view saw.
 
     Returns
     -------
     mesh : open3d.geometry.TriangleMesh
-        A legacy Open3D mesh, WCS mm.
+        A legacy Open3D mesh, in the cloud's frame, mm.
     """
     import open3d as o3d
     mesh, density = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud.to_legacy(), depth=depth)
     density = np.asarray(density)
     if density.size:
-        mesh.remove_vertices_by_mask(density < np.quantile(density, trim_quantile))
+        far = density < np.quantile(density, trim_quantile)
+        if max_gap_mm is not None:
+            from scipy.spatial import cKDTree
+            gap, _ = cKDTree(cloud.point.positions.numpy()).query(np.asarray(mesh.vertices),
+                                                                 distance_upper_bound=max_gap_mm)
+            far |= ~np.isfinite(gap)
+        mesh.remove_vertices_by_mask(far)
     return mesh
 
 

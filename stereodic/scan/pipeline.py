@@ -56,6 +56,8 @@ MIN_MODULATION_FRACTION = 0.02   # of full scale: fringes weaker than this are n
 VISIBILITY_FRACTION = 0.3        # of the well-lit pixels' fringe visibility: less, with little light, is shadow
 GRAY_NOISE_FRACTION = 0.01      # of full scale: a Gray-code bit whose frame and inverse differ less is undecided
 SMOOTH_PX = 3.0                  # phase filter sigma (virtual pixels): white noise / 6.4, edges eroded by 8 px
+MERGE_VOXEL_MM = 0.25            # merged views are averaged in voxels of this size, mm
+MERGE_GAP_MM = 1.0               # the merged mesh is trimmed farther than this from every point, mm
 
 
 @dataclass
@@ -537,3 +539,51 @@ def scan_to_files(rig: Rig, dataset: str | os.PathLike, out: str | os.PathLike, 
     for job in progress(jobs, "scanning", total=len(jobs)):
         written += scan_job(rig, job, cameras, corrected, neighbours, std_ratio, smooth_px, capture)
     return written
+
+
+def merge_to_files(rig: Rig, dataset: str | os.PathLike, out: str | os.PathLike, *, states=None,
+                   cameras: tuple[str, str] | None = None, mesh: str | os.PathLike | None = None,
+                   projector: tuple[int, int] | None = None, corrected: bool = True, neighbours: int = 20,
+                   std_ratio: float = 3.0, smooth_px: float = SMOOTH_PX, voxel_mm: float = MERGE_VOXEL_MM,
+                   turntable: tuple | None = None):
+    """The states of `dataset` as views of one object taken round it in order (a turntable's turn, or
+    the object moved): each scanned as `scan_job` does (outliers removed, normals towards the rig),
+    registered view to view with the loop closed (`stereodic.scan.views.register_turn`; started from a
+    global search, or with `turntable` = (point (3,), direction (3,)), WCS mm, from the nominal whole turn
+    in equal steps about that axis: `views.turntable_transforms`), merged into one
+    cloud (`views.merged_cloud`, voxels of `voxel_mm` mm) written to `out` and, with `mesh`, its Poisson
+    surface trimmed MERGE_GAP_MM from the data (`cloud.poisson_mesh`) written there.
+
+    Returns
+    -------
+    written : list of (path, int, str)
+        (file, count, "points" or "vertices") of the merged cloud and mesh.
+    states : list of int
+        The views' states, in order.
+    registration : stereodic.scan.views.Registration
+        Each view's transform into the first view's frame (WCS mm), its residual and fitness.
+    """
+    from calib.progress import progress
+    from stereodic.scan.cloud import make_cloud, poisson_mesh, write_cloud, write_mesh
+    from stereodic.scan.views import merged_cloud, register_turn, turntable_transforms
+    jobs = plan_scans(rig, dataset, out, states, cameras, None, projector)
+    if len(jobs) < 2:
+        raise InputError(dataset, f"has {len(jobs)} scan state to merge: merging needs two views or more")
+    capture = load_scan(dataset, projector=projector, cameras=cameras or (rig.left.name, rig.right.name))
+    viewpoint = (rig.left.centre + rig.right.centre) / 2
+    points, normals = [], []
+    for job in progress(jobs, "scanning views", total=len(jobs)):
+        result, _ = scan_state(rig, capture, job.state, cameras=cameras, corrected=corrected, smooth_px=smooth_px)
+        cloud, _ = make_cloud(result.points, {}, viewpoint, neighbours=neighbours, std_ratio=std_ratio)
+        points.append(cloud.point.positions.numpy().astype(np.float64))
+        normals.append(cloud.point.normals.numpy().astype(np.float64))
+    registration = register_turn(points, initial=None if turntable is None else
+                                 turntable_transforms(len(points), *turntable))
+    merged = merged_cloud(points, registration, normals=normals, voxel_mm=voxel_mm)
+    write_cloud(out, merged)
+    written = [(Path(out), len(merged.point.positions), "points")]
+    if mesh is not None:
+        surface = poisson_mesh(merged, max_gap_mm=MERGE_GAP_MM)
+        write_mesh(mesh, surface)
+        written.append((Path(mesh), len(surface.vertices), "vertices"))
+    return written, [j.state for j in jobs], registration

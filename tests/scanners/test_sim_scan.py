@@ -7,8 +7,9 @@ import pytest
 
 from calib.capture import Pattern, load_capture
 from scanners.sim.projector import make_projector
-from scanners.sim.scan import TARGET, default_scan_rig, lit_view, load_truth, simulate_scan, standard_scenes
-from scanners.sim.scan_scene import HeightField, Plane, Scene, Sphere, ball_bar, surface_from_dict
+from scanners.sim.scan import (TARGET, TURNTABLE_LOBES, default_scan_rig, lit_view, load_truth, simulate_scan,
+                               standard_scenes)
+from scanners.sim.scan_scene import Blob, HeightField, Plane, Scene, Sphere, ball_bar, surface_from_dict
 
 
 def _rays(n=2000, seed=0):
@@ -20,7 +21,8 @@ def _rays(n=2000, seed=0):
 
 @pytest.mark.parametrize("surface", [Sphere(centre=TARGET, radius_mm=30.0),
                                      Plane(centre=TARGET, normal=(0.2, 0.1, -1), size_mm=(150, 100)),
-                                     HeightField(centre=TARGET, rotation=np.diag([1.0, -1, -1]), half_mm=45.0)])
+                                     HeightField(centre=TARGET, rotation=np.diag([1.0, -1, -1]), half_mm=45.0),
+                                     Blob(centre=TARGET, radius_mm=35.0, lobes=TURNTABLE_LOBES)])
 def test_hits_lie_on_the_exact_surface(surface):
     o, d = _rays()
     hit = Scene([surface]).intersect(o, d)
@@ -30,6 +32,31 @@ def test_hits_lie_on_the_exact_surface(surface):
     assert np.all(np.einsum("ij,ij->i", hit.normal[seen], d[seen]) < 0)     # normals face the camera
     again = surface_from_dict(json.loads(json.dumps(surface.describe())))
     assert np.allclose(again.distance(hit.point[seen]), surface.distance(hit.point[seen]))
+
+
+def test_blob_normals_are_the_gradient_of_its_radius_function():
+    """The blob's normals against central differences of r(u) = R (1 + sum a exp(-(1 - u.c) / s^2)),
+    written here again, on the surface points r(u) u."""
+    lobes = np.array(TURNTABLE_LOBES)
+    c = lobes[:, :3] / np.linalg.norm(lobes[:, :3], axis=1, keepdims=True)
+
+    def surface(theta, phi):
+        u = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], axis=-1)
+        r = 35.0 * (1 + (lobes[:, 4] * np.exp(-(1 - u @ c.T) / lobes[:, 3] ** 2)).sum(axis=-1))
+        return TARGET + r[:, None] * u
+
+    rng = np.random.default_rng(2)
+    theta, phi, h = rng.uniform(0.3, 2.8, 200), rng.uniform(0, 2 * np.pi, 200), 1e-6
+    p = surface(theta, phi)
+    n = np.cross(surface(theta + h, phi) - surface(theta - h, phi), surface(theta, phi + h) - surface(theta, phi - h))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    blob = Blob(centre=TARGET, radius_mm=35.0, lobes=lobes)
+    assert np.abs(blob.distance(p)).max() < 1e-9
+    out = p + 100 * np.sign(np.einsum("ij,ij->i", n, p - TARGET))[:, None] * n        # outside, along the normal
+    hit = Scene([blob]).intersect(out, -n * np.sign(np.einsum("ij,ij->i", n, p - TARGET))[:, None])
+    near = np.linalg.norm(hit.point - p, axis=1) < 1e-5     # rays whose first hit is that point
+    assert near.mean() > 0.8
+    assert np.abs(np.abs(np.einsum("ij,ij->i", hit.normal[near], n[near])) - 1).max() < 1e-8
 
 
 def test_nearest_surface_occludes_and_ball_bar_length():

@@ -176,6 +176,20 @@ def test_wrong_inputs_exit_2(dataset, tmp_path, capsys):
         scan_to_files(load_rig(dataset / "rig.npz"), dataset, tmp_path / "c.ply", states=[7])
 
 
+@pytest.mark.parametrize("options, message", [
+    (["DATASET", "--merge"], "--merge: merges the states of one dataset, got 2"),
+    (["--turntable", "1,2,3,0,1,0"], "--turntable: goes with --merge"),
+    (["--merge", "--turntable", "1,2,3"], "--turntable: need a point and a non-zero direction"),
+    (["--merge", "--turntable", "1,2,3,0,0,0"], "--turntable: need a point and a non-zero direction"),
+    (["--merge", "--state", "1"], "merging needs two views or more")])
+def test_bad_merge_options_exit_2_with_one_line(dataset, tmp_path, capsys, options, message):
+    options = [str(dataset) if o == "DATASET" else o for o in options]
+    out = tmp_path / "merged.ply"
+    assert main(["scan", str(dataset / "rig.npz"), str(dataset), *options, "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1 and not out.exists()
+
+
 def test_steps_per_period_are_checked_against_the_projector_block(dataset, tmp_path, capsys):
     manifest = json.loads((dataset / "capture.json").read_text())
     assert manifest["projector"]["steps"] == [3, 3, 16]          # the default: 16 steps on the finest period
