@@ -141,10 +141,11 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
     has_def = bool(info.get("frame", {}).get("rigid_motion_removed"))
     # the files are independent: written side by side by the caller and threads() - 1 forked children
     with Background(threads() - 1) as bg:
-        if csv:  # each state's rows as a cluster's task kept them, or formatted here
-            bg.submit(lambda: write_csv(folder / "dic.csv", (store.read_rows(k) or csv_rows(grid, store.read_state(k))
-                                                             for k in range(n)),
-                                        has_strain=has_strain, has_deformation=has_def), "dic.csv")
+        # dic.csv: each state's rows as a cluster's task kept them, or formatted here; beside children, one
+        # task a state (kept in the store, joined below), so that the caller and the children share them
+        for k in range(n if csv and bg.workers else 0):
+            if not store.rows_path(k).is_file():
+                bg.submit(functools.partial(_keep_rows, store, grid, k), f"the CSV rows of state {k}")
         bg.submit(lambda: write_npz(folder / "dic.npz", grid, store.values, n, has_strain, settings, info, has_def),
                   "dic.npz")
         vtk_here = vtk and state_files        # a cluster's tasks wrote the VTK files; the maps are drawn here
@@ -176,6 +177,13 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
                 for movie in maps.get("movies", {}).values():
                     movie.close()
     if csv:
+        write_csv(folder / "dic.csv", (store.read_rows(k) or csv_rows(grid, store.read_state(k)) for k in range(n)),
+                  has_strain=has_strain, has_deformation=has_def)
         store.remove_rows()
     if vtk:
         write_collection(folder / "vtk", range(n))
+
+
+def _keep_rows(store: RunStore, grid: Grid, k: int) -> None:
+    """Format state k's rows of dic.csv and keep them in the store (`RunStore.write_rows`)."""
+    store.write_rows(k, csv_rows(grid, store.read_state(k)))
