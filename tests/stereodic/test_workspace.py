@@ -418,6 +418,15 @@ def test_calibration_page_error_map_against_its_truth(dic_sim, tmp_path):
     assert np.nanmax(np.abs(z - 0.5)) < 0.02 and "RMS 0.5" in error.layout.title.text
 
 
+def _image_pairs(dic_sim, folder):
+    """A newcomer's folder: the simulated run's 3 states as image pairs img_KKKK_0/1.png, nothing else."""
+    folder.mkdir()
+    for k in range(3):
+        for cam, side in (("cam0", 0), ("cam1", 1)):
+            shutil.copy(dic_sim / f"s{k:03d}" / f"{cam}.png", folder / f"img_{k:04d}_{side}.png")
+    return folder
+
+
 @pytest.mark.browser
 def test_from_image_pairs_and_two_calibrations(browser, dic_sim, tmp_path):
     """A newcomer's folder: image pairs and the two cameras' PRVM files, no rig: the page makes the rig
@@ -426,11 +435,7 @@ def test_from_image_pairs_and_two_calibrations(browser, dic_sim, tmp_path):
 
     from stereodic.workspace.server import start
     d = browser
-    folder = tmp_path / "lab"
-    folder.mkdir()
-    for k in range(3):
-        for cam, side in (("cam0", 0), ("cam1", 1)):
-            shutil.copy(dic_sim / f"s{k:03d}" / f"{cam}.png", folder / f"img_{k:04d}_{side}.png")
+    folder = _image_pairs(dic_sim, tmp_path / "lab")
     for cam in ("cam0", "cam1"):
         shutil.copy(dic_sim / f"truth_{cam}.npz", folder / f"{cam}.npz")
     ws = start([folder], background=True)
@@ -678,11 +683,7 @@ def test_rig_from_another_programs_calibration(browser, dic_sim, tmp_path):
     from stereodic.stereo.rig import load_rig
     from stereodic.workspace.server import start
     d = browser
-    folder = tmp_path / "lab"
-    folder.mkdir()
-    for k in range(3):
-        for cam, side in (("cam0", 0), ("cam1", 1)):
-            shutil.copy(dic_sim / f"s{k:03d}" / f"{cam}.png", folder / f"img_{k:04d}_{side}.png")
+    folder = _image_pairs(dic_sim, tmp_path / "lab")
     phi = np.arctan2(-120.0, 400.0)                  # the right camera 120 mm to the right, turned to the left's target
     R = np.array([[np.cos(phi), 0, -np.sin(phi)], [0, 1, 0], [np.sin(phi), 0, np.cos(phi)]])     # R_y(-phi)
     T = -R @ np.array([120.0, 1.5, -4.0])
