@@ -75,7 +75,8 @@ def specimen_mask(image: np.ndarray, *, subset: int, contrast: float = 3.0) -> n
     least `contrast` times the RMS that the image's noise alone gives (`estimate_noise`,
     `noise_gradient_gain`): a dark background, a blank fixture or a saturated patch has only the noise's
     gradients. Subsets leaving the image are not usable; patches of usable subsets smaller than 4
-    subsets' area (isolated specks) are left out.
+    subsets' area (isolated specks) are left out, or, in an image too small for that, smaller than half
+    of the subset centres that fit in it.
 
     Parameters
     ----------
@@ -103,6 +104,6 @@ def specimen_mask(image: np.ndarray, *, subset: int, contrast: float = 3.0) -> n
     inside[half:h - half, half:w - half] = True
     mask &= inside
     count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
-    big = stats[:, cv2.CC_STAT_AREA] >= 4 * subset ** 2
+    big = stats[:, cv2.CC_STAT_AREA] >= min(4 * subset ** 2, inside.sum() / 2)
     big[0] = False
     return big[labels]

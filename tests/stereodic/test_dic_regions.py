@@ -74,6 +74,18 @@ def test_the_specimen_is_found_on_a_dark_background():
     assert not mask[background].any()
 
 
+def test_a_small_image_all_speckle_is_all_specimen():
+    """An image smaller than four subsets' area, speckled all over (a small camera window, a test's
+    frames): every subset centre that fits in it is usable; the same size blank is not."""
+    from scipy import ndimage
+    rng = np.random.default_rng(5)
+    img = ndimage.gaussian_filter(rng.random((48, 64)), 2.0, mode="wrap")
+    img = (20 + 215 * (img - img.min()) / np.ptp(img)).round().astype(np.uint8)
+    mask = specimen_mask(img, subset=21)
+    assert mask[10:38, 10:54].all() and mask.sum() == 28 * 44
+    assert not specimen_mask(np.full_like(img, 90) + rng.integers(0, 3, img.shape).astype(np.uint8), subset=21).any()
+
+
 def test_a_start_point_in_the_original_left_image(dic_sim, tmp_path):
     """--start-point with --roi-frame original is a pixel of the original left image: it lands on the
     rectified pixel that samples it (the rig's own IMM says where each rectified pixel samples), and a point
