@@ -45,11 +45,18 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 def thread_limits() -> None:
     """OMP_NUM_THREADS, when set, for OpenCV's and numba's own thread pools too (OPENCV_FOR_THREADS_NUM,
     NUMBA_NUM_THREADS, unless set: both are read when the library loads, after this), so that a run
-    told to use n threads (`stereodic.dic.background.threads`) uses n cores in every library."""
+    told to use n threads (`stereodic.dic.background.threads`) uses n cores in every library. Where numba
+    was loaded before (a notebook, a test session that ran a command earlier) its pool has its size:
+    changing NUMBA_NUM_THREADS then would fail numba's next compilation, so the calling thread's share
+    of the pool is limited instead (`numba.set_num_threads`)."""
     n = os.environ.get("OMP_NUM_THREADS", "").strip()
     if n.isdigit() and int(n) > 0:
         os.environ.setdefault("OPENCV_FOR_THREADS_NUM", n)
-        os.environ.setdefault("NUMBA_NUM_THREADS", n)
+        if "numba" in sys.modules:
+            import numba
+            numba.set_num_threads(min(int(n), numba.config.NUMBA_NUM_THREADS))
+        else:
+            os.environ.setdefault("NUMBA_NUM_THREADS", n)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -75,3 +75,22 @@ def test_one_thread_is_one_core_in_opencv_and_numba():
     out = subprocess.run([sys.executable, "-c", code], env={**env, "OMP_NUM_THREADS": "1"}, capture_output=True,
                          text=True, timeout=120)
     assert out.stdout.split() == ["1", "1"], out.stderr
+
+
+def test_a_command_after_numba_started_keeps_its_pool_and_limits_its_threads(tmp_path):
+    """numba loaded and its pool running before a command is told OMP_NUM_THREADS=1 (a notebook, a test
+    session): numba compiles afresh afterwards (an empty cache) without the 'Cannot set
+    NUMBA_NUM_THREADS' failure that changing its pool's size gave, and the caller uses one thread."""
+    code = ("import os, numpy, numba\n"
+            "numba.njit(parallel=True)(lambda a: a.sum())(numpy.ones(4))\n"
+            "os.environ['OMP_NUM_THREADS'] = '1'\n"
+            "from stereodic.cli import thread_limits\n"
+            "thread_limits()\n"
+            "print(numba.get_num_threads(), numba.njit(parallel=True, cache=True)(lambda a: 2 * a)(numpy.ones(3)).sum())\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENCV_FOR_THREADS_NUM", "NUMBA_NUM_THREADS",
+                                                             "OMP_NUM_THREADS")}
+    script = tmp_path / "after_numba.py"
+    script.write_text(code)
+    out = subprocess.run([sys.executable, str(script)], env={**env, "NUMBA_CACHE_DIR": str(tmp_path / "cache")},
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0 and out.stdout.split() == ["1", "6.0"], out.stderr[-500:]
