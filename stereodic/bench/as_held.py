@@ -6,9 +6,10 @@ with as many fringe frames (7 positions evenly over the same depth).
 
 Ray errors are in camera pixels of the working plane, RMS over 8 planes across the poses' depth range
 (where the central pixel's ray met the nearest and the farthest display), in the simulator's frame
-(each estimate moved there by the true pose of its WCS display, `stereodic.bench.poses`). The random
-part is the RMS difference, over sqrt 2, from a second capture of the same poses with other sensor
-noise; the systematic part is what is left, sqrt(total^2 - random^2). The uncertainty ratios: the RMS
+(each estimate moved there by the true pose of its WCS display, `stereodic.bench.poses`). Two captures
+of the same poses with other sensor noise are calibrated: the total is the RMS over both, the random
+part the RMS difference between them over sqrt 2, the systematic part what is left, sqrt(total^2 -
+random^2) (`error_parts`). The uncertainty ratios: the RMS
 over the poses (and axes) of each pose's error over its reported 1-sigma, and over the pixels of each
 ray's error on the first uncertainty plane over its reported 1-sigma there; each pooled (RMS) over the
 two captures. A 1-sigma is a statement about the spread of the errors over noise draws, and one
@@ -106,8 +107,8 @@ def held_accuracy(lens: str, width: int, height: int, root: Path, seed: int = 0)
     est, sim_truth = _sim_frame(cals[0], truth)
     again, _ = _sim_frame(cals[1], truth)
     fp = footprint_mm(sim_truth, float(np.mean(planes)))
-    total = float(np.sqrt(np.nanmean(_volume(est, sim_truth, planes, fp) ** 2)))
-    random = float(np.sqrt(np.nanmean(_volume(est, again, planes, fp) ** 2) / 2))
+    total, random, systematic = error_parts(_volume(est, sim_truth, planes, fp), _volume(again, sim_truth, planes, fp),
+                                            _volume(est, again, planes, fp))
     staged_out = root / f"held_staged_{lens}"
     staged = {k: v for k, v in options.items() if k != "handheld"}
     positions = list(np.linspace(planes[0], planes[-1], len(truth.extra["display_cr"])))
@@ -120,9 +121,21 @@ def held_accuracy(lens: str, width: int, height: int, root: Path, seed: int = 0)
     staged_total = float(np.sqrt(np.nanmean(_volume(st_cal.prvm.transformed(r, t - r[:, 2] * z0), st_truth,
                                                     planes, fp) ** 2)))
     pose, ray = ([pose_sigma_ratio(c, truth) for c in cals], [ray_sigma_ratio(c, truth) for c in cals])
-    return {"total": total, "random": random, "systematic": float(np.sqrt(max(total ** 2 - random ** 2, 0.0))),
+    return {"total": total, "random": random, "systematic": systematic,
             "staged": staged_total, "pose_ratio": _pooled(pose), "ray_ratio": _pooled(ray),
             "pose_ratios": pose, "ray_ratios": ray, "planes": planes, "notes": cals[0].notes}
+
+
+def error_parts(first: np.ndarray, second: np.ndarray, between: np.ndarray) -> tuple[float, float, float]:
+    """(total, random, systematic) ray error (px) from two captures of the same poses with other sensor
+    noise: `first` and `second` each capture's distances to the truth, `between` the distances between
+    their rays (arrays of one shape, NaN where a ray is not valid). total: the RMS over both captures;
+    random: the RMS of `between` over sqrt 2 (the part that differs from one noise draw to the next);
+    systematic: sqrt(total^2 - random^2), the part common to both. Pooled over both captures, so that one
+    unlucky draw of the poses' errors (module docstring) counts as much as the other."""
+    total = float(np.sqrt(np.nanmean(np.concatenate([np.ravel(first), np.ravel(second)]) ** 2)))
+    random = float(np.sqrt(np.nanmean(np.square(between)) / 2))
+    return total, random, float(np.sqrt(max(total ** 2 - random ** 2, 0.0)))
 
 
 def _pooled(ratios: list[float]) -> float:
