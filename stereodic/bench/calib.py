@@ -121,15 +121,17 @@ def _stats(prvm, truth) -> dict:
     return {"plane": ErrorStats.of(ray_error_px(prvm, truth)), "volume": ErrorStats.of(volume_error_px(prvm, truth))}
 
 
-def accuracy(lens: str, width: int, height: int, root: str, chessboard: bool = True) -> dict:
-    """Simulate one lens family and measure every method against its truth, each as `_stats`."""
+def accuracy(lens: str, width: int, height: int, root: str, chessboard: bool = True, steps: int = 3) -> dict:
+    """Simulate one lens family (`steps` phase steps per fringe period) and measure every method against
+    its truth, each as `_stats`."""
     from calib.calibration import calibrate_camera
     from calib.capture import load_capture
     from calib.opencv_baseline import calibrate_opencv, dense_correspondences
     from calib.prvm_file import PRVM, load_prvm
     from scanners.sim.calibration import simulate_calibration
-    out = Path(root) / lens
-    bench = dict(lens=lens, width=width, height=height, **({"periods": PERIODS[lens]} if lens in PERIODS else {}))
+    out = Path(root) / f"{lens}_{steps}"
+    bench = dict(lens=lens, width=width, height=height, steps=steps,
+                 **({"periods": PERIODS[lens]} if lens in PERIODS else {}))
     simulate_calibration(out, chessboard=chessboard, **bench)
     capture, truth = load_capture(out), load_prvm(out / "truth.npz")
     cal = calibrate_camera(capture)
@@ -145,6 +147,18 @@ def accuracy(lens: str, width: int, height: int, root: str, chessboard: bool = T
         o, d = board.rays(width, height)
         res["opencv_chess"] = _stats(PRVM(o, d, np.ones((height, width), bool)), truth)
     return res
+
+
+def _more_frames_figures(width: int, height: int, root: str, steps: int = 12) -> list[Figure]:
+    """The telecentric lens with 4x the fringe frames (`steps` phase steps per period, not 3): its
+    random part halved, the PRVM against OpenCV's dense fit of the same frames (issue 29, item 4)."""
+    r = accuracy("telecentric", width, height, root, chessboard=False, steps=steps)
+    reg, cv = r["reg"]["plane"].rms, r["opencv_dense"]["plane"].rms
+    g = f"calib/telecentric-{steps}-steps"
+    return [Figure(g, f"ray error RMS vs OpenCV dense (plane), OpenCV/ours {cv / reg:.1f}", reg, "px",
+                   "OpenCV 14-coef, dense, same frames", cv, "10x lower", cv >= 10 * reg),
+            Figure(g, "ray noise RMS, regularised (plane; two captures)", r["noise"][1], "px"),
+            Figure(g, "ray error RMS floor set by the stage error (plane)", r["floor"]["plane"].rms, "px")]
 
 
 def real_bench(lens: str, width: int, height: int, root: str, name: str, flaws) -> dict:
@@ -249,6 +263,8 @@ def run(quick: bool = False) -> list[Figure]:
                 for where in ("plane", "volume"):
                     figs.append(Figure(g, f"ray error RMS vs OpenCV chessboard ({where})", reg[where].rms, "px",
                                        "OpenCV 14-coef, chessboard", r["opencv_chess"][where].rms))
+        if not quick:
+            figs += _more_frames_figures(width, height, root)
         figs += _real_bench_figures(width, height, root, ideal)
         w5, h5 = (640, 512) if quick else (2592, 2048)
         path = Path(root) / "speed"
