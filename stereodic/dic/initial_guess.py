@@ -16,6 +16,7 @@ Positions in pixels, (x, y) = (column, row) of the reference image.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import cv2
@@ -32,6 +33,8 @@ NEIGHBOURS = 12       # matches per point's local affine fit
 MIN_INLIERS = 6       # fewer matches in a cell or a point's fit: no model there
 MAX_NODES = 1024      # nodes of the lattice the local affines are fitted on, at most
 
+_KEPT: dict = {}      # (id, max_features) of a read-only image -> (weak reference to it, its Features)
+
 
 @dataclass(frozen=True)
 class Features:
@@ -46,7 +49,9 @@ def image_features(img: np.ndarray, *, max_features: int = MAX_FEATURES) -> Feat
     """ORB features of an image (any real dtype; grey levels stretched between its 0.5 and 99.5
     percentiles to 8 bits first; found on the image shrunk by a power of 2 until its longer side is at most
     DETECT_SIDE, so that their cost does not grow with the image: a match is then good to about a pixel,
-    what IC-GN needs to converge).
+    what IC-GN needs to converge). Those of a read-only array are kept while the array lives and
+    returned again for it (a run's rectified reference pair: the rig check and the stereo start both
+    match its features).
 
     Parameters
     ----------
@@ -61,6 +66,20 @@ def image_features(img: np.ndarray, *, max_features: int = MAX_FEATURES) -> Feat
         Positions (pixels, x = column, y = row) and descriptors; none on a blank image.
     """
     img = np.asarray(img)
+    if img.flags.writeable:
+        return _orb(img, max_features)
+    key = (id(img), max_features)
+    kept = _KEPT.get(key)
+    if kept is not None and kept[0]() is img:
+        return kept[1]
+    features = _orb(img, max_features)
+    ref = weakref.ref(img, lambda dead: _KEPT.pop(key, None) if _KEPT.get(key, (None,))[0] is dead else None)
+    _KEPT[key] = (ref, features)
+    return features
+
+
+def _orb(img: np.ndarray, max_features: int) -> Features:
+    """`image_features` computed."""
     shrink = 1
     while max(img.shape) > DETECT_SIDE * shrink:
         shrink *= 2
