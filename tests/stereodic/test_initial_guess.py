@@ -1,0 +1,27 @@
+"""`stereodic.dic.initial_guess.image_features`: the features of a read-only image are computed once."""
+
+import gc
+
+import numpy as np
+
+from scanners.sim.speckle import make_speckle, render
+from stereodic.dic import initial_guess
+from stereodic.dic.initial_guess import image_features
+
+
+def test_features_of_a_read_only_image_are_kept_while_it_lives():
+    img = render(make_speckle(256, 192, seed=4), noise_sigma=1.0, seed=1)
+    fresh = image_features(img)                     # a writeable image: computed at every call
+    assert fresh.pts.shape[0] > 100 and image_features(img) is not fresh
+    img.flags.writeable = False
+    kept = image_features(img)
+    assert image_features(img) is kept              # computed once
+    np.testing.assert_array_equal(kept.pts, fresh.pts)
+    np.testing.assert_array_equal(kept.desc, fresh.desc)
+    other = img.copy()
+    other.flags.writeable = False
+    assert image_features(other) is not kept        # another array, even with the same pixels
+    before = len(initial_guess._KEPT)
+    del img, other
+    gc.collect()
+    assert len(initial_guess._KEPT) == before - 2   # forgotten with the image
