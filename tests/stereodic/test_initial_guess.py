@@ -6,7 +6,7 @@ import numpy as np
 
 from scanners.sim.speckle import make_speckle, render
 from stereodic.dic import initial_guess
-from stereodic.dic.initial_guess import image_features
+from stereodic.dic.initial_guess import consistent_matches, image_features
 
 
 def test_features_of_a_read_only_image_are_kept_while_it_lives():
@@ -25,3 +25,17 @@ def test_features_of_a_read_only_image_are_kept_while_it_lives():
     del img, other
     gc.collect()
     assert len(initial_guess._KEPT) == before - 2   # forgotten with the image
+
+
+def test_matches_of_kept_features_are_kept():
+    sp = make_speckle(256, 192, seed=4)
+    ref, dfm = render(sp, noise_sigma=1.0, seed=1), render(sp, (7.25, -3.5), noise_sigma=1.0, seed=2)
+    p0, q0 = consistent_matches(image_features(ref), image_features(dfm))    # writeable: computed each time
+    assert len(p0) > 50 and np.abs(np.median(q0 - p0, axis=0) - (7.25, -3.5)).max() < 0.5
+    for img in (ref, dfm):
+        img.flags.writeable = False
+    kept = consistent_matches(image_features(ref), image_features(dfm))
+    assert consistent_matches(image_features(ref), image_features(dfm)) is kept
+    np.testing.assert_array_equal(kept[0], p0)
+    np.testing.assert_array_equal(kept[1], q0)
+    assert not kept[0].flags.writeable
