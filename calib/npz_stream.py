@@ -4,6 +4,7 @@ A long sequence's results are arrays of shape (S, ...) - one slice per state - t
 memory together. `write_stacked_npz` writes such a file from iterators of slices, `iter_slices` reads one
 array back slice by slice. The files are ordinary uncompressed `.npz` files, byte for byte what
 `np.savez` writes for the same arrays (np.load reads them); writing is atomic (`calib.atomic`).
+`map_arrays` maps the arrays of any uncompressed `.npz` into memory instead of reading them.
 """
 
 from __future__ import annotations
@@ -82,12 +83,36 @@ def read_slice(path: str | os.PathLike, name: str, k: int) -> np.ndarray:
     if info.compress_type != zipfile.ZIP_STORED:
         raise ValueError(f"{name}: compressed, not a stacked array")
     with open(path, "rb") as f:
-        f.seek(info.header_offset)
-        local = f.read(30)                      # the member's local header: its name and extra field follow
-        f.seek(info.header_offset + 30 + int.from_bytes(local[26:28], "little") +
-               int.from_bytes(local[28:30], "little"))
+        _seek_member(f, info)
         shape, dtype, size = _stacked_header(f, name)
         if not 0 <= k < shape[0]:
             raise IndexError(f"{name}: slice {k} of {shape[0]}")
         f.seek(k * size, os.SEEK_CUR)
         return np.frombuffer(f.read(size), dtype).reshape(shape[1:]).copy()
+
+
+def _seek_member(f, info: zipfile.ZipInfo) -> None:
+    """Move the open archive `f` to the first byte of the stored (uncompressed) member `info`."""
+    f.seek(info.header_offset)
+    local = f.read(30)                          # the member's local header: its name and extra field follow
+    f.seek(info.header_offset + 30 + int.from_bytes(local[26:28], "little") + int.from_bytes(local[28:30], "little"))
+
+
+def map_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """The arrays of an `.npz` that it stores uncompressed, memory-mapped read-only (`np.memmap` at each
+    member's data): nothing is read until it is used, and then only the pages used. Members compressed,
+    empty, 0-d or of an object dtype are left out (`np.load` reads those)."""
+    out = {}
+    with zipfile.ZipFile(path) as zf, open(path, "rb") as f:
+        for info in zf.infolist():
+            if info.compress_type != zipfile.ZIP_STORED or not info.filename.endswith(".npy"):
+                continue
+            _seek_member(f, info)
+            version = np.lib.format.read_magic(f)
+            read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            shape, fortran, dtype = read(f)
+            if not shape or 0 in shape or dtype.hasobject:
+                continue
+            out[info.filename[:-4]] = np.memmap(path, dtype, mode="r", offset=f.tell(), shape=shape,
+                                                order="F" if fortran else "C")
+    return out

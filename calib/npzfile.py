@@ -13,13 +13,16 @@ from pathlib import Path
 import numpy as np
 
 from calib.errors import InputError
+from calib.npz_stream import map_arrays
 
 
 def read_npz(path: str | os.PathLike, fmt: str | tuple[str, ...], what: str,
-             advice: dict[str, str] | None = None, keys: tuple[str, ...] | None = None
-             ) -> tuple[dict, dict[str, np.ndarray]]:
+             advice: dict[str, str] | None = None, keys: tuple[str, ...] | None = None, *,
+             mapped: bool = False) -> tuple[dict, dict[str, np.ndarray]]:
     """(meta, arrays without meta) of the file at `path`, which must be a `fmt` file (or of one of the
-    formats, a tuple); `keys`: read only these arrays (default all), e.g. the small ones of a large file.
+    formats, a tuple); `keys`: read only these arrays (default all), e.g. the small ones of a large file;
+    `mapped`: the arrays the file stores uncompressed memory-mapped read-only instead of read
+    (`calib.npz_stream.map_arrays`: a large file opens at once, its pages read as they are used).
 
     what: the kind of file in messages ("PRVM", "rig", ...). advice: for formats a user may pass by
     mistake, a hint added to the message (e.g. {"stereodic.prvm/1": "a camera file: build a rig ..."}).
@@ -48,8 +51,9 @@ def read_npz(path: str | os.PathLike, fmt: str | tuple[str, ...], what: str,
         raise InputError(path, f"not a {what} file: a zip archive, but not of numpy arrays (it holds "
                                f"{others[0]})")
     try:
+        maps = map_arrays(path) if mapped else {}
         with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files if keys is None or k in keys or k == "meta"}
+            arrays = {k: maps[k] if k in maps else z[k] for k in z.files if keys is None or k in keys or k == "meta"}
     except Exception:  # zipfile and numpy raise several types for a damaged archive
         raise InputError(path, f"not a readable {what} file: the .npz archive is damaged or holds other "
                                "than numpy arrays") from None

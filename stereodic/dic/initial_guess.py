@@ -16,6 +16,7 @@ Positions in pixels, (x, y) = (column, row) of the reference image.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import cv2
@@ -32,6 +33,9 @@ NEIGHBOURS = 12       # matches per point's local affine fit
 MIN_INLIERS = 6       # fewer matches in a cell or a point's fit: no model there
 MAX_NODES = 1024      # nodes of the lattice the local affines are fitted on, at most
 
+_KEPT: dict = {}      # ("features", id of a read-only image, max_features) -> (weak reference to it, its Features);
+#                       ("matches", ids of two Features) -> (weak references to both, their consistent matches)
+
 
 @dataclass(frozen=True)
 class Features:
@@ -46,7 +50,9 @@ def image_features(img: np.ndarray, *, max_features: int = MAX_FEATURES) -> Feat
     """ORB features of an image (any real dtype; grey levels stretched between its 0.5 and 99.5
     percentiles to 8 bits first; found on the image shrunk by a power of 2 until its longer side is at most
     DETECT_SIDE, so that their cost does not grow with the image: a match is then good to about a pixel,
-    what IC-GN needs to converge).
+    what IC-GN needs to converge). Those of a read-only array are kept while the array lives and
+    returned again for it (a run's rectified reference pair: the rig check and the stereo start both
+    match its features).
 
     Parameters
     ----------
@@ -61,6 +67,31 @@ def image_features(img: np.ndarray, *, max_features: int = MAX_FEATURES) -> Feat
         Positions (pixels, x = column, y = row) and descriptors; none on a blank image.
     """
     img = np.asarray(img)
+    if img.flags.writeable:
+        return _orb(img, max_features)
+    key = ("features", id(img), max_features)
+    kept = _KEPT.get(key)
+    if kept is not None and kept[0]() is img:
+        return kept[1]
+    features = _orb(img, max_features)
+    _keep(key, (img,), features)
+    return features
+
+
+def _keep(key: tuple, owners: tuple, value) -> None:
+    """Keep `value` in _KEPT under `key` while every one of `owners` lives."""
+    refs = []
+
+    def forget(dead) -> None:
+        if _KEPT.get(key, (None,))[0] is refs[0]:
+            del _KEPT[key]
+
+    refs[:] = [weakref.ref(o, forget) for o in owners]
+    _KEPT[key] = (*refs, value)
+
+
+def _orb(img: np.ndarray, max_features: int) -> Features:
+    """`image_features` computed."""
     shrink = 1
     while max(img.shape) > DETECT_SIDE * shrink:
         shrink *= 2
@@ -133,7 +164,8 @@ def _local_affine(p: np.ndarray, q: np.ndarray, xs: np.ndarray, ys: np.ndarray, 
 
 def consistent_matches(ref: Features, dfm: Features) -> tuple[np.ndarray, np.ndarray]:
     """The feature matches between two images that pass the ratio test and some cell's RANSAC affine
-    (module docstring).
+    (module docstring). Kept while both Features live and returned again for them (read-only arrays:
+    the rig check and the stereo start match the reference pair's features).
 
     Parameters
     ----------
@@ -145,11 +177,21 @@ def consistent_matches(ref: Features, dfm: Features) -> tuple[np.ndarray, np.nda
     p, q : (K, 2) float64
         Matched positions in the reference and the deformed image, pixels (x = column, y = row); K may be 0.
     """
+    key = ("matches", id(ref), id(dfm))
+    kept = _KEPT.get(key)
+    if kept is not None and kept[0]() is ref and kept[1]() is dfm:
+        return kept[2]
     p, q = _matches(ref, dfm)
     if len(p) < MIN_INLIERS:
-        return np.zeros((0, 2)), np.zeros((0, 2))
-    keep = _inliers(p, q)
-    return p[keep], q[keep]
+        p, q = np.zeros((0, 2)), np.zeros((0, 2))
+    else:
+        keep = _inliers(p, q)
+        p, q = p[keep], q[keep]
+    for a in (p, q):
+        a.flags.writeable = False
+    matches = (p, q)
+    _keep(key, (ref, dfm), matches)
+    return matches
 
 
 def feature_guess(matches: tuple[np.ndarray, np.ndarray], xs: np.ndarray, ys: np.ndarray

@@ -30,7 +30,7 @@ import numpy as np
 from calib.atomic import atomic_output
 from calib.npz_stream import write_stacked_npz
 from stereodic.dic.grid import Grid
-from stereodic.dic.icgn import STATUS_NAMES
+from stereodic.dic.icgn import OK, OUTSIDE, STATUS_NAMES
 from stereodic.dic.maps import Backdrop, MapAxes, MapMovie, MapPainter, RunScales, save_map
 from stereodic.dic.output import STRAIN_COLUMNS, fmt
 from stereodic.dic3d.stereo import NO_REFERENCE, RAY_GAP, CameraMatch, StereoSettings, StereoState
@@ -105,16 +105,19 @@ _COMBINED = ("ok", RAY_GAP, NO_REFERENCE)  # status codes 0-2; 3: "left:<status>
 
 
 def _status_code(st: StereoState) -> np.ndarray:
-    code = np.select([st.status == "ok", st.status == RAY_GAP, st.status == NO_REFERENCE,
-                      ~st.left.ok], [0, 1, 2, 3], 4).astype(np.int8)
-    return code
+    left = np.char.startswith(np.asarray(st.status, str), "left:")
+    return np.select([st.status == "ok", st.status == RAY_GAP, st.status == NO_REFERENCE, left],
+                     [0, 1, 2, 3], 4).astype(np.int8)
 
 
 def _status_strings(code: np.ndarray, left_status: np.ndarray, right_status: np.ndarray) -> np.ndarray:
+    """The combined statuses back from `_status_code` and the cameras' statuses: a camera's failure whose
+    own match is ok is its subset taking in the blank band (`stereo.in_view`), "outside"."""
     names = np.array(STATUS_NAMES, dtype=object)
     out = np.array(_COMBINED, dtype=object)[np.minimum(code, 2)]
-    out[code == 3] = "left:" + names[left_status[code == 3]]
-    out[code == 4] = "right:" + names[right_status[code == 4]]
+    for c, side, status in ((3, "left:", left_status), (4, "right:", right_status)):
+        own = status[code == c]
+        out[code == c] = side + names[np.where(own == OK, OUTSIDE, own)]
     return out
 
 

@@ -7,8 +7,8 @@ centres in the rig's frame (the WCS of its rays), mm.
 
 Row offsets. In a rectified pair a scene point is seen on one row of both images; a camera that moved
 after its calibration moves the right image's rows by dy(x, y) = y_right - y_left, a smooth field (a
-turn of the camera: a shift, a tilt, a slight bend). `measure_row_offsets` matches features of the left
-image in a band of +-max_dy rows of the right one (`rectify.row_alignment`) and fits dy with a quadratic
+turn of the camera: a shift, a tilt, a slight bend). `measure_row_offsets` matches the two images'
+features, at most max_dy rows apart, refined by IC-GN (`rectify.row_alignment`) and fits dy with a quadratic
 surface in (x, y) (least squares, the matches beyond 5 robust standard deviations left out); the seeds
 of the stereo match then search a band about the fitted offset (`offset_seed_search`) instead of the
 row itself.
@@ -49,7 +49,7 @@ from stereodic.stereo.triangulate import rays_at
 
 MATCH_HALF = 10       # half-width of the features' subsets (row_alignment's)
 BUMP_DEG = 1.0        # a larger correction is warned about: more than a knock turns a camera on its mount
-FEATURES = 300        # features of the left image searched for
+FEATURES = 300        # matched features refined, at most (row_alignment's count)
 
 
 @dataclass
@@ -99,7 +99,7 @@ def measure_row_offsets(left: np.ndarray, right: np.ndarray, *, max_dy: int | No
     left, right : (H, W) array
         The rectified pair, pixels (blank pixels 0).
     max_dy : int, optional
-        Rows above and below its own that a feature is searched in; None: `rectify.row_band`.
+        Rows above and below its own that a feature's match is accepted in; None: `rectify.row_band`.
 
     Returns
     -------

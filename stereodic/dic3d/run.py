@@ -40,30 +40,40 @@ def prepare_pair(data: DicStates, rig: Rig, settings: StereoSettings, k: int) ->
 
 
 def run_states(store: RunStore, data: DicStates, rig: Rig, grid: Grid, seeds, settings: StereoSettings, *,
-               report: Callable[[StereoState], None] = lambda state: None) -> StereoState:
+               report: Callable[[StereoState], None] = lambda state: None, rows: bool = False) -> StereoState:
     """Solve the states the store has not finished (`store.open` first), saving each; `report` is called
-    with each state solved (state 0 also when it is read back). Returns state 0."""
+    with each state solved (state 0 also when it is read back). `rows`: also keep each solved state's rows
+    of dic.csv in the store (`RunStore.write_rows`), formatted from the state in memory by a forked child
+    while the next state is solved (`background.Background`; with one thread, by the caller), so that
+    `write_outputs` need not read the states back for them: for a dic.csv in the rig's frame (the states
+    as solved). Returns state 0."""
     n = len(data)
     done = store.done
     pair0 = prepare_pair(data, rig, settings, 0)
     run = StereoRun.prepare(rig, grid, settings, seeds, pair0)
-    if done == 0:
-        state0, carry = solve_state(run, 0, pair0)
-        store.write_state(state0, carry)
-        report(state0)
-        done = 1
-    else:
-        state0, carry = store.read_state(0), store.read_carry()
-        report(state0)
-    run = run.with_reference(state0)
-    previous = pair0 if done == 1 else prepare_pair(data, rig, settings, done - 1)
-    todo = range(done, n)
-    pairs = prefetch(todo, lambda k: prepare_pair(data, rig, settings, k))
-    for k, pair in progress(pairs, "dic", total=n, initial=done, unit="state"):
-        state, carry = solve_state(run, k, pair, carry, previous)
-        store.write_state(state, carry)
-        report(state)
-        previous = pair
+    with Background(threads() - 1 if rows else 0) as bg:
+        def keep(state: StereoState, carry) -> None:
+            store.write_state(state, carry)
+            if rows:
+                bg.submit(functools.partial(_keep_rows, store, grid, state.state, state),
+                          f"the CSV rows of state {state.state}")
+            report(state)
+
+        if done == 0:
+            state0, carry = solve_state(run, 0, pair0)
+            keep(state0, carry)
+            done = 1
+        else:
+            state0, carry = store.read_state(0), store.read_carry()
+            report(state0)
+        run = run.with_reference(state0)
+        previous = pair0 if done == 1 else prepare_pair(data, rig, settings, done - 1)
+        todo = range(done, n)
+        pairs = prefetch(todo, lambda k: prepare_pair(data, rig, settings, k))
+        for k, pair in progress(pairs, "dic", total=n, initial=done, unit="state"):
+            state, carry = solve_state(run, k, pair, carry, previous)
+            keep(state, carry)
+            previous = pair
     return state0
 
 
@@ -120,6 +130,7 @@ def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: Ste
         _write_outputs(view, grid, folder, settings, info, state_files=True, **options)
     finally:
         shutil.rmtree(folder / ".frame", ignore_errors=True)
+    store.remove_rows()               # rows kept in the rig's frame (`run_states(rows=True)`) are not these
 
 
 def _run_scales(store: RunStore, every: int, active, limits: dict | None = None) -> RunScales:
@@ -184,6 +195,7 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
         write_collection(folder / "vtk", range(n))
 
 
-def _keep_rows(store: RunStore, grid: Grid, k: int) -> None:
-    """Format state k's rows of dic.csv and keep them in the store (`RunStore.write_rows`)."""
-    store.write_rows(k, csv_rows(grid, store.read_state(k)))
+def _keep_rows(store: RunStore, grid: Grid, k: int, state: StereoState | None = None) -> None:
+    """Format state k's rows of dic.csv and keep them in the store (`RunStore.write_rows`), from `state`
+    (None: read from the store)."""
+    store.write_rows(k, csv_rows(grid, store.read_state(k) if state is None else state))

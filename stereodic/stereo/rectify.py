@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from stereodic.dic.background import thread_map
+from stereodic.dic.background import side_by_side
 from stereodic.stereo.rig import Rig
 from stereodic.virtual.undistort import undistort_image
 
@@ -45,17 +45,19 @@ def rectify_pair(rig: Rig, left: np.ndarray, right: np.ndarray, *, intensity: bo
         The rectified images on the rig's common virtual sensor, the input's dtype (float32 with
         `exact`); blank pixels 0.
     """
-    out = []
-    for side, image, name in zip(("left", "right"), (left, right), where):
+    def one(side: str, image: np.ndarray, name) -> np.ndarray:
         cam = rig.camera(side)
-        out.append(undistort_image(image, cam.imm, im=cam.im if intensity else None, fixed_point=fixed_point,
-                                   where=name, exact=exact))
+        return undistort_image(image, cam.imm, im=cam.im if intensity else None, fixed_point=fixed_point,
+                               where=name, exact=exact)
+
+    # the two cameras side by side on the run's threads (OpenCV's remap and numpy release the GIL)
+    out = side_by_side(lambda: one("left", left, where[0]), lambda: one("right", right, where[1]))
     return out[0], out[1]
 
 
 def row_band(height: int) -> int:
-    """Rows above and below its own that `row_alignment` searches a feature in by default: an eighth of
-    the image height, at least 16."""
+    """Rows above and below its own that `row_alignment` accepts a feature's match in by default: an
+    eighth of the image height, at least 16."""
     return max(16, height // 8)
 
 
@@ -78,53 +80,59 @@ class RowAlignment:
 
 def row_alignment(left: np.ndarray, right: np.ndarray, *, max_dy: int | None = None, half: int = 10,
                   count: int = 150, min_zncc: float = 0.9) -> RowAlignment:
-    """How well the rows of a rectified pair line up, from features with texture in both directions.
+    """How well the rows of a rectified pair line up, from features matched between the two images.
 
-    Corners of the left image (Shi-Tomasi, at most `count`, whole subsets of half-width `half` inside
-    both images' valid areas) are searched for in the right image over the whole width and rows within
-    `max_dy` of their own (ZNCC, cv2.matchTemplate, several corners at once on the run's `threads()`;
-    None: an eighth of the height, at least 16 rows: a rig whose calibration no longer fits its images
-    can put them tens of rows apart); a match with a
-    second peak nearly as good elsewhere along the rows (a periodic or stripe pattern: no reliable
-    position) is dropped; the rest are refined to sub-pixel by IC-GN with an affine subset (the 2D DIC
-    engine, `stereodic.dic`: the two views foreshorten a surface differently) and kept where they
-    converge with at least `min_zncc`. Pixels, rectified images."""
+    ORB features of both images (`stereodic.dic.initial_guess.image_features`: kept for a read-only
+    image, so that the stereo start of a run reuses them) are matched whatever the rows' offset and kept
+    where a local RANSAC affine agrees (`consistent_matches`: a periodic or stripe pattern gives no
+    reliable match); at most `count` of them, spread over the image (one per cell of a regular lattice),
+    whose subsets of half-width `half` lie inside both images' valid areas, are refined to sub-pixel by
+    IC-GN with an affine subset from the match (the 2D DIC engine, `stereodic.dic`: the two views
+    foreshorten a surface differently) and kept where they converge with at least `min_zncc` and rows
+    within `max_dy` of their own (None: `row_band`, an eighth of the height, at least 16: a rig whose
+    calibration no longer fits its images can put them tens of rows apart).
+
+    Parameters
+    ----------
+    left, right : (H, W) array
+        The rectified pair (blank pixels 0), any real dtype.
+
+    Returns
+    -------
+    match : RowAlignment
+        The refined matches, rectified pixels; empty when none converged.
+    """
     from stereodic.dic import BSplineImage, DicSettings, correlate_points
+    from stereodic.dic.initial_guess import consistent_matches, image_features
 
-    lf, rf = left.astype(np.float32), right.astype(np.float32)
-    max_dy = row_band(left.shape[0]) if max_dy is None else int(max_dy)
-    side = 2 * half + 1
-    valid = cv2.erode(((left > 0) & (right > 0)).astype(np.uint8), np.ones((side + 2, side + 2), np.uint8))
-    corners = cv2.goodFeaturesToTrack(lf, count, 0.05, 2 * half, mask=valid)
     h, w = left.shape
-    inside = [(x, y) for x, y in ([] if corners is None else np.rint(corners[:, 0]).astype(int))
-              if half + max_dy <= y < h - half - max_dy and half <= x < w - half]
-    # the searches are independent and OpenCV releases the GIL: side by side on the run's threads
-    seeds = [m for m in thread_map(lambda xy: _band_match(lf, rf, *xy, half, max_dy), inside) if m is not None]
-    if not seeds:
+    max_dy = row_band(h) if max_dy is None else int(max_dy)
+    p, q = consistent_matches(image_features(left), image_features(right))
+    side = 2 * half + 1
+    kernel = np.ones((side + 2, side + 2), np.uint8)
+    inside = [cv2.erode((img > 0).astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+              for img in (left, right)]
+    xl, yl = np.rint(p).astype(np.int64).T
+    xr, yr = np.rint(q).astype(np.int64).T
+    ok = ((xl >= 0) & (xl < w) & (yl >= 0) & (yl < h) & (xr >= 0) & (xr < w) & (yr >= 0) & (yr < h)
+          & (np.abs(q[:, 1] - p[:, 1]) <= max_dy + 1))
+    ok[ok] = (inside[0][yl[ok], xl[ok]] > 0) & (inside[1][yr[ok], xr[ok]] > 0)
+    if not ok.any():
         return RowAlignment(*(np.empty(0) for _ in range(5)))
-    x, y, du, dv = np.array(seeds, np.float64).T
+    # one match per cell of a lattice of about `count` cells over the image: spread, and a few hundred at most
+    cell = max(float(np.sqrt(h * w / count)), 1.0)
+    sel = np.flatnonzero(ok)
+    key = (yl[sel] // cell).astype(np.int64) * (int(w // cell) + 1) + (xl[sel] // cell).astype(np.int64)
+    sel = sel[np.unique(key, return_index=True)[1]]
+    sel = sel[np.linspace(0, sel.size - 1, min(count, sel.size)).astype(np.int64)]
+    x, y = xl[sel].astype(np.float64), yl[sel].astype(np.float64)
+    start = q[sel] - p[sel]                      # the match's displacement, about a pixel good
     settings = DicSettings(subset=side, min_zncc=min_zncc)
     res = correlate_points(BSplineImage.from_image(left, order=3, prefilter_sigma=settings.prefilter_sigma),
                            BSplineImage.from_image(right, order=3, prefilter_sigma=settings.prefilter_sigma), x, y,
-                           np.stack([du, dv], 1), settings=settings)
+                           start, settings=settings)
     ok = np.isfinite(res.u) & (np.abs(res.v) <= max_dy)
     return RowAlignment(x[ok], y[ok], x[ok] + res.u[ok], res.v[ok], res.zncc[ok])
-
-
-def _band_match(lf: np.ndarray, rf: np.ndarray, x: int, y: int, half: int, max_dy: int
-                ) -> tuple[int, int, int, int] | None:
-    """`row_alignment`'s search of the left feature at pixel (x, y) in the right image's band of rows
-    y +- max_dy (float32 images): (x, y, du, dv) of the best ZNCC, None where a second peak along the rows
-    is nearly as good."""
-    tpl = lf[y - half:y + half + 1, x - half:x + half + 1]
-    score = np.nan_to_num(cv2.matchTemplate(rf[y - half - max_dy:y + half + max_dy + 1], tpl, cv2.TM_CCOEFF_NORMED),
-                          nan=-1.0)
-    r, c = np.unravel_index(int(np.argmax(score)), score.shape)
-    away = np.abs(np.arange(score.shape[1]) - c) > half
-    if not away.any() or score[:, away].max() < score[r, c] - 0.1:
-        return x, y, c + half - x, r - max_dy
-    return None
 
 
 def offset_text(match: RowAlignment) -> str:

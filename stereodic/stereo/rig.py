@@ -484,7 +484,7 @@ def load_rig(path: str | os.PathLike) -> Rig:
         The sensor and both cameras. InputError naming the file if it is missing or not a rig file.
     """
     meta, arrays = read_npz(path, FORMAT, "rig", advice={
-        PRVM_FORMAT: "a camera file: build a rig with `stereodic rig LEFT.npz RIGHT.npz`"})
+        PRVM_FORMAT: "a camera file: build a rig with `stereodic rig LEFT.npz RIGHT.npz`"}, mapped=True)
     sensor = VirtualSensor.from_dict(meta["sensor"])
     frame = world_from_rig(meta, path)
     cams = []

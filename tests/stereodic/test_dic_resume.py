@@ -86,3 +86,30 @@ def test_other_settings_or_inputs_are_refused_in_one_line(dic_sim, uninterrupted
     assert len(err.splitlines()) == 1 and "inputs" in err and bytes(raw) != img.read_bytes()
     assert main(["dic", str(data / "rig.npz"), str(data), *OPTS, "--restart", "-o", str(out)]) == 0
     assert json.loads((out / "run.json").read_text())["done"] == 3
+
+
+def test_a_state_file_keeps_every_combined_status():
+    """The combined statuses of a state read back from its file (what a resumed run, a cluster's task and
+    dic.csv's rows read) are those the run set, including a camera that matched but whose subset takes in
+    the blank band ('left:outside' with the left match ok) - and so are its CSV rows."""
+    from stereodic.dic.grid import make_grid
+    from stereodic.dic.icgn import DIVERGED, LOW_ZNCC, OK
+    from stereodic.dic3d.output import csv_rows, state_arrays, state_from_arrays
+    from stereodic.dic3d.stereo import CameraMatch, StereoState
+
+    grid = make_grid(50, 20, subset=5, step=10)
+    shape = grid.shape
+    combined = np.array(["ok", "ray_gap", "no_reference", "left:outside", "right:outside", "left:diverged",
+                         "right:low_zncc", "ok", "ok", "ray_gap"], dtype=object).reshape(shape)
+    left = np.full(shape, OK, np.int8)
+    right = np.full(shape, OK, np.int8)
+    left[combined == "left:diverged"] = DIVERGED
+    right[combined == "right:low_zncc"] = LOW_ZNCC
+    ones = np.ones(shape)
+    cams = [CameraMatch(ones, ones, ones, s, ones, np.ones(shape + (2,))) for s in (left, right)]
+    conv = combined == "ok"
+    st = StereoState(1, cams[0], cams[1], np.ones(shape + (3,)), np.ones(shape + (3,)), ones, conv, combined, None,
+                     np.zeros(shape, bool))
+    back = state_from_arrays(state_arrays(st), None)
+    assert back.status.tolist() == combined.tolist()
+    assert csv_rows(grid, back) == csv_rows(grid, st)

@@ -1,0 +1,41 @@
+"""`stereodic.dic.initial_guess.image_features`: the features of a read-only image are computed once."""
+
+import gc
+
+import numpy as np
+
+from scanners.sim.speckle import make_speckle, render
+from stereodic.dic import initial_guess
+from stereodic.dic.initial_guess import consistent_matches, image_features
+
+
+def test_features_of_a_read_only_image_are_kept_while_it_lives():
+    img = render(make_speckle(256, 192, seed=4), noise_sigma=1.0, seed=1)
+    fresh = image_features(img)                     # a writeable image: computed at every call
+    assert fresh.pts.shape[0] > 100 and image_features(img) is not fresh
+    img.flags.writeable = False
+    kept = image_features(img)
+    assert image_features(img) is kept              # computed once
+    np.testing.assert_array_equal(kept.pts, fresh.pts)
+    np.testing.assert_array_equal(kept.desc, fresh.desc)
+    other = img.copy()
+    other.flags.writeable = False
+    assert image_features(other) is not kept        # another array, even with the same pixels
+    before = len(initial_guess._KEPT)
+    del img, other
+    gc.collect()
+    assert len(initial_guess._KEPT) == before - 2   # forgotten with the image
+
+
+def test_matches_of_kept_features_are_kept():
+    sp = make_speckle(256, 192, seed=4)
+    ref, dfm = render(sp, noise_sigma=1.0, seed=1), render(sp, (7.25, -3.5), noise_sigma=1.0, seed=2)
+    p0, q0 = consistent_matches(image_features(ref), image_features(dfm))    # writeable: computed each time
+    assert len(p0) > 50 and np.abs(np.median(q0 - p0, axis=0) - (7.25, -3.5)).max() < 0.5
+    for img in (ref, dfm):
+        img.flags.writeable = False
+    kept = consistent_matches(image_features(ref), image_features(dfm))
+    assert consistent_matches(image_features(ref), image_features(dfm)) is kept
+    np.testing.assert_array_equal(kept[0], p0)
+    np.testing.assert_array_equal(kept[1], q0)
+    assert not kept[0].flags.writeable
