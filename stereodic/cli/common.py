@@ -327,6 +327,28 @@ def remove_empty(folders: list[Path]) -> None:
             p.rmdir()
 
 
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3   # glibc's mallopt parameters (malloc.h)
+MMAP_THRESHOLD_BYTES = 2 ** 30
+
+
+def memory_reuse() -> None:
+    """Keep freed memory in this process for the next array (a heavy command calls this first).
+
+    glibc returns a freed block larger than its mmap threshold to the operating system at once, and
+    trims the heap's freed top; an image-sized array allocated next is then faulted in again page by
+    page (system time). Raising the mmap threshold to MMAP_THRESHOLD_BYTES and switching trimming off
+    (`mallopt`) keeps the memory of the run's largest arrays for the next ones; the process holds its
+    peak memory until it exits. Nothing happens outside glibc (other C libraries, macOS, Windows).
+    """
+    import ctypes
+    import platform
+    if platform.libc_ver()[0] != "glibc":
+        return
+    libc = ctypes.CDLL(None)
+    libc.mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
+    libc.mallopt(M_TRIM_THRESHOLD, -1)      # size_t -1: never trim
+
+
 def wrote(path: str | os.PathLike, summary: str = "") -> None:
     """Print the one line that reports an output: `wrote PATH` or `wrote PATH: summary`."""
     print(f"wrote {os.fspath(path)}" + (f": {summary}" if summary else ""), flush=True)

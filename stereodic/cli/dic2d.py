@@ -95,7 +95,8 @@ def run(args) -> int:
     from calib.numbers import fixed
     from calib.progress import note, progress
     from calib.sequences import frame_times
-    from stereodic.cli.common import dic_grid, wrote
+    from stereodic.cli.common import dic_grid, memory_reuse, wrote
+    memory_reuse()
     from stereodic.dic import STATUS_NAMES, DicSettings, correlate_sequence
     from stereodic.dic.maps import MapPainter, RunScales, pixel_axes
     from stereodic.dic.output import CsvWriter, image_arrays, image_maps, plot_image, write_npz
