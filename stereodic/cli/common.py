@@ -327,6 +327,28 @@ def remove_empty(folders: list[Path]) -> None:
             p.rmdir()
 
 
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3   # glibc's mallopt parameters (malloc.h)
+MMAP_THRESHOLD_BYTES = 2 ** 30
+
+
+def memory_reuse() -> None:
+    """Keep freed memory in this process for the next array (a heavy command calls this first).
+
+    glibc returns a freed block larger than its mmap threshold to the operating system at once, and
+    trims the heap's freed top; an image-sized array allocated next is then faulted in again page by
+    page (system time). Raising the mmap threshold to MMAP_THRESHOLD_BYTES and switching trimming off
+    (`mallopt`) keeps the memory of the run's largest arrays for the next ones; the process holds its
+    peak memory until it exits. Nothing happens outside glibc (other C libraries, macOS, Windows).
+    """
+    import ctypes
+    import platform
+    if platform.libc_ver()[0] != "glibc":
+        return
+    libc = ctypes.CDLL(None)
+    libc.mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
+    libc.mallopt(M_TRIM_THRESHOLD, -1)      # size_t -1: never trim
+
+
 def wrote(path: str | os.PathLike, summary: str = "") -> None:
     """Print the one line that reports an output: `wrote PATH` or `wrote PATH: summary`."""
     print(f"wrote {os.fspath(path)}" + (f": {summary}" if summary else ""), flush=True)
@@ -611,14 +633,15 @@ def _region(args, width: int, height: int, image: str):
     return roi, mask
 
 
-def dic_grid(args, width: int, height: int, image: str, source: str, *, reference=None, original=None):
+def dic_grid(args, width: int, height: int, image: str, source: str, *, reference=None, noise=None, original=None):
     """The DIC point grid and seeds from the options --subset, --step, --roi, --mask, --roi-polygon and
     --start-point, for a reference image of width x height pixels (`image` names it in messages, `source` is the
     file blamed when no point fits). `original`: the IMM (stereodic.virtual.imm.IMM) of a rectified reference
     image, whose --roi, --mask, --roi-polygon and --start-point are in the original image with --roi-frame
     original.
     Without any of them, `reference` (a callable giving the reference image) places the points where it
-    has speckle (`stereodic.dic.texture.specimen_mask`). Returns (grid, seeds [(x, y), ...]); InputError
+    has speckle (`stereodic.dic.texture.specimen_mask`; `noise`: a callable giving its noise estimate, where the
+    caller keeps one, `stereodic.dic.ImageRef.sigma`). Returns (grid, seeds [(x, y), ...]); InputError
     for any option that does not fit.
     """
     import numpy as np
@@ -647,7 +670,7 @@ def dic_grid(args, width: int, height: int, image: str, source: str, *, referenc
         roi, mask = _region(args, width, height, image)
     if roi is None and mask is None and reference is not None:
         from stereodic.dic.texture import specimen_mask
-        mask = specimen_mask(reference(), subset=args.subset)
+        mask = specimen_mask(reference(), subset=args.subset, noise=None if noise is None else noise())
         if not mask.any():
             raise InputError(source, f"the {image} has no speckle that a {args.subset}-pixel subset can register "
                                      f"(blank, dark or out of focus?); give --roi or --mask to measure anyway")

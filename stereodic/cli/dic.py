@@ -223,7 +223,8 @@ def run(args) -> int:
     from calib.progress import note
     from calib.imageio import read_gray
     from calib.sequences import frame_times
-    from stereodic.cli.common import wrote
+    from stereodic.cli.common import memory_reuse, wrote
+    memory_reuse()
     from stereodic.dic3d import epipolar
     from stereodic.dic3d.refit import reference_geometry
     from stereodic.dic3d.run import run_states, write_outputs

@@ -95,14 +95,16 @@ def run(args) -> int:
     from calib.numbers import fixed
     from calib.progress import note, progress
     from calib.sequences import frame_times
-    from stereodic.cli.common import dic_grid, wrote
-    from stereodic.dic import STATUS_NAMES, DicSettings, correlate_sequence
-    from stereodic.dic.maps import MapPainter, RunScales, pixel_axes
+    from stereodic.cli.common import dic_grid, memory_reuse, wrote
+    memory_reuse()
+    from stereodic.dic import STATUS_NAMES, DicSettings, ImageRef, correlate_sequence
     from stereodic.dic.output import CsvWriter, image_arrays, image_maps, plot_image, write_npz
     from stereodic.dic3d.diagnose import diagnosis
     if args.strain_window:  # strain (and its scipy) only when asked for
         from stereodic.strain.fit import strain_2d
         from stereodic.strain.measures import measure_strain
+    if args.plot:  # the maps' module only when they are asked for
+        from stereodic.dic.maps import MapPainter, RunScales, pixel_axes
     if args.columns == "dice":
         from stereodic.formats.dice_columns import gauge_px, header, numbered, sigma_gamma, strain_columns, write_solution
 
@@ -120,14 +122,17 @@ def run(args) -> int:
                                                for k, p in enumerate(defs[:PRELOAD_BYTES // ref.nbytes])]
     for path in defs[len(preloaded):]:
         check_size(path, (width, height), f"the reference {args.ref}")
-    grid, seeds = dic_grid(args, width, height, "reference", args.ref, reference=lambda: ref)
     settings = DicSettings(subset=args.subset, shape=args.shape, order=3 if args.interp == "cubic" else 5,
                            prefilter_sigma=args.prefilter, min_zncc=args.min_zncc, **search_settings(args))
+    # in-process, the reference prepared once: its noise estimate also places the points (specimen_mask)
+    reference = None if args.scheduler else ImageRef.prepare(ref, settings, keep_subsets=True)
+    grid, seeds = dic_grid(args, width, height, "reference", args.ref, reference=lambda: ref,
+                           noise=None if reference is None else lambda: reference.sigma)
     out = Path(args.output)
 
     has_strain = bool(args.strain_window)
     act = grid.active.ravel()
-    scales = RunScales(floor={c: 100.0 for c in ("exx", "eyy", "exy")})
+    scales = RunScales(floor={c: 100.0 for c in ("exx", "eyy", "exy")}) if args.plot else None
     cluster = contextlib.nullcontext()
     if args.scheduler:
         from stereodic.cluster import connect
@@ -138,8 +143,8 @@ def run(args) -> int:
         if client is None:
             images = itertools.chain(preloaded, (read(p) for p in defs[len(preloaded):]))
             fields = correlate_sequence(ref, images, grid, settings=settings, seeds=seeds,
-                                        incremental=args.incremental,
-                                        switch_zncc=args.switch_zncc)
+                                        incremental=args.incremental, switch_zncc=args.switch_zncc,
+                                        reference=reference)
         else:
             fields = correlate_sequence_on(client, args.ref, [str(p) for p in defs], read, grid, settings, seeds,
                                            args.incremental, args.switch_zncc)

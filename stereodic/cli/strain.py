@@ -38,12 +38,13 @@ def run(args) -> int:
     import numpy as np
 
     from calib.atomic import atomic_output
+    from calib.csv_text import format_rows
     from calib.errors import InputError
     from calib.npz_stream import write_stacked_npz
     from calib.progress import progress
     from stereodic.cli.common import frame_options, wrote
     from stereodic.dic.maps import MapPainter, RunScales, save_map
-    from stereodic.dic.output import STRAIN_COLUMNS, fmt
+    from stereodic.dic.output import STRAIN_COLUMNS
     from stereodic.strain.results import map_axes, open_result, specimen_frame_of, state_labels, strains
 
     result = open_result(args.result)
@@ -70,10 +71,9 @@ def run(args) -> int:
             csv.write(",".join([label, "x", "y"] + keys) + "\n")
             for k, m in enumerate(progress(strains(result, window, args.measure, frame=frame), "strain", total=result.states,
                                            unit="state")):
-                cols = [[str(k)] * int(act.sum()), fmt("%g", X[act]), fmt("%g", Y[act])]
-                cols += [fmt(f, getattr(m, field).ravel()[act]) for _, field, f in STRAIN_COLUMNS]
-                cols += [m.valid.ravel()[act].astype(int).astype(str).tolist()]
-                csv.write("".join(",".join(row) + "\n" for row in zip(*cols)))
+                cols = [np.full(int(act.sum()), k), X[act], Y[act]]
+                cols += [getattr(m, field).ravel()[act] for _, field, _ in STRAIN_COLUMNS] + [m.valid.ravel()[act]]
+                csv.write(format_rows(cols, ["%d", "%g", "%g"] + [f for _, _, f in STRAIN_COLUMNS] + ["%d"]))
                 np.savez(tmp_dir / f"{k}.npz", **{key: getattr(m, fields[key]) for key in keys})
                 for name in MAPS:
                     scales.add(name, getattr(m, fields[name]) * 1e6, signed=name != "e_vm", active=g.active)

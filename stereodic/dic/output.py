@@ -17,23 +17,20 @@ from typing import TYPE_CHECKING, Callable, Iterable
 import numpy as np
 
 from calib.atomic import atomic_output
+from calib.csv_text import format_rows
 from calib.npz_stream import write_stacked_npz
-from stereodic.dic.background import Background, threads
+from stereodic.dic.background import side_by_side, threads
 from stereodic.dic.correlate import DicField, DicSettings
 from stereodic.dic.icgn import STATUS_NAMES
 
 if TYPE_CHECKING:  # strain measures (and scipy) are loaded only by the commands that compute strain
     from stereodic.strain.measures import StrainMeasure
 
-SPLIT_ROWS = 20_000  # an image with more rows has them formatted in two processes at once
+SPLIT_ROWS = 20_000  # an image with more rows has its halves formatted on two threads at once
 STRAIN_COLUMNS = (("exx", "exx", "%.7f"), ("eyy", "eyy", "%.7f"), ("exy", "exy", "%.7f"),
                   ("e_major", "major", "%.7f"), ("e_minor", "minor", "%.7f"), ("e_angle", "angle_deg", "%.4f"),
                   ("e_vm", "von_mises", "%.7f"))
-
-
-def fmt(f: str, a: np.ndarray) -> list[str]:
-    """Each value of `a` formatted with %-format `f` (what np.char.mod gives, faster)."""
-    return [f % v for v in np.asarray(a).tolist()]
+ROW_FORMATS = ("%d", "%g", "%g", "%.6f", "%.6f", "%.6f", "%d", "%s", "%d", "%.5f")
 
 
 def csv_header(has_strain: bool) -> str:
@@ -43,22 +40,24 @@ def csv_header(has_strain: bool) -> str:
     return cols + "\n"
 
 
-def csv_rows(k: int, f: DicField, m: StrainMeasure | None, part: slice = slice(None)) -> str:
-    """The rows of deformed image k (its field and strain measure), newline-terminated; `part`: those
-    rows only (a slice of the active points, in grid order)."""
-    row = "%d,%g,%g,%.6f,%.6f,%.6f,%d,%s,%d,%.5f"
-    names = np.array(STATUS_NAMES)
+def csv_rows(k: int, f: DicField, m: StrainMeasure | None) -> str:
+    """The rows of deformed image k (its field and strain measure), newline-terminated; with more than one
+    thread (`background.threads`) and more than SPLIT_ROWS rows, their halves formatted side by side
+    (numpy's array operations release the interpreter's lock)."""
     act = f.grid.active.ravel()
     X, Y = f.grid.points()
     status = f.points.status[act]
     columns = [np.full(act.sum(), k), X[act], Y[act], f.u.ravel()[act], f.v.ravel()[act], f.points.zncc[act],
-               (status == 0).astype(int), names[status], f.points.iterations[act], f.noise_px.ravel()[act]]
+               status == 0, np.array(STATUS_NAMES, "S")[status], f.points.iterations[act], f.noise_px.ravel()[act]]
+    formats = ROW_FORMATS
     if m is not None:
-        row += "".join("," + ff for _, _, ff in STRAIN_COLUMNS) + ",%d"
-        columns += [getattr(m, field).ravel()[act] for _, field, _ in STRAIN_COLUMNS]
-        columns += [m.valid.ravel()[act].astype(int)]
-    # one %-format per row of Python values: 4x faster than numpy's per-column string arrays
-    return "".join(row % r + "\n" for r in zip(*(c[part].tolist() for c in columns)))
+        formats += tuple(ff for _, _, ff in STRAIN_COLUMNS) + ("%d",)
+        columns += [getattr(m, field).ravel()[act] for _, field, _ in STRAIN_COLUMNS] + [m.valid.ravel()[act]]
+    n = len(status)
+    if threads() < 2 or n < SPLIT_ROWS:
+        return format_rows(columns, formats)
+    return "".join(side_by_side(*(lambda part=part: format_rows([c[part] for c in columns], formats)
+                                  for part in (slice(0, n // 2), slice(n // 2, n)))))
 
 
 class CsvWriter:
@@ -72,21 +71,8 @@ class CsvWriter:
         self._file.write(csv_header(has_strain))
 
     def write(self, k: int, f: DicField, m: StrainMeasure | None) -> None:
-        """Image k's rows; with more than one thread (`background.threads`), the first half of them
-        formatted by a forked child meanwhile (formatting is Python work that holds the GIL)."""
-        n = int(f.grid.active.sum())
-        if threads() < 2 or n < SPLIT_ROWS:
-            self._file.write(csv_rows(k, f, m))
-            return
-        half = self._tmp.with_name(self._tmp.name + ".part")
-        try:
-            with Background(1) as bg:
-                bg.submit(lambda: half.write_text(csv_rows(k, f, m, slice(0, n // 2))), "the CSV rows")
-                rest = csv_rows(k, f, m, slice(n // 2, n))
-            self._file.write(half.read_text())
-            self._file.write(rest)
-        finally:
-            half.unlink(missing_ok=True)
+        """Image k's rows (`csv_rows`)."""
+        self._file.write(csv_rows(k, f, m))
 
     def __enter__(self) -> "CsvWriter":
         return self

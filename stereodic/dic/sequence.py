@@ -270,7 +270,8 @@ def prefetch(items: Iterable, prepare: Callable) -> Iterator:
 def correlate_sequence(ref_img: np.ndarray, def_imgs: Iterable[np.ndarray], grid: Grid, *,
                        settings: DicSettings = DicSettings(), seeds: Iterable[tuple[float, float]] = (),
                        incremental: bool = False, search: Callable | None = None,
-                       start: PointResult | None = None, switch_zncc: float = SWITCH_ZNCC) -> Iterable[DicField]:
+                       start: PointResult | None = None, switch_zncc: float = SWITCH_ZNCC,
+                       reference: ImageRef | None = None) -> Iterable[DicField]:
     """2D DIC of a series of deformed images against one reference, tracked from image to image.
 
     Each image starts from the previous image's warps where those were good (points that fail from
@@ -299,6 +300,9 @@ def correlate_sequence(ref_img: np.ndarray, def_imgs: Iterable[np.ndarray], grid
         Warps (grid order) for the first image to start from, as if a previous image's result.
     switch_zncc : float
         A point's ZNCC against the reference below which it switches to incremental DIC; 0: never.
+    reference : ImageRef, optional
+        `ref_img` prepared already, ``ImageRef.prepare(ref_img, settings, keep_subsets=True)`` (what it
+        computed, e.g. its noise estimate, is not computed again); None: prepared here.
 
     Returns
     -------
@@ -310,7 +314,7 @@ def correlate_sequence(ref_img: np.ndarray, def_imgs: Iterable[np.ndarray], grid
     seed_list = seed_indices(grid, seeds)
     images = prefetch(def_imgs, lambda img: BSplineImage.from_image(img, order=s.order,
                                                                     prefilter_sigma=s.prefilter_sigma))
-    ref = ImageRef.prepare(ref_img, s, keep_subsets=True)
+    ref = ImageRef.prepare(ref_img, s, keep_subsets=True) if reference is None else reference
     previous = ref
     carry = TrackCarry.initial(grid, incremental, start)
     for img, img_b in images:

@@ -68,7 +68,7 @@ def noise_gradient_gain(order: int = 3) -> float:
     return float(np.sum(np.square(g[1], dtype=np.float64)))
 
 
-def specimen_mask(image: np.ndarray, *, subset: int, contrast: float = 3.0) -> np.ndarray:
+def specimen_mask(image: np.ndarray, *, subset: int, contrast: float = 3.0, noise: float | None = None) -> np.ndarray:
     """Where a subset of the image has speckle to register: (H, W) bool over subset centres.
 
     A subset is usable where its texture's gradients, in x and in y (the smaller SSSIG, `sssig`), have at
@@ -86,6 +86,9 @@ def specimen_mask(image: np.ndarray, *, subset: int, contrast: float = 3.0) -> n
         The subset side, pixels.
     contrast : float
         The ratio of RMS gradients, texture to noise, of a usable subset.
+    noise : float, optional
+        The image's `estimate_noise`, grey levels, where it was computed already (the DIC's reference
+        keeps it, `correlate.ImageRef.sigma`); None: estimated here.
 
     Returns
     -------
@@ -97,7 +100,7 @@ def specimen_mask(image: np.ndarray, *, subset: int, contrast: float = 3.0) -> n
     half = subset // 2
     b = BSplineImage.from_image(img, order=3, prefilter_sigma=0.0)
     sx, sy = sssig(b, half)
-    sigma = max(estimate_noise(img), 1e-3 * max(float(np.ptp(img)), 1e-12))
+    sigma = max(estimate_noise(img) if noise is None else noise, 1e-3 * max(float(np.ptp(img)), 1e-12))
     floor = contrast ** 2 * noise_gradient_gain() * sigma ** 2 * subset ** 2
     mask = np.minimum(sx, sy) >= floor
     inside = np.zeros((h, w), bool)

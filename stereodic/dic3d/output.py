@@ -28,13 +28,15 @@ from typing import Callable, Iterable
 import numpy as np
 
 from calib.atomic import atomic_output
+from calib.csv_text import format_rows
 from calib.npz_stream import write_stacked_npz
 from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import OK, OUTSIDE, STATUS_NAMES
 from stereodic.dic.maps import Backdrop, MapAxes, MapMovie, MapPainter, RunScales, save_map
-from stereodic.dic.output import STRAIN_COLUMNS, fmt
+from stereodic.dic.output import STRAIN_COLUMNS
 from stereodic.dic3d.stereo import NO_REFERENCE, RAY_GAP, CameraMatch, StereoSettings, StereoState
 from stereodic.strain.measures import StrainMeasure
+
 
 def csv_columns(has_strain: bool, has_deformation: bool = False) -> list[str]:
     cols = ["state", "x", "y"]
@@ -51,29 +53,28 @@ def csv_columns(has_strain: bool, has_deformation: bool = False) -> list[str]:
 
 def csv_rows(grid: Grid, st: StereoState) -> str:
     """The CSV rows (module docstring) of one state, newline-terminated."""
-    names = np.array(STATUS_NAMES)
+    names = np.array(STATUS_NAMES, "S")
     act = grid.active.ravel()
     X, Y = grid.points()
     flat = lambda a: np.asarray(a).reshape((-1,) + np.shape(a)[2:])[act]  # noqa: E731
-    ints = lambda a: flat(a).astype(int).astype(str).tolist()  # noqa: E731
-    cols = [[str(st.state)] * int(act.sum()), fmt("%g", X[act]), fmt("%g", Y[act])]
+    cols = [(np.full(int(act.sum()), st.state), "%d"), (X[act], "%g"), (Y[act], "%g")]
     for m in (st.left, st.right):
-        cols += [fmt("%.6f", flat(m.u)), fmt("%.6f", flat(m.v)), fmt("%.6f", flat(m.zncc)), ints(m.ok),
-                 names[flat(m.status)].tolist()]
+        cols += [(flat(m.u), "%.6f"), (flat(m.v), "%.6f"), (flat(m.zncc), "%.6f"), (flat(m.ok), "%d"),
+                 (names[flat(m.status)], "%s")]
     for m in (st.left, st.right):
         real = flat(m.real)
-        cols += [fmt("%.6f", real[:, 0]), fmt("%.6f", real[:, 1])]
+        cols += [(real[:, 0], "%.6f"), (real[:, 1], "%.6f")]
     pts, disp = flat(st.points), flat(st.displacement)
-    cols += [fmt("%.6f", pts[:, i]) for i in range(3)] + [fmt("%.6f", disp[:, i]) for i in range(3)]
-    cols += [fmt("%.6f", flat(st.gap_mm)), ints(st.converged), flat(st.status).astype(str).tolist(),
-             ints(st.incremental)]
+    cols += [(pts[:, i], "%.6f") for i in range(3)] + [(disp[:, i], "%.6f") for i in range(3)]
+    cols += [(flat(st.gap_mm), "%.6f"), (flat(st.converged), "%d"), (flat(st.status), "%s"),
+             (flat(st.incremental), "%d")]
     if st.measure is not None:
-        cols += [fmt(f, flat(getattr(st.measure, field))) for _, field, f in STRAIN_COLUMNS]
-        cols += [ints(st.measure.valid)]
+        cols += [(flat(getattr(st.measure, field)), f) for _, field, f in STRAIN_COLUMNS]
+        cols += [(flat(st.measure.valid), "%d")]
     if st.deformation is not None:
         deformation = flat(st.deformation)
-        cols += [fmt("%.6f", deformation[:, i]) for i in range(3)]
-    return "".join(",".join(row) + "\n" for row in zip(*cols))
+        cols += [(deformation[:, i], "%.6f") for i in range(3)]
+    return format_rows([c for c, _ in cols], [f for _, f in cols])
 
 
 def write_csv(path: str | os.PathLike, rows: Iterable[str], *, has_strain: bool, has_deformation: bool = False) -> None:

@@ -8,6 +8,7 @@ import pytest
 
 from calib.errors import InputError
 from stereodic.cli import main
+from stereodic.dic import ImageRef
 from stereodic.dic.region import polygon_mask, read_polygons
 from stereodic.dic.texture import specimen_mask
 from stereodic.stereo.rig import load_rig
@@ -67,11 +68,15 @@ def test_the_specimen_is_found_on_a_dark_background():
         y, x = rng.integers(0, 70), rng.integers(0, 90)
         dots[max(y - 1, 0):y + 2, max(x - 1, 0):x + 2] = 1
     img[40:110, 60:150] = 60 + 120 * dots + rng.normal(0, 2.0, (70, 90))
-    mask = specimen_mask(np.clip(img, 0, 255).astype(np.uint8), subset=21)
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    mask = specimen_mask(img, subset=21)
     assert mask[50:100, 70:140].mean() > 0.99
     background = np.ones_like(mask)
     background[30:120, 50:160] = False
     assert not mask[background].any()
+    # the noise estimate the DIC's reference keeps gives the same mask; one 4x too high loses the patch
+    assert np.array_equal(specimen_mask(img, subset=21, noise=ImageRef.prepare(img).sigma), mask)
+    assert specimen_mask(img, subset=21, noise=4 * ImageRef.prepare(img).sigma).sum() < mask.sum() / 2
 
 
 def test_a_small_image_all_speckle_is_all_specimen():

@@ -2,7 +2,8 @@
 times). `--help` loads no library at all; a 2D DIC run of one pair loads numpy and OpenCV but neither
 numba nor scipy (its kernels are compiled ahead of time: stereodic/dic/src), nor Pillow (its few images
 are read whole, not checked by their headers first), matplotlib, Open3D or tqdm (no bar without a
-terminal), nor Dask (only with --scheduler); and of the command line's modules only its own."""
+terminal), nor Dask (only with --scheduler), nor the maps' module without --plot; and of the command
+line's modules only its own."""
 
 import json
 import subprocess
@@ -49,3 +50,4 @@ def test_a_small_dic2d_imports_neither_numba_nor_scipy(tmp_path):
     assert (tmp_path / "r.csv").exists() and {"numpy", "cv2"} <= found
     assert not found & set(NOT_FOR_DIC2D)
     assert {m for m in modules if m.startswith("stereodic.cli.")} == {"stereodic.cli.common", "stereodic.cli.dic2d"}
+    assert "stereodic.dic.maps" not in modules     # no --plot: no maps
