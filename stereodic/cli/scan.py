@@ -140,12 +140,23 @@ def _merge(args, rig, datasets) -> int:
         projector=args.projector, corrected=not args.no_evm, neighbours=args.outlier_neighbours,
         std_ratio=args.outlier_std, smooth_px=SMOOTH_PX if args.smooth is None else args.smooth,
         turntable=None if axis is None else (axis[:3], axis[3:]))
-    from scipy.spatial.transform import Rotation
-    turn = Rotation.from_matrix(reg.transforms[:, :3, :3]).inv().as_rotvec()      # view 0 -> view k
-    axis = turn[1] / max(np.linalg.norm(turn[1]), 1e-12)
+    if axis is None:
+        from scipy.spatial.transform import Rotation
+        turn = Rotation.from_matrix(reg.transforms[:, :3, :3]).inv().as_rotvec()      # view 0 -> view k
+        ahead = turn[1] / max(np.linalg.norm(turn[1]), 1e-12)
+        angles = np.degrees(np.linalg.norm(turn, axis=1)) * np.where(turn @ ahead >= 0, 1, -1) % 360
+    else:
+        table = reg.turntable
+        nominal = np.asarray(axis[3:]) / np.linalg.norm(axis[3:])
+        across = table.point_mm - axis[:3] - nominal * (nominal @ (table.point_mm - axis[:3]))
+        print(f"turntable axis: through {np.array2string(table.point_mm, precision=3, separator=', ')} mm, "
+              f"direction {np.array2string(table.direction, precision=5, separator=', ')}; "
+              f"{np.degrees(np.arccos(np.clip(table.direction @ nominal, -1, 1))):.3f} deg and "
+              f"{np.linalg.norm(across):.3f} mm from the nominal")
+        angles = table.angles_deg
     for k, state in enumerate(states):
-        angle = np.degrees(np.linalg.norm(turn[k])) * (1 if turn[k] @ axis >= 0 else -1) % 360
-        print(f"view {k} (state {state}): turned {angle:.3f} deg from view 0, residual "
+        step = "" if k == 0 else f" (step {(angles[k] - angles[k - 1]) % 360:.3f} deg)"
+        print(f"view {k} (state {state}): turned {angles[k]:.3f} deg from view 0{step}, residual "
               f"{1000 * reg.residual_mm[k]:.1f} um, {100 * reg.fitness[k]:.0f} % of its points overlap the others")
     for path, count, what in written:
         wrote(path, f"{count} {what}")
