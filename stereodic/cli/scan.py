@@ -149,8 +149,8 @@ def _merge(args, rig, datasets) -> int:
         table = reg.turntable
         nominal = np.asarray(axis[3:]) / np.linalg.norm(axis[3:])
         across = table.point_mm - axis[:3] - nominal * (nominal @ (table.point_mm - axis[:3]))
-        print(f"turntable axis: through {np.array2string(table.point_mm, precision=3, separator=', ')} mm, "
-              f"direction {np.array2string(table.direction, precision=5, separator=', ')}; "
+        print(f"turntable axis: through ({', '.join(f'{v:.3f}' for v in table.point_mm)}) mm, "
+              f"direction ({', '.join(f'{v:.5f}' for v in table.direction)}); "
               f"{np.degrees(np.arccos(np.clip(table.direction @ nominal, -1, 1))):.3f} deg and "
               f"{np.linalg.norm(across):.3f} mm from the nominal")
         angles = table.angles_deg

@@ -12,6 +12,11 @@ A whole turn (`register_turn`): each view registered to the one before it, then 
 (the last view and the first among them) as loop closures, all in Open3D's pose graph, optimised so that
 the error does not accumulate round the turn; then the same last pass.
 
+A turntable's turn (`register_turntable`): `register_turn`, then one axis and one angle per view fitted to
+its transforms (`fit_turntable`), then that axis (4 unknowns) and the angles (K - 1) refined together by a
+robust point-to-plane fit over all the overlapping pairs of views (`refine_turntable`): every view turned
+about the same axis, so that no view's own shape bias tilts or shifts it alone.
+
 Each view's residual is the RMS point-to-plane distance (mm) of its points to their nearest point of the
 other views within `max_mm` (the other view's normal), its fitness the share of its points that have one.
 
