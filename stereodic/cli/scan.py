@@ -10,8 +10,9 @@ EVM-corrected rays, cleaned of statistical outliers and written as a binary floa
 the per-point scalars `quality` (fringe modulation, fraction of full scale) and `gap_mm` (ray gap).
 A dataset with several states gives one file per state, CLOUD_s<state>.ply; with --merge its states are
 views of one object taken round it in order (a turntable): registered view to view, the loop closed by a
-pose graph, merged into the one cloud CLOUD.ply (and --mesh MESH.ply, its Poisson surface), each view's
-rotation, residual and overlap printed. Several datasets (or a
+pose graph (with --turntable, then as turns about one fitted axis), merged into the one cloud CLOUD.ply
+(and --mesh MESH.ply, its Poisson surface), each view's rotation, residual and overlap printed (and the
+fitted axis). Several datasets (or a
 quoted pattern naming them) are a batch into the folder -o DIR: DIR/<dataset folder name>.ply (or
 _s<state>.ply per state). A batch of several scans records each one done (CLOUD.batch.json, or
 DIR/scan.batch.json: calib.batch), so that the same command after a stop does only the rest; with
@@ -57,7 +58,8 @@ def register(sub):
     p.add_argument("--turntable", type=parse_floats, metavar="X,Y,Z,DX,DY,DZ",
                    help="with --merge: the views are a whole turn of a turntable in equal steps (360/views "
                         "degrees, right-handed about the direction) about this axis (a point and a direction in "
-                        "the rig's WCS, mm): the nominal turn starts the registration instead of a global search")
+                        "the rig's WCS, mm): the nominal turn starts the registration instead of a global search, and "
+                        "the views are registered as turns about one fitted axis (printed)")
     p.add_argument("--projector", type=parse_size, metavar="WxH",
                    help="a DATASET folder without capture.json holds OpenCV's GrayCodePattern sequence for a "
                         "projector of this size, read as it is")

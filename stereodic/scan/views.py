@@ -338,12 +338,10 @@ def _tukey(r: np.ndarray, scale: float) -> np.ndarray:
     return np.where(np.abs(r) < scale, (1 - (r / scale) ** 2) ** 2, 0.0)
 
 
-def _turn_y(angles_rad: np.ndarray) -> np.ndarray:
-    """(K, 3, 3) rotations by `angles_rad` right-handed about y."""
-    c, s = np.cos(angles_rad), np.sin(angles_rad)
-    out = np.zeros((len(c), 3, 3))
-    out[:, 0, 0], out[:, 0, 2], out[:, 1, 1], out[:, 2, 0], out[:, 2, 2] = c, s, 1, -s, c
-    return out
+def _turn_y(angle_rad: float) -> np.ndarray:
+    """(3, 3) the rotation by `angle_rad` right-handed about y."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
 def _axis_frame(direction: np.ndarray) -> np.ndarray:
@@ -400,6 +398,7 @@ def refine_turntable(views: list[np.ndarray], normals: list[np.ndarray], turntab
         np.asarray(turntable.direction, np.float64) / np.linalg.norm(turntable.direction))
     angles = np.radians(np.asarray(turntable.angles_deg, np.float64))
     n_views = len(views)
+    free = [0, 1, 2, 3] + [4 + k for k in range(1, n_views)]            # view 0's angle fixed
     for _ in range(rounds):
         placed = Turntable(point, frame[:, 1], np.degrees(angles)).transforms()
         pairs = []
@@ -416,7 +415,7 @@ def refine_turntable(views: list[np.ndarray], normals: list[np.ndarray], turntab
             # unknowns: the axis frame's tilts (about its x, z) and shifts (along x, z), then the angles
             lhs, rhs = np.zeros((4 + n_views, 4 + n_views)), np.zeros(4 + n_views)
             for i, j, x, z, n in pairs:
-                turn = _turn_y(np.array([angles[j] - angles[i]]))[0]   # i into j, in the axis frame
+                turn = _turn_y(angles[j] - angles[i])                  # i into j, in the axis frame
                 xt, zt, nt = (x - point) @ frame, (z - point) @ frame, n @ frame
                 qt = xt @ turn.T
                 r = np.einsum("ij,ij->i", nt, qt - zt)
@@ -428,7 +427,6 @@ def refine_turntable(views: list[np.ndarray], normals: list[np.ndarray], turntab
                 cols = [0, 1, 2, 3, 4 + i, 4 + j]
                 lhs[np.ix_(cols, cols)] += jac.T @ (w[:, None] * jac)
                 rhs[cols] += jac.T @ (w * r)
-            free = [0, 1, 2, 3] + [4 + k for k in range(1, n_views)]    # view 0's angle fixed
             delta = np.zeros(4 + n_views)
             delta[free] = np.linalg.solve(lhs[np.ix_(free, free)], -rhs[free])
             angles = angles + delta[4:]
@@ -440,7 +438,8 @@ def refine_turntable(views: list[np.ndarray], normals: list[np.ndarray], turntab
 
 
 def register_turntable(views: list[np.ndarray], *, initial: np.ndarray | None = None,
-                       normals: list[np.ndarray] | None = None, voxel_mm: float = 2.0, max_mm: float = 0.5, robust_mm: float = 0.01, min_overlap: float = 0.2, passes: int = 2,
+                       normals: list[np.ndarray] | None = None, voxel_mm: float = 2.0, max_mm: float = 0.5,
+                       robust_mm: float = 0.01, min_overlap: float = 0.2, passes: int = 2,
                        rounds: int = 5, seed: int = 0) -> TurntableRegistration:
     """Register the views of a turntable's turn as turns about one axis: `register_turn`, then
     `fit_turntable` to its transforms, then `refine_turntable` on all the overlapping pairs' points.

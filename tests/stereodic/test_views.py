@@ -231,7 +231,8 @@ def test_whole_turn_of_rendered_scans_merges_within_0p02_degrees(tmp_path):
     shifts = [np.linalg.norm(t[:3, :3] @ TARGET + t[:3, 3] - TARGET) for t in reg.transforms]
     tilt, across = _axis_errors(reg.turntable)
     print(f"axis {tilt:.4f} deg and {1000 * across:.1f} um off; rotation errors (degrees)", np.round(errors, 4),
-          "centre shifts (um)", np.round(1000 * np.array(shifts), 1), "residuals (um)", np.round(1000 * reg.residual_mm, 1))
+          "centre shifts (um)", np.round(1000 * np.array(shifts), 1),
+          "residuals (um)", np.round(1000 * reg.residual_mm, 1))
     assert errors.max() < 0.02
     assert max(shifts) < 0.02
     assert tilt < 0.01 and across < 0.02
