@@ -10,8 +10,9 @@ EVM-corrected rays, cleaned of statistical outliers and written as a binary floa
 the per-point scalars `quality` (fringe modulation, fraction of full scale) and `gap_mm` (ray gap).
 A dataset with several states gives one file per state, CLOUD_s<state>.ply; with --merge its states are
 views of one object taken round it in order (a turntable): registered view to view, the loop closed by a
-pose graph, merged into the one cloud CLOUD.ply (and --mesh MESH.ply, its Poisson surface), each view's
-rotation, residual and overlap printed. Several datasets (or a
+pose graph (with --turntable, then as turns about one fitted axis), merged into the one cloud CLOUD.ply
+(and --mesh MESH.ply, its Poisson surface), each view's rotation, residual and overlap printed (and the
+fitted axis). Several datasets (or a
 quoted pattern naming them) are a batch into the folder -o DIR: DIR/<dataset folder name>.ply (or
 _s<state>.ply per state). A batch of several scans records each one done (CLOUD.batch.json, or
 DIR/scan.batch.json: calib.batch), so that the same command after a stop does only the rest; with
@@ -57,7 +58,8 @@ def register(sub):
     p.add_argument("--turntable", type=parse_floats, metavar="X,Y,Z,DX,DY,DZ",
                    help="with --merge: the views are a whole turn of a turntable in equal steps (360/views "
                         "degrees, right-handed about the direction) about this axis (a point and a direction in "
-                        "the rig's WCS, mm): the nominal turn starts the registration instead of a global search")
+                        "the rig's WCS, mm): the nominal turn starts the registration instead of a global search, and "
+                        "the views are registered as turns about one fitted axis (printed)")
     p.add_argument("--projector", type=parse_size, metavar="WxH",
                    help="a DATASET folder without capture.json holds OpenCV's GrayCodePattern sequence for a "
                         "projector of this size, read as it is")
@@ -140,12 +142,23 @@ def _merge(args, rig, datasets) -> int:
         projector=args.projector, corrected=not args.no_evm, neighbours=args.outlier_neighbours,
         std_ratio=args.outlier_std, smooth_px=SMOOTH_PX if args.smooth is None else args.smooth,
         turntable=None if axis is None else (axis[:3], axis[3:]))
-    from scipy.spatial.transform import Rotation
-    turn = Rotation.from_matrix(reg.transforms[:, :3, :3]).inv().as_rotvec()      # view 0 -> view k
-    axis = turn[1] / max(np.linalg.norm(turn[1]), 1e-12)
+    if axis is None:
+        from scipy.spatial.transform import Rotation
+        turn = Rotation.from_matrix(reg.transforms[:, :3, :3]).inv().as_rotvec()      # view 0 -> view k
+        ahead = turn[1] / max(np.linalg.norm(turn[1]), 1e-12)
+        angles = np.degrees(np.linalg.norm(turn, axis=1)) * np.where(turn @ ahead >= 0, 1, -1) % 360
+    else:
+        table = reg.turntable
+        nominal = np.asarray(axis[3:]) / np.linalg.norm(axis[3:])
+        across = table.point_mm - axis[:3] - nominal * (nominal @ (table.point_mm - axis[:3]))
+        print(f"turntable axis: through ({', '.join(f'{v:.3f}' for v in table.point_mm)}) mm, "
+              f"direction ({', '.join(f'{v:.5f}' for v in table.direction)}); "
+              f"{np.degrees(np.arccos(np.clip(table.direction @ nominal, -1, 1))):.3f} deg and "
+              f"{np.linalg.norm(across):.3f} mm from the nominal")
+        angles = table.angles_deg
     for k, state in enumerate(states):
-        angle = np.degrees(np.linalg.norm(turn[k])) * (1 if turn[k] @ axis >= 0 else -1) % 360
-        print(f"view {k} (state {state}): turned {angle:.3f} deg from view 0, residual "
+        step = "" if k == 0 else f" (step {(angles[k] - angles[k - 1]) % 360:.3f} deg)"
+        print(f"view {k} (state {state}): turned {angles[k]:.3f} deg from view 0{step}, residual "
               f"{1000 * reg.residual_mm[k]:.1f} um, {100 * reg.fitness[k]:.0f} % of its points overlap the others")
     for path, count, what in written:
         wrote(path, f"{count} {what}")

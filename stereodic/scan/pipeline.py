@@ -548,9 +548,10 @@ def merge_to_files(rig: Rig, dataset: str | os.PathLike, out: str | os.PathLike,
                    turntable: tuple | None = None):
     """The states of `dataset` as views of one object taken round it in order (a turntable's turn, or
     the object moved): each scanned as `scan_job` does (outliers removed, normals towards the rig),
-    registered view to view with the loop closed (`stereodic.scan.views.register_turn`; started from a
-    global search, or with `turntable` = (point (3,), direction (3,)), WCS mm, from the nominal whole turn
-    in equal steps about that axis: `views.turntable_transforms`), merged into one
+    registered view to view with the loop closed (`stereodic.scan.views.register_turn`, started from a
+    global search) or, with `turntable` = (point (3,), direction (3,)), WCS mm, a turntable's axis, as turns
+    about one fitted axis (`views.register_turntable`, started from the nominal whole turn in equal steps
+    about that axis: `views.turntable_transforms`), merged into one
     cloud (`views.merged_cloud`, voxels of `voxel_mm` mm) written to `out` and, with `mesh`, its Poisson
     surface trimmed MERGE_GAP_MM from the data (`cloud.poisson_mesh`) written there.
 
@@ -561,11 +562,12 @@ def merge_to_files(rig: Rig, dataset: str | os.PathLike, out: str | os.PathLike,
     states : list of int
         The views' states, in order.
     registration : stereodic.scan.views.Registration
-        Each view's transform into the first view's frame (WCS mm), its residual and fitness.
+        Each view's transform into the first view's frame (WCS mm), its residual and fitness; with
+        `turntable`, a `views.TurntableRegistration` (also the fitted axis and angles).
     """
     from calib.progress import progress
     from stereodic.scan.cloud import make_cloud, poisson_mesh, write_cloud, write_mesh
-    from stereodic.scan.views import merged_cloud, register_turn, turntable_transforms
+    from stereodic.scan.views import merged_cloud, register_turn, register_turntable, turntable_transforms
     jobs = plan_scans(rig, dataset, out, states, cameras, None, projector)
     if len(jobs) < 2:
         raise InputError(dataset, f"has {len(jobs)} scan state to merge: merging needs two views or more")
@@ -577,8 +579,8 @@ def merge_to_files(rig: Rig, dataset: str | os.PathLike, out: str | os.PathLike,
         cloud, _ = make_cloud(result.points, {}, viewpoint, neighbours=neighbours, std_ratio=std_ratio)
         points.append(cloud.point.positions.numpy().astype(np.float64))
         normals.append(cloud.point.normals.numpy().astype(np.float64))
-    registration = register_turn(points, initial=None if turntable is None else
-                                 turntable_transforms(len(points), *turntable))
+    registration = (register_turn(points) if turntable is None else
+                    register_turntable(points, initial=turntable_transforms(len(points), *turntable)))
     merged = merged_cloud(points, registration, normals=normals, voxel_mm=voxel_mm)
     write_cloud(out, merged)
     written = [(Path(out), len(merged.point.positions), "points")]
