@@ -640,8 +640,8 @@ def dic_grid(args, width: int, height: int, image: str, source: str, *, referenc
     image, whose --roi, --mask, --roi-polygon and --start-point are in the original image with --roi-frame
     original.
     Without any of them, `reference` (a callable giving the reference image) places the points where it
-    has speckle (`stereodic.dic.texture.specimen_mask`; `noise`: a callable giving its noise estimate, where the
-    caller keeps one, `stereodic.dic.ImageRef.sigma`). Returns (grid, seeds [(x, y), ...]); InputError
+    has speckle (`stereodic.dic.texture.specimen_mask`; `noise`: its noise estimate, grey levels, where the
+    caller has one, `stereodic.dic.ImageRef.sigma`). Returns (grid, seeds [(x, y), ...]); InputError
     for any option that does not fit.
     """
     import numpy as np
@@ -670,7 +670,7 @@ def dic_grid(args, width: int, height: int, image: str, source: str, *, referenc
         roi, mask = _region(args, width, height, image)
     if roi is None and mask is None and reference is not None:
         from stereodic.dic.texture import specimen_mask
-        mask = specimen_mask(reference(), subset=args.subset, noise=None if noise is None else noise())
+        mask = specimen_mask(reference(), subset=args.subset, noise=noise)
         if not mask.any():
             raise InputError(source, f"the {image} has no speckle that a {args.subset}-pixel subset can register "
                                      f"(blank, dark or out of focus?); give --roi or --mask to measure anyway")

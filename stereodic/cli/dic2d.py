@@ -127,7 +127,7 @@ def run(args) -> int:
     # in-process, the reference prepared once: its noise estimate also places the points (specimen_mask)
     reference = None if args.scheduler else ImageRef.prepare(ref, settings, keep_subsets=True)
     grid, seeds = dic_grid(args, width, height, "reference", args.ref, reference=lambda: ref,
-                           noise=None if reference is None else lambda: reference.sigma)
+                           noise=None if reference is None else reference.sigma)
     out = Path(args.output)
 
     has_strain = bool(args.strain_window)
