@@ -212,10 +212,21 @@ def _summary(st, n, active, search_px) -> str:
     return text if why is None else f"{text}\n{why}"
 
 
+def _load(rig, maps: bool) -> None:
+    """What a run takes later, loaded beforehand (in a thread): `stereo.load_kernels`, and with `maps`
+    matplotlib (`maps.load_matplotlib`)."""
+    from stereodic.dic3d.stereo import load_kernels
+    load_kernels(rig)
+    if maps:
+        from stereodic.dic.maps import load_matplotlib
+        load_matplotlib()
+
+
 def run(args) -> int:
     import functools
     import os
     import sys
+    import threading
     from pathlib import Path
 
     import numpy as np
@@ -232,6 +243,9 @@ def run(args) -> int:
     from stereodic.stereo.rig import load_rig
 
     rig = load_rig(args.rig)
+    # beside the checks and the correlation: the kernels of the states' points and strains loaded, matplotlib
+    # imported for the maps (not after them, on the critical path)
+    threading.Thread(target=_load, args=(rig, not args.no_plot), name="load kernels", daemon=True).start()
     width, height = rig.sensor.width, rig.sensor.height
     data = _states(args, rig)                   # every state and file checked before the work
     settings = _settings(args)

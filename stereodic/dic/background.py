@@ -9,9 +9,10 @@ pools: `stereodic.cli.thread_limits`).
 Formatting a CSV, drawing PNG maps with matplotlib and writing VTK files are Python work that holds the
 interpreter's lock, so threads would not overlap them; forked processes do, each with a copy-on-write view
 of the caller's arrays (nothing is pickled). `Background` keeps at most `workers` children running; when all
-are busy the caller runs the next task itself, so the work spreads over the caller and the children. A
-task is a callable without arguments that writes its own files (atomically, as every output); it returns
-nothing to the caller.
+are busy the next task waits for the first child to finish, so that no task waits behind a long one while
+a slot is free (the caller only hands out the tasks: give it `threads()` workers when it has nothing else
+to do, `threads() - 1` beside work of its own). A task is a callable without arguments that writes its own
+files (atomically, as every output); it returns nothing to the caller.
 
 The children only format and write: they run no OpenMP kernel (a forked child of a process whose OpenMP
 threads have run must not start its own), and leave by os._exit (multiprocessing's fork start), so the
@@ -21,6 +22,7 @@ caller's buffers and exit handlers are not run twice.
 from __future__ import annotations
 
 import multiprocessing
+import multiprocessing.connection
 import os
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Iterable, TypeVar
@@ -58,8 +60,8 @@ def side_by_side(*tasks: Callable[[], T]) -> list[T]:
 
 
 class Background:
-    """Run tasks in at most `workers` forked children (module docstring); 0 workers: every task in the
-    caller, in order. Used as a context manager, which waits for every child on leaving; a child that
+    """Run tasks in at most `workers` forked children (module docstring), a task waiting for a free one;
+    0 workers: every task in the caller, in order. Used as a context manager, which waits for every child on leaving; a child that
     failed raises RuntimeError then (its traceback went to stderr)."""
 
     def __init__(self, workers: int):
@@ -85,11 +87,15 @@ class Background:
         self.running = still
 
     def submit(self, task: Callable[[], object], name: str) -> None:
-        """Run `task` (named `name` in errors) in a new child if fewer than `workers` are running, else here."""
-        self._reap()
-        if len(self.running) >= self.workers:
+        """Run `task` (named `name` in errors) in a new child once fewer than `workers` are running (with 0
+        workers, here and now)."""
+        if self.workers == 0:
             task()
             return
+        self._reap()
+        while len(self.running) >= self.workers:
+            multiprocessing.connection.wait([proc.sentinel for _, proc in self.running])
+            self._reap()
         proc = multiprocessing.get_context("fork").Process(target=task, name=name, daemon=True)
         proc.start()
         self.running.append((name, proc))

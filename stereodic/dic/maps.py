@@ -413,6 +413,15 @@ class _Layout:
     drawn: tuple | None = None
 
 
+def load_matplotlib() -> None:
+    """Import the parts of matplotlib that drawing a map takes (half a second), before forking the
+    children that draw maps (`stereodic.dic.background.Background`), which then find them imported; a
+    command that will draw maps runs it early in a thread, beside its correlation."""
+    import matplotlib.backends.backend_agg  # noqa: F401
+    import matplotlib.figure  # noqa: F401
+    from matplotlib import cm, colors, ticker  # noqa: F401
+
+
 class MapPainter:
     """Draws maps (`map_figure`, `draw`) on matplotlib figures made once per layout - a plain map (720 x
     560 pixels), a map beside its copy over the image (1300 x 560) - and reused: a map sets the pictures'

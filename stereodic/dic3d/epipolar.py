@@ -4,7 +4,7 @@ A scene point seen at (xl, yl) in the left rectified image is seen in the right 
 the right camera's ray at column xr meets the left ray: y* = yl for central lenses (the rows of the
 rectified pair match), and the EVM moves it for non-central ones. The epipolar error of a match (xl, yl)
 <-> (xr, yr) is yr - y*, pixels; y* is found on the signed distance between the left ray and the right
-ray at (xr, y), which is linear in y over a pixel (evaluated at yr and yr + 1, `triangulate.rays_at`,
+ray at (xr, y), which is linear in y over a pixel (evaluated at yr and yr + 1, `triangulate.ray_distances`,
 EVM-corrected rays).
 
 A camera that moved after the calibration (a bumped rig) shifts or turns its rows: the errors' median
@@ -23,26 +23,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from stereodic.stereo.rig import Rig
-from stereodic.stereo.triangulate import rays_at
+from stereodic.stereo.triangulate import ray_distances
 
 ROW_ERROR_PX = 0.02
-
-
-def _signed_distance(rig: Rig, xl, yl, xr, yr) -> np.ndarray:
-    """Signed distance (mm) between the left ray at (xl, yl) and the right ray at (xr, yr)."""
-    o1, d1 = rays_at(rig, "left", xl, yl)
-    o2, d2 = rays_at(rig, "right", xr, yr)
-    n = np.cross(d1, d2)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.einsum("ij,ij->i", o2 - o1, n) / np.linalg.norm(n, axis=-1)
 
 
 def epipolar_error(rig: Rig, xl: np.ndarray, yl: np.ndarray, xr: np.ndarray, yr: np.ndarray) -> np.ndarray:
     """(N,) epipolar errors yr - y* of matches (xl, yl) <-> (xr, yr) in the rectified pair, pixels
     (module docstring); NaN where a ray is blank."""
     xl, yl, xr, yr = (np.ravel(np.asarray(a, np.float64)) for a in (xl, yl, xr, yr))
-    d0 = _signed_distance(rig, xl, yl, xr, yr)
-    d1 = _signed_distance(rig, xl, yl, xr, yr + 1.0)
+    d0 = ray_distances(rig, xl, yl, xr, yr)
+    d1 = ray_distances(rig, xl, yl, xr, yr + 1.0)
     with np.errstate(invalid="ignore", divide="ignore"):
         return d0 / (d1 - d0)
 

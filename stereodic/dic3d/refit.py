@@ -36,8 +36,6 @@ from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
 
 from stereodic.dic import ImageRef
 from stereodic.dic3d.epipolar import EpipolarReport, check
@@ -166,7 +164,7 @@ class RigCorrection:
 
     @property
     def angle_deg(self) -> float:
-        return float(np.degrees(np.linalg.norm(Rotation.from_matrix(self.R).as_rotvec())))
+        return float(np.degrees(np.linalg.norm(cv2.Rodrigues(np.asarray(self.R, np.float64))[0])))
 
     def line(self) -> str:
         after = (f"median {self.after.median:+.3f} px, p95 {self.after.p95:.3f} px" if self.after is not None
@@ -212,6 +210,7 @@ def fit_orientation(rig: Rig, xl, yl, xr, yr) -> tuple[float, float]:
         n = np.cross(dl, dr @ turn(rig, *p).T)
         return (n @ b) / np.linalg.norm(n, axis=1) / pitch
 
+    from scipy.optimize import least_squares  # here: a refit only (0.2 s of import)
     fit = least_squares(residuals, np.zeros(2), loss="soft_l1", f_scale=0.5, x_scale=0.1)
     return float(fit.x[0]), float(fit.x[1])
 
@@ -220,7 +219,7 @@ def turn(rig: Rig, about_baseline: float, about_view: float) -> np.ndarray:
     """(3, 3) the rotation by `about_baseline` degrees about the rig's baseline and `about_view` degrees
     about its viewing direction (one rotation vector)."""
     e1, n = _axes(rig)
-    return Rotation.from_rotvec(np.radians(about_baseline) * e1 + np.radians(about_view) * n).as_matrix()
+    return cv2.Rodrigues(np.radians(about_baseline) * e1 + np.radians(about_view) * n)[0]
 
 
 def refit_rig(rig: Rig, R: np.ndarray) -> Rig:

@@ -23,7 +23,7 @@ from calib.atomic import write_npz as save_npz
 from calib.progress import progress
 from stereodic.dic.background import Background, threads
 from stereodic.dic.grid import Grid
-from stereodic.dic.maps import MapAxes, MapMovie, MapPainter, RunScales, surface_axes
+from stereodic.dic.maps import MapAxes, MapMovie, MapPainter, RunScales, load_matplotlib, surface_axes
 from stereodic.dic.sequence import prefetch
 from stereodic.dic3d.dataset import DicStates
 from stereodic.dic3d.output import (STRAIN_FLOOR, csv_rows, plot_state, state_arrays, state_maps, write_csv,
@@ -46,7 +46,9 @@ def run_states(store: RunStore, data: DicStates, rig: Rig, grid: Grid, seeds, se
     of dic.csv in the store (`RunStore.write_rows`), formatted from the state in memory by a forked child
     while the next state is solved (`background.Background`; with one thread, by the caller), so that
     `write_outputs` need not read the states back for them: for a dic.csv in the rig's frame (the states
-    as solved). Returns state 0."""
+    as solved). The last state's rows are left to `write_outputs`, which formats them beside its maps
+    rather than after the run. The next state's pair is read and prepared while a state is solved, the
+    reference's included. Returns state 0."""
     n = len(data)
     done = store.done
     pair0 = prepare_pair(data, rig, settings, 0)
@@ -54,25 +56,24 @@ def run_states(store: RunStore, data: DicStates, rig: Rig, grid: Grid, seeds, se
     with Background(threads() - 1 if rows else 0) as bg:
         def keep(state: StereoState, carry) -> None:
             store.write_state(state, carry)
-            if rows:
+            if rows and state.state < n - 1:
                 bg.submit(functools.partial(_keep_rows, store, grid, state.state, state),
                           f"the CSV rows of state {state.state}")
             report(state)
 
-        if done == 0:
-            state0, carry = solve_state(run, 0, pair0)
-            keep(state0, carry)
-            done = 1
-        else:
+        pairs = prefetch(range(done, n), lambda k: pair0 if k == 0 else prepare_pair(data, rig, settings, k))
+        carry = None
+        if done:
             state0, carry = store.read_state(0), store.read_carry()
             report(state0)
-        run = run.with_reference(state0)
-        previous = pair0 if done == 1 else prepare_pair(data, rig, settings, done - 1)
-        todo = range(done, n)
-        pairs = prefetch(todo, lambda k: prepare_pair(data, rig, settings, k))
+            run = run.with_reference(state0)
+        previous = pair0 if done <= 1 else prepare_pair(data, rig, settings, done - 1)
         for k, pair in progress(pairs, "dic", total=n, initial=done, unit="state"):
             state, carry = solve_state(run, k, pair, carry, previous)
             keep(state, carry)
+            if k == 0:
+                state0 = state
+                run = run.with_reference(state0)
             previous = pair
     return state0
 
@@ -150,10 +151,11 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
     n = store.manifest["states"]
     has_strain = bool(settings.strain_window)
     has_def = bool(info.get("frame", {}).get("rigid_motion_removed"))
-    # the files are independent: written side by side by the caller and threads() - 1 forked children
-    with Background(threads() - 1) as bg:
+    # the files are independent: written side by side by threads() forked children, the caller handing out
+    # the tasks (with one thread, the caller writes them)
+    with Background(threads() if threads() > 1 else 0) as bg:
         # dic.csv: each state's rows as a cluster's task kept them, or formatted here; beside children, one
-        # task a state (kept in the store, joined below), so that the caller and the children share them
+        # task a state (kept in the store, joined below)
         for k in range(n if csv and bg.workers else 0):
             if not store.rows_path(k).is_file():
                 bg.submit(functools.partial(_keep_rows, store, grid, k), f"the CSV rows of state {k}")
@@ -164,6 +166,7 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
             axes = None
             maps = {}
             if plot_every:
+                load_matplotlib()
                 maps = dict(scales=_run_scales(store, plot_every, grid.active, limits), frame=frame_name,
                             movies={q: MapMovie(folder / "maps" / f"{q}.mp4") for q in animate},
                             painter=MapPainter())
@@ -177,7 +180,7 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
                                                  image=None if image_of is None else image_of(st.state), **maps)
                         if maps["movies"]:
                             draw()      # a movie takes its frames in order, in this process
-                        else:           # a child forked after this process drew a map starts with its figures
+                        else:           # in a child, which finds matplotlib imported (`load_matplotlib`)
                             bg.submit(draw, f"the maps of state {st.state}")
                     if vtk_here:
                         bg.submit(functools.partial(write_state, folder / "vtk", st),

@@ -439,6 +439,17 @@ def _stereo_at(pair: PreparedPair, s: DicSettings, xs: np.ndarray, ys: np.ndarra
     return res, noise
 
 
+def load_kernels(rig: Rig) -> None:
+    """Load the compiled (numba) kernels that each state's points and strains take - the triangulation,
+    the rays' distances, the strain fit - by running them on one point: their first call in a process
+    loads them from numba's cache (a few tenths of a second), which a thread can do beside the first
+    state's correlation rather than after it."""
+    x = np.zeros(1)
+    triangulate(rig, x, x, x)
+    epipolar_error(rig, x, x, x, x)
+    StrainFit(np.zeros((3, 3, 3)))(np.zeros((3, 3, 3)))
+
+
 def _state(run: StereoRun, k: int, left: CameraMatch, right: CameraMatch, incremental: np.ndarray) -> StereoState:
     g, rig = run.grid, run.rig
     X, Y = g.points()

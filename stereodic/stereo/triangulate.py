@@ -140,6 +140,38 @@ def _triangulate(xl, rl, xr, rr, origin, eu, ev, dir_l, dir_r, c_l, c_r, correct
         gap[k] = np.sqrt(g)
 
 
+@numba.njit(cache=True, parallel=True)
+def _ray_distances(xl, rl, xr, rr, origin, eu, ev, dir_l, dir_r, out):  # pragma: no cover - numba kernel
+    for k in numba.prange(xl.size):
+        d1 = np.empty(3)
+        d2 = np.empty(3)
+        _bilinear3(dir_l, xl[k], rl[k], d1)
+        _bilinear3(dir_r, xr[k], rr[k], d2)
+        n0 = d1[1] * d2[2] - d1[2] * d2[1]
+        n1 = d1[2] * d2[0] - d1[0] * d2[2]
+        n2 = d1[0] * d2[1] - d1[1] * d2[0]
+        dot = 0.0
+        for c in range(3):   # o2 - o1, the two rays' points on the common plane
+            w = (xr[k] - xl[k]) * eu[c] + (rr[k] - rl[k]) * ev[c]
+            dot += w * (n0 if c == 0 else n1 if c == 1 else n2)
+        out[k] = dot / np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+
+
+def ray_distances(rig: Rig, x_left, row_left, x_right, row_right) -> np.ndarray:
+    """Signed distances between the left ray at (x_left, row_left) and the right ray at (x_right,
+    row_right), virtual pixels (broadcast to one shape; EVM-corrected rays, `rays_at`), mm: (o_r - o_l) .
+    n / |n| with n = d_l x d_r (the sign tells on which side of the left ray the right one passes); NaN
+    where a ray is blank or the two are parallel. A numba kernel, matches in parallel."""
+    arrays = np.broadcast_arrays(*(np.asarray(a, np.float64) for a in (x_left, row_left, x_right, row_right)))
+    xl, rl, xr, rr = (np.ascontiguousarray(a, np.float64).ravel() for a in arrays)
+    sensor = rig.sensor
+    out = np.empty(xl.size)
+    _ray_distances(xl, rl, xr, rr, sensor.origin, sensor.axis_u * sensor.pitch_mm[0],
+                   sensor.axis_v * sensor.pitch_mm[1], np.ascontiguousarray(rig.left.direction, np.float64),
+                   np.ascontiguousarray(rig.right.direction, np.float64), out)
+    return out.reshape(arrays[0].shape)
+
+
 def triangulate(rig: Rig, x_left, x_right, row, *, row_right=None, corrected: bool = True) -> Triangulation:
     """3D points of matched virtual positions (x_left, row) <-> (x_right, row_right).
 

@@ -9,8 +9,8 @@ the deformation gradient and the Green-Lagrange strain E = (F^T F - I) / 2.
   plane of the surface (normal by principal components of the window's points), so that out-of-plane
   motion and the surface's tilt are handled; components in the tangent frame (e1, e2), e1 the
   projection of the x axis on the plane, e2 = n x e1, n oriented towards +z. `StrainFit` does the same
-  for many displacement fields on one surface (a sequence's states on its reference shape), keeping
-  the part of the work that depends on the surface only.
+  for many displacement fields on one surface (a sequence's states on its reference shape); the fits
+  run in one compiled kernel, the grid's rows in parallel.
 Strains are dimensionless; NaN (with valid = False) where the window holds too few valid points or
 the centre point is not valid.
 """
@@ -19,8 +19,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
-from scipy import ndimage
 
 
 @dataclass
@@ -35,12 +35,6 @@ class Strain:
     grad: np.ndarray
     normal: np.ndarray
     e1: np.ndarray
-
-
-def _box_sum(a: np.ndarray, window: int) -> np.ndarray:
-    """Sum over window x window neighbours along the first two axes (zero outside)."""
-    size = (window, window) + (1,) * (a.ndim - 2)
-    return ndimage.uniform_filter(a, size=size, mode="constant", cval=0.0) * (window * window)
 
 
 def strain_3d(X: np.ndarray, D: np.ndarray, *, window: int = 5, min_fraction: float = 0.6) -> Strain:
@@ -61,30 +55,15 @@ def strain_3d(X: np.ndarray, D: np.ndarray, *, window: int = 5, min_fraction: fl
     -------
     strain : Strain
         Green-Lagrange ``exx``, ``eyy``, ``exy`` (ny, nx), dimensionless, in the tangent frame (e1 the
-        projection of x on the plane, e2 = n x e1), NaN where not ``valid``; ``grad``, ``normal``, ``e1``.
+        projection of x on the plane, e2 = n x e1), NaN where not ``valid``; ``grad``, ``normal``, ``e1``
+        (normal (0, 0, 1) and e1 (1, 0, 0) where the window holds too few points for a plane).
     """
     return StrainFit(X, window=window, min_fraction=min_fraction)(D)
 
 
-@dataclass
-class _Frame:
-    """What the fits on a surface depend on besides the displacements, for one set of valid points."""
-
-    valid: np.ndarray
-    Xc: np.ndarray      # positions less their mean, 0 where not valid
-    normal: np.ndarray
-    e1: np.ndarray
-    E: np.ndarray       # (ny, nx, 2, 3): e1, e2
-    ok: np.ndarray
-    N_inv: np.ndarray   # (ny, nx, 3, 3): the inverse normal matrix of the fit (identity where not ok)
-
-
 class StrainFit:
-    """`strain_3d` of many displacement fields on one surface: calling it with D gives the Strain.
-
-    What depends on X and on which points are valid only - the local frames and the fits' normal
-    matrices, most of the work - is kept for the last set of valid points, so that the states of a
-    sequence (all fitted on the reference surface, mostly with the same points) share it.
+    """`strain_3d` of many displacement fields on one surface (a sequence's states on its reference
+    shape): calling it with D gives the Strain.
 
     Parameters
     ----------
@@ -97,8 +76,7 @@ class StrainFit:
     def __init__(self, X: np.ndarray, *, window: int = 5, min_fraction: float = 0.6):
         if window < 3 or window % 2 == 0:
             raise ValueError(f"strain window must be odd and >= 3, got {window}")
-        self.X, self.window, self.min_fraction = X, window, min_fraction
-        self._frame: _Frame | None = None
+        self.X, self.window, self.min_fraction = np.ascontiguousarray(X, np.float64), window, min_fraction
 
     def __call__(self, D: np.ndarray) -> Strain:
         """The strain of one displacement field of the surface.
@@ -113,67 +91,176 @@ class StrainFit:
         strain : Strain
             As `strain_3d(X, D)`.
         """
-        valid = np.isfinite(self.X).all(-1) & np.isfinite(D).all(-1)
-        if self._frame is None or not np.array_equal(valid, self._frame.valid):
-            self._frame = self._frame_of(valid)
-        f, window = self._frame, self.window
-        Dc = np.where(f.valid[..., None], D, 0.0)
-        SD = _box_sum(Dc, window)
-        SXD = _box_sum(f.Xc[..., :, None] * Dc[..., None, :], window)
-        C = SXD - f.Xc[..., :, None] * SD[..., None, :]  # moments about the centre point: sum (X - c) D^T
-        rhs_st = np.einsum("...ij,...jk->...ik", f.E, C)  # (2, 3): sum s D, sum t D
-        rhs = np.concatenate([SD[..., None, :], rhs_st], -2)  # (3, 3): rows 1, s, t; columns D components
-        coef = np.einsum("...ij,...jk->...ik", f.N_inv, np.where(f.ok[..., None, None], rhs, 0))
-        grad = np.swapaxes(coef[..., 1:, :], -1, -2)  # (ny, nx, 3, 2): dD/ds, dD/dt
-        g1 = f.E[..., 0, :] + grad[..., 0]
-        g2 = f.E[..., 1, :] + grad[..., 1]
-        nan = np.nan
-        exx = np.where(f.ok, 0.5 * (np.sum(g1 * g1, -1) - 1.0), nan)
-        eyy = np.where(f.ok, 0.5 * (np.sum(g2 * g2, -1) - 1.0), nan)
-        exy = np.where(f.ok, 0.5 * np.sum(g1 * g2, -1), nan)
-        grad = np.where(f.ok[..., None, None], grad, nan)
-        return Strain(exx, eyy, exy, f.ok, grad, f.normal, f.e1)
+        X = self.X
+        D = np.ascontiguousarray(D, np.float64)
+        if D.shape != X.shape or X.ndim != 3 or X.shape[-1] != 3:
+            raise ValueError(f"strain fit: displacements {D.shape} do not fit the points {X.shape} (ny, nx, 3)")
+        shape = X.shape[:2]
+        exx, eyy, exy = (np.empty(shape) for _ in range(3))
+        ok = np.empty(shape, np.bool_)
+        grad = np.empty(shape + (3, 2))
+        normal, e1 = np.empty(shape + (3,)), np.empty(shape + (3,))
+        _fit(X, D, self.window, self.min_fraction * self.window ** 2, exx, eyy, exy, ok, grad, normal, e1)
+        return Strain(exx, eyy, exy, ok, grad, normal, e1)
 
-    def _frame_of(self, valid: np.ndarray) -> _Frame:
-        X, window = self.X, self.window
-        m = valid.astype(np.float64)
-        Xc = np.where(valid[..., None], X, 0.0)  # the window's point positions, 0 where invalid
-        # shift all positions by their mean, so that the sums stay small
-        origin = Xc[valid].mean(0) if valid.any() else np.zeros(3)
-        Xc = np.where(valid[..., None], Xc - origin, 0.0)
-        S1 = _box_sum(m, window)
-        SX = _box_sum(Xc, window)
-        SXX = _box_sum(Xc[..., :, None] * Xc[..., None, :], window)
-        enough = valid & (S1 >= self.min_fraction * window * window)
-        n = np.maximum(S1, 1.0)[..., None]
-        mean = SX / n
-        cov = SXX / n[..., None] - mean[..., :, None] * mean[..., None, :]
-        evals, evecs = np.linalg.eigh(np.where(enough[..., None, None], cov, np.diag([1.0, 1.0, 0.0])))
-        normal = evecs[..., :, 0]
-        normal = np.where((normal[..., 2:3] < 0), -normal, normal)
-        flat_enough = evals[..., 1] > 1e-6 * np.maximum(evals[..., 2], 1e-300)
-        ex = np.array([1.0, 0.0, 0.0])
-        e1 = ex - (normal @ ex)[..., None] * normal
-        e1_norm = np.linalg.norm(e1, axis=-1, keepdims=True)
-        flat_enough &= e1_norm[..., 0] > 1e-6  # a surface facing along x has no defined e1
-        e1 /= np.maximum(e1_norm, 1e-300)
-        e2 = np.cross(normal, e1)
-        # moments about the centre point c: sum (X - c), sum (X - c)(X - c)^T
-        c = Xc
-        A = SX - S1[..., None] * c
-        B = SXX - c[..., :, None] * SX[..., None, :] - SX[..., :, None] * c[..., None, :] \
-            + S1[..., None, None] * c[..., :, None] * c[..., None, :]
-        E = np.stack([e1, e2], -2)  # (ny, nx, 2, 3)
-        s_sum = np.einsum("...ij,...j->...i", E, A)  # sum of (s, t)
-        st = np.einsum("...ij,...jk,...lk->...il", E, B, E)  # 2x2 sums of products of (s, t)
-        N = np.zeros(S1.shape + (3, 3))
-        N[..., 0, 0] = S1
-        N[..., 0, 1:] = s_sum
-        N[..., 1:, 0] = s_sum
-        N[..., 1:, 1:] = st
-        ok = enough & flat_enough & (np.linalg.det(np.where(enough[..., None, None], N, np.eye(3))) > 0)
-        N_inv = np.linalg.inv(np.where(ok[..., None, None], N, np.eye(3)))
-        return _Frame(valid, Xc, normal, e1, E, ok, N_inv)
+
+@numba.njit(cache=True, inline="always")
+def _smallest_eigenvector(a, out):  # pragma: no cover - numba kernel
+    """Eigenvalues of the symmetric 3x3 `a` (overwritten) by cyclic Jacobi rotations, returned ascending
+    as (l0, l1, l2); `out` gets the unit eigenvector of l0."""
+    v = np.eye(3)
+    for _ in range(50):
+        off = a[0, 1] * a[0, 1] + a[0, 2] * a[0, 2] + a[1, 2] * a[1, 2]
+        if off <= 1e-36 * (a[0, 0] * a[0, 0] + a[1, 1] * a[1, 1] + a[2, 2] * a[2, 2]) or off == 0.0:
+            break
+        for p, q in ((0, 1), (0, 2), (1, 2)):
+            if a[p, q] == 0.0:
+                continue
+            theta = (a[q, q] - a[p, p]) / (2.0 * a[p, q])
+            t = (1.0 if theta >= 0 else -1.0) / (abs(theta) + np.sqrt(theta * theta + 1.0))
+            c = 1.0 / np.sqrt(t * t + 1.0)
+            s = t * c
+            for k in range(3):  # a <- J^T a J, J the rotation in the (p, q) plane
+                akp, akq = a[k, p], a[k, q]
+                a[k, p] = c * akp - s * akq
+                a[k, q] = s * akp + c * akq
+            for k in range(3):
+                apk, aqk = a[p, k], a[q, k]
+                a[p, k] = c * apk - s * aqk
+                a[q, k] = s * apk + c * aqk
+            for k in range(3):
+                vkp, vkq = v[k, p], v[k, q]
+                v[k, p] = c * vkp - s * vkq
+                v[k, q] = s * vkp + c * vkq
+    i0 = 0
+    for i in range(1, 3):
+        if a[i, i] < a[i0, i0]:
+            i0 = i
+    i1, i2 = (i0 + 1) % 3, (i0 + 2) % 3
+    if a[i1, i1] > a[i2, i2]:
+        i1, i2 = i2, i1
+    for k in range(3):
+        out[k] = v[k, i0]
+    return a[i0, i0], a[i1, i1], a[i2, i2]
+
+
+@numba.njit(cache=True, parallel=True)
+def _fit(X, D, window, min_count, exx, eyy, exy, ok, grad, normal, e1):  # pragma: no cover - numba kernel
+    """The plane fits of `StrainFit` (module docstring), one grid row per task. Per centre point c:
+    the moments of the window's valid points about c give the covariance, whose smallest eigenvector is
+    the normal n (towards +z); e1 = x projected on the plane, e2 = n x e1; the plane D = a + b s + c t in
+    (s, t) = ((X - c).e1, (X - c).e2) is solved from its 3x3 normal equations. A point is valid where it
+    and its displacement are finite, its window holds min_count valid points, the points are not all on
+    a line (second eigenvalue > 1e-6 of the largest), x is not along n, and the normal matrix is regular."""
+    ny, nx = X.shape[0], X.shape[1]
+    h = window // 2
+    nan = np.nan
+    for i in numba.prange(ny):
+        cov = np.empty((3, 3))
+        B = np.empty((3, 3))
+        C = np.empty((3, 3))
+        N = np.empty((3, 3))
+        Ni = np.empty((3, 3))
+        rhs = np.empty((3, 3))
+        A = np.empty(3)
+        SD = np.empty(3)
+        n = np.empty(3)
+        f1 = np.empty(3)
+        f2 = np.empty(3)
+        p = np.empty(3)
+        for j in range(nx):
+            exx[i, j] = eyy[i, j] = exy[i, j] = nan
+            ok[i, j] = False
+            for a in range(3):
+                normal[i, j, a] = 1.0 if a == 2 else 0.0
+                e1[i, j, a] = 1.0 if a == 0 else 0.0
+                grad[i, j, a, 0] = grad[i, j, a, 1] = nan
+            if not _finite(X, D, i, j):
+                continue
+            count = 0.0
+            A[:] = 0.0
+            SD[:] = 0.0
+            B[:] = 0.0
+            C[:] = 0.0
+            for ii in range(max(0, i - h), min(ny, i + h + 1)):
+                for jj in range(max(0, j - h), min(nx, j + h + 1)):
+                    if not _finite(X, D, ii, jj):
+                        continue
+                    count += 1.0
+                    for a in range(3):
+                        p[a] = X[ii, jj, a] - X[i, j, a]
+                    for a in range(3):
+                        A[a] += p[a]
+                        SD[a] += D[ii, jj, a]
+                        for b in range(3):
+                            B[a, b] += p[a] * p[b]
+                            C[a, b] += p[a] * D[ii, jj, b]
+            if count < min_count:
+                continue
+            for a in range(3):
+                for b in range(3):
+                    cov[a, b] = B[a, b] / count - A[a] * A[b] / (count * count)
+            l0, l1, l2 = _smallest_eigenvector(cov, n)
+            if n[2] < 0:
+                for a in range(3):
+                    n[a] = -n[a]
+            for a in range(3):
+                f1[a] = (1.0 if a == 0 else 0.0) - n[0] * n[a]
+            norm = np.sqrt(f1[0] * f1[0] + f1[1] * f1[1] + f1[2] * f1[2])
+            for a in range(3):
+                normal[i, j, a] = n[a]
+                f1[a] /= max(norm, 1e-300)
+                e1[i, j, a] = f1[a]
+            if not (l1 > 1e-6 * max(l2, 1e-300)) or not (norm > 1e-6):
+                continue
+            f2[0] = n[1] * f1[2] - n[2] * f1[1]
+            f2[1] = n[2] * f1[0] - n[0] * f1[2]
+            f2[2] = n[0] * f1[1] - n[1] * f1[0]
+            # normal equations of (1, s, t) and their right-hand sides (rows 1, s, t; columns D's components)
+            N[0, 0] = count
+            N[0, 1] = N[1, 0] = f1[0] * A[0] + f1[1] * A[1] + f1[2] * A[2]
+            N[0, 2] = N[2, 0] = f2[0] * A[0] + f2[1] * A[1] + f2[2] * A[2]
+            N[1, 1] = N[1, 2] = N[2, 1] = N[2, 2] = 0.0
+            for a in range(3):
+                for b in range(3):
+                    N[1, 1] += f1[a] * B[a, b] * f1[b]
+                    N[1, 2] += f1[a] * B[a, b] * f2[b]
+                    N[2, 2] += f2[a] * B[a, b] * f2[b]
+            N[2, 1] = N[1, 2]
+            det = (N[0, 0] * (N[1, 1] * N[2, 2] - N[1, 2] * N[2, 1]) - N[0, 1] * (N[1, 0] * N[2, 2] - N[1, 2] * N[2, 0])
+                   + N[0, 2] * (N[1, 0] * N[2, 1] - N[1, 1] * N[2, 0]))
+            if not (det > 0):
+                continue
+            for a in range(3):
+                for b in range(3):  # the inverse from the cofactors (N is symmetric)
+                    r0, r1 = (b + 1) % 3, (b + 2) % 3
+                    c0, c1 = (a + 1) % 3, (a + 2) % 3
+                    Ni[a, b] = (N[r0, c0] * N[r1, c1] - N[r0, c1] * N[r1, c0]) / det
+            for b in range(3):
+                rhs[0, b] = SD[b]
+                rhs[1, b] = f1[0] * C[0, b] + f1[1] * C[1, b] + f1[2] * C[2, b]
+                rhs[2, b] = f2[0] * C[0, b] + f2[1] * C[1, b] + f2[2] * C[2, b]
+            g11 = g22 = g12 = 0.0
+            for b in range(3):  # b: D's component; its slopes along s and t
+                ds = Ni[1, 0] * rhs[0, b] + Ni[1, 1] * rhs[1, b] + Ni[1, 2] * rhs[2, b]
+                dt = Ni[2, 0] * rhs[0, b] + Ni[2, 1] * rhs[1, b] + Ni[2, 2] * rhs[2, b]
+                grad[i, j, b, 0] = ds
+                grad[i, j, b, 1] = dt
+                u1 = f1[b] + ds
+                u2 = f2[b] + dt
+                g11 += u1 * u1
+                g22 += u2 * u2
+                g12 += u1 * u2
+            exx[i, j] = 0.5 * (g11 - 1.0)
+            eyy[i, j] = 0.5 * (g22 - 1.0)
+            exy[i, j] = 0.5 * g12
+            ok[i, j] = True
+
+
+@numba.njit(cache=True, inline="always")
+def _finite(X, D, i, j):  # pragma: no cover - numba kernel
+    return (np.isfinite(X[i, j, 0]) and np.isfinite(X[i, j, 1]) and np.isfinite(X[i, j, 2])
+            and np.isfinite(D[i, j, 0]) and np.isfinite(D[i, j, 1]) and np.isfinite(D[i, j, 2]))
 
 
 def strain_2d(xs: np.ndarray, ys: np.ndarray, u: np.ndarray, v: np.ndarray, *, window: int = 5,

@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 import cv2
 import numba
 import numpy as np
-from scipy.ndimage import distance_transform_edt
 
 from calib.errors import InputError
 from calib.prvm_file import PRVM
@@ -155,6 +154,7 @@ def _coarse_inverse(q: np.ndarray, wv: int, hv: int, tol_px: float, max_points: 
         raise InputError(None, "the virtual sensor does not overlap the real field")
     coarse = np.stack([mx, my], axis=-1).astype(np.float64)
     if not ok.all():
+        from scipy.ndimage import distance_transform_edt  # here: building an IMM only (0.2 s of import)
         near = distance_transform_edt(~ok, return_distances=False, return_indices=True)
         coarse = coarse[near[0], near[1]]
     return np.ascontiguousarray(coarse)

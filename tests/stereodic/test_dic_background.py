@@ -18,14 +18,25 @@ def _write(path, text, seconds=0.0):
     path.write_text(f"{text} from {os.getpid()}")
 
 
-def test_tasks_run_beside_the_caller_and_write_their_files(tmp_path):
-    with Background(1) as bg:
+def test_tasks_run_in_children_and_none_waits_behind_a_long_one(tmp_path):
+    with Background(2) as bg:
         for k in range(4):
-            bg.submit(lambda k=k: _write(tmp_path / f"{k}.txt", k, 0.5 if k == 0 else 0.0), f"file {k}")
+            bg.submit(lambda k=k: _write(tmp_path / f"{k}.txt", f"{k} {time.time()!r}", 1.0 if k == 0 else 0.0),
+                      f"file {k}")
     texts = [(tmp_path / f"{k}.txt").read_text() for k in range(4)]
-    assert [t.split(" from ")[0] for t in texts] == ["0", "1", "2", "3"]
+    assert [t.split()[0] for t in texts] == ["0", "1", "2", "3"]
     pids = {int(t.split(" from ")[1]) for t in texts}
-    assert os.getpid() in pids and len(pids) >= 2      # the child was busy with file 0: the caller did 1
+    assert os.getpid() not in pids and len(pids) == 4     # each task in a child of its own; the caller hands out
+    # files 1-3 were written in the free slot while file 0's child slept, not after it
+    assert all(float(t.split()[1]) < os.path.getmtime(tmp_path / "0.txt") - 0.5 for t in texts[1:])
+
+
+def test_one_worker_runs_the_tasks_one_after_the_other(tmp_path):
+    with Background(1) as bg:
+        for k in range(3):
+            bg.submit(lambda k=k: _write(tmp_path / f"{k}.txt", k, 0.2), f"file {k}")
+    times = [os.path.getmtime(tmp_path / f"{k}.txt") for k in range(3)]
+    assert times == sorted(times) and times[2] - times[0] >= 0.35   # each waited for the one before
 
 
 def test_no_workers_runs_everything_here(tmp_path):

@@ -49,6 +49,16 @@ def test_missing_points_and_sparse_windows(grid):
     assert not s.valid[0, 0]
 
 
+def test_a_window_with_exactly_the_least_fraction_fits(grid):
+    """Row 0's windows (5 x 5) hold 3 x 5 = 15 points, exactly 60 %: fitted, whatever the sums' rounding."""
+    xs, ys, X, Y = grid
+    u, v = 0.01 * X, -0.02 * Y
+    s = strain_2d(xs, ys, u, v, window=5, min_fraction=0.6)
+    assert s.valid[0, 2:-2].all() and not s.valid[0, :2].any()     # the corners hold 9 and 12
+    assert np.allclose(s.exx[0, 2:-2], 0.01 + 0.5e-4, atol=1e-12)
+    assert np.allclose(s.eyy[0, 2:-2], -0.02 + 0.5 * 0.02 ** 2, atol=1e-12)
+
+
 def test_quadratic_field_gives_the_slope_at_the_centre(grid):
     xs, ys, X, Y = grid
     u = 1e-4 * (X - 150) ** 2
