@@ -23,7 +23,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -188,21 +188,25 @@ STRAIN_FLOOR = 100.0   # microstrain: the least half-range of a strain map's col
 
 def plot_state(folder: str | os.PathLike, st: StereoState, axes: MapAxes, label: str, *,
                scales: RunScales | None = None, image: np.ndarray | None = None, frame: str = "rig's frame",
-               movies: dict[str, MapMovie] | None = None, painter: MapPainter | None = None) -> None:
+               movies: dict[str, MapMovie] | None = None, painter: MapPainter | None = None,
+               names: Sequence[str] | None = None) -> None:
     """PNG maps of one state k, named `label` (its load case): state{k}_{Z,dX,dY,dZ}.png [+ _exx, _eyy,
     _exy, microstrain] on `axes` (stereodic.dic.maps.surface_axes: the reference surface's X, Y in mm),
     titled with the reporting `frame`; with `scales`, the run's colour limits (`RunScales`); with
     `image` (the state's original left image), each map also drawn over it; `movies`: quantity ->
     the MapMovie each of its maps is added to; `painter`: the MapPainter whose figures are reused (one
-    for the run), else a new one for the state. State 0's strains are labelled: zero by definition (the
-    measurement's noise floor shows in a second image of the specimen at rest). None for a state that
-    measured no point (its diagnosis says why: `stereodic.dic3d.diagnose`)."""
+    for the run), else a new one for the state; `names`: only these quantities' maps (None: all). State 0's
+    strains are labelled: zero by definition (the measurement's noise floor shows in a second image of the
+    specimen at rest). None for a state that measured no point (its diagnosis says why:
+    `stereodic.dic3d.diagnose`)."""
     if not st.converged.any():
         return
     folder = Path(folder)
     painter = painter or MapPainter()
     backdrop = None if image is None else Backdrop(image, st.left.real[..., 0], st.left.real[..., 1])
     for name, (arr, unit, decimals) in state_maps(st).items():
+        if names is not None and name not in names:
+            continue
         what = f"{name}, {st.measure.measure} strain" if name.startswith("e") else name
         title = f"{label} - {what} ({frame})"
         if st.state == 0 and name.startswith("e"):

@@ -180,8 +180,10 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
                                                  image=None if image_of is None else image_of(st.state), **maps)
                         if maps["movies"]:
                             draw()      # a movie takes its frames in order, in this process
-                        else:           # in a child, which finds matplotlib imported (`load_matplotlib`)
-                            bg.submit(draw, f"the maps of state {st.state}")
+                        else:           # in children, which find matplotlib imported (`load_matplotlib`)
+                            for part in _map_parts(list(state_maps(st)), bg.workers, len(range(0, n, plot_every))):
+                                bg.submit(functools.partial(draw, names=part),
+                                          f"the maps of state {st.state} ({', '.join(part)})")
                     if vtk_here:
                         bg.submit(functools.partial(write_state, folder / "vtk", st),
                                   f"the VTK file of state {st.state}")
@@ -196,6 +198,14 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
         store.remove_rows()
     if vtk:
         write_collection(folder / "vtk", range(n))
+
+
+def _map_parts(names: list[str], workers: int, states: int) -> list[list[str]]:
+    """A state's map quantities `names` split into tasks: one task a state when the run has at least as many
+    states to draw as `workers` (children), else each state's maps shared among its share of the workers
+    (a task pays once for its figures and the state's picture over the image: not one a map)."""
+    parts = max(1, min(len(names), workers // max(states, 1)))
+    return [list(part) for part in np.array_split(np.array(names, dtype=object), parts)]
 
 
 def _keep_rows(store: RunStore, grid: Grid, k: int, state: StereoState | None = None) -> None:

@@ -107,6 +107,20 @@ def test_a_run_records_its_state_names_and_maps_in_mm(dic_sim, tmp_path):
     assert RunStore(out).attach().read_state(2).measure.measure == "green-lagrange"
 
 
+def test_many_workers_share_a_states_maps_and_draw_every_one(dic_sim, tmp_path, monkeypatch):
+    from stereodic.dic3d.run import _map_parts
+    names = ["Z", "dX", "dY", "dZ", "exx", "eyy", "exy"]
+    for workers, states, tasks in ((2, 2, 1), (16, 2, 7), (16, 5, 3), (16, 40, 1), (0, 1, 1)):
+        parts = _map_parts(names, workers, states)
+        assert len(parts) == tasks and [q for part in parts for q in part] == names
+    monkeypatch.setenv("OMP_NUM_THREADS", "6")     # 6 children, 2 states drawn: 3 tasks a state
+    out = tmp_path / "run"
+    assert main(["dic", str(dic_sim / "rig.npz"), str(dic_sim), "--step", "8", "--no-vtk", "--plot-every", "2",
+                 "-o", str(out)]) == 0
+    drawn = sorted(p.name for p in (out / "maps").glob("*.png"))
+    assert drawn == sorted(f"state{k}_{q}.png" for k in (0, 2) for q in names)
+
+
 def test_run_scales_fix_each_quantitys_colours_over_the_run():
     """The same limits for every state (the widest 1st-99th percentile), centred on zero for a change,
     with a floor for a quantity at rest (the reference's strain), and a given range kept as it is."""

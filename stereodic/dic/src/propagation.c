@@ -12,12 +12,13 @@
 #include "propagation.h"
 
 #define BATCH 256   /* points solved in parallel per step: enough for the threads, small against the front */
+#define FEW 8       /* fewer points than this are solved by the calling thread: waking the others costs more */
 
 int solve_many(const Problem *pb, Points *pts, const int64_t *idx, long count)
 {
     const int n = pb->nparams;
     int failed = 0;
-    #pragma omp parallel
+    #pragma omp parallel if (count >= FEW)
     {
         Work w;
         const int ok = work_alloc(&w, pb) == 0;
@@ -52,7 +53,7 @@ int status_many(const Problem *pb, const double *xs, const double *ys, long coun
 {
     const long width = reference_width(pb->nparams);
     int failed = 0;
-    #pragma omp parallel
+    #pragma omp parallel if (count >= FEW)
     {
         Work w;
         const int ok = work_alloc(&w, pb) == 0;
