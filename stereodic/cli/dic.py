@@ -167,8 +167,9 @@ def _states(args, rig):
     return states_from_folder(args.images, args.left_suffix, args.right_suffix, rig)
 
 
-def _run_record(args, rig_path, data, settings, grid):
-    """(settings, inputs) of the run manifest: everything that decides the results."""
+def _run_record(args, rig_sha, data, settings, grid):
+    """(settings, inputs) of the run manifest: everything that decides the results (rig_sha: the rig
+    file's SHA-256)."""
     import dataclasses
     import hashlib
     import json
@@ -187,7 +188,7 @@ def _run_record(args, rig_path, data, settings, grid):
     root = root if os.path.isdir(root) else os.path.dirname(root)
     images = [[os.path.relpath(os.path.abspath(lp), root), fingerprint(lp),
                os.path.relpath(os.path.abspath(rp), root), fingerprint(rp)] for lp, rp in zip(data.left, data.right)]
-    inputs = {"rig": file_sha256(rig_path), "images": images}
+    inputs = {"rig": rig_sha, "images": images}
     return json.loads(json.dumps(record)), inputs
 
 
@@ -227,12 +228,14 @@ def run(args) -> int:
     import os
     import sys
     import threading
+    from concurrent.futures import ThreadPoolExecutor
     from pathlib import Path
 
     import numpy as np
 
-    from calib.progress import note
+    from calib.batch import file_sha256
     from calib.imageio import read_gray
+    from calib.progress import note
     from calib.sequences import frame_times
     from stereodic.cli.common import memory_reuse, wrote
     memory_reuse()
@@ -243,8 +246,12 @@ def run(args) -> int:
     from stereodic.stereo.rig import load_rig
 
     rig = load_rig(args.rig)
-    # beside the checks and the correlation: the kernels of the states' points and strains loaded, matplotlib
-    # imported for the maps (not after them, on the critical path)
+    # beside the checks and the correlation: the rig file's hash for the run's record (hashlib releases
+    # the GIL), the kernels of the states' points and strains loaded, matplotlib imported for the maps
+    # (not after them, on the critical path)
+    hashing = ThreadPoolExecutor(1)
+    rig_hash = hashing.submit(file_sha256, args.rig)
+    hashing.shutdown(wait=False)
     threading.Thread(target=_load, args=(rig, not args.no_plot), name="load kernels", daemon=True).start()
     width, height = rig.sensor.width, rig.sensor.height
     data = _states(args, rig)                   # every state and file checked before the work
@@ -261,14 +268,13 @@ def run(args) -> int:
     if not (args.roi or args.mask or args.roi_polygon):   # the options were checked above, before the work
         grid, seeds = dic_grid(args, width, height, "rectified image", str(data.left[0]),
                                reference=lambda: data.rectified_pair(rig, 0)[0])
-    record, inputs = _run_record(args, args.rig, data, settings, grid)
+    record, inputs = _run_record(args, rig_hash.result(), data, settings, grid)
     out = Path(args.output)
     store = RunStore(out)
     n = len(data)
     done = store.open(record, inputs, n, restart=args.restart)
     rig_path, rig_sha = args.rig, inputs["rig"]
     if geometry.correction is not None:
-        from calib.batch import file_sha256
         from stereodic.stereo.rig import save_rig
         rig_path = out / "rig_refit.npz"
         save_rig(rig_path, rig)

@@ -175,9 +175,9 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
                     if axes is None and plot_every:  # state 0: the reference surface gives every map its mm axes
                         axes = surface_axes(grid.xs, grid.ys, st.points, grid.active)
                     if plot_every and st.state % plot_every == 0:
-                        draw = functools.partial(plot_state, folder / "maps", st, axes,
-                                                 labels[st.state] if labels else f"state {st.state}",
-                                                 image=None if image_of is None else image_of(st.state), **maps)
+                        draw = functools.partial(_draw_maps, folder / "maps", st, axes,
+                                                 labels[st.state] if labels else f"state {st.state}", image_of,
+                                                 **maps)
                         if maps["movies"]:
                             draw()      # a movie takes its frames in order, in this process
                         else:           # in children, which find matplotlib imported (`load_matplotlib`)
@@ -198,6 +198,13 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
         store.remove_rows()
     if vtk:
         write_collection(folder / "vtk", range(n))
+
+
+def _draw_maps(folder: Path, st: StereoState, axes: MapAxes, label: str, image_of: Callable[[int], np.ndarray] | None,
+               **options) -> None:
+    """`output.plot_state` of state `st`, over its original left image `image_of(k)` (read here: in the task
+    that draws, not in the caller handing the tasks out) when given."""
+    plot_state(folder, st, axes, label, image=None if image_of is None else image_of(st.state), **options)
 
 
 def _map_parts(names: list[str], workers: int, states: int) -> list[list[str]]:

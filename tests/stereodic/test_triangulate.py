@@ -81,3 +81,24 @@ def test_numba_kernel_equals_the_numpy_statement(corrected):
     assert ok.sum() > n // 2
     assert np.abs(got.points[ok] - ref.points[ok]).max() < 1e-9
     assert np.abs(got.gap_mm[ok] - ref.gap_mm[ok]).max() < 1e-9
+
+
+def test_ray_distances_are_the_signed_gap_of_the_triangulation():
+    """The kernel's signed distance between the two rays: its size is triangulate's gap (the same rays,
+    another kernel), zero for the simulator's true matches, and it changes sign across the epipolar row."""
+    from stereodic.stereo.triangulate import ray_distances
+    ll, lr, pl, pr, rig = pair("noncentral", "brown")
+    x = volume_points(rig, 500, 1.0, seed=5)
+    left, right = seen_at(rig, ll, pl, x), seen_at(rig, lr, pr, x)
+    ok = inside(rig, left, right)
+    (xl, yl), (xr, yr) = left[ok].T, right[ok].T
+    assert np.abs(ray_distances(rig, xl, yl, xr, yr)).max() < 1e-4          # mm: true matches meet
+    for dy in (0.7, -0.7):
+        d = ray_distances(rig, xl, yl, xr, yr + dy)
+        gap = triangulate(rig, xl, xr, yl, row_right=yr + dy).gap_mm
+        assert np.allclose(np.abs(d), gap, rtol=1e-9, atol=1e-9)
+        assert np.all(np.sign(d) == np.sign(d[0])) and np.abs(d).min() > 0.05
+    assert np.sign(ray_distances(rig, xl[:1], yl[:1], xr[:1], yr[:1] + 0.7)) != \
+        np.sign(ray_distances(rig, xl[:1], yl[:1], xr[:1], yr[:1] - 0.7))
+    blank = ray_distances(rig, np.array([np.nan, xl[0]]), yl[:2], xr[:2], yr[:2])
+    assert np.isnan(blank[0]) and np.isfinite(blank[1])
