@@ -134,11 +134,14 @@ def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: Ste
     store.remove_rows()               # rows kept in the rig's frame (`run_states(rows=True)`) are not these
 
 
-def _run_scales(store: RunStore, every: int, active, limits: dict | None = None) -> RunScales:
+def _run_scales(store: RunStore, every: int, active, limits: dict | None = None,
+                each: Callable[[StereoState], None] | None = None) -> RunScales:
     """The colour scales of the maps of every `every`-th state, read one state at a time (`limits`: those
-    given)."""
+    given); `each(state)` is called with every state read (a task that needs the states anyway)."""
     scales = RunScales(given=limits, floor={c: STRAIN_FLOOR for c in ("exx", "eyy", "exy")})
     for st in store.states():
+        if each is not None:
+            each(st)
         if st.state % every == 0:
             for name, (values, _, _) in state_maps(st).items():
                 scales.add(name, values, signed=name != "Z", active=active)
@@ -162,13 +165,20 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
         bg.submit(lambda: write_npz(folder / "dic.npz", grid, store.values, n, has_strain, settings, info, has_def),
                   "dic.npz")
         vtk_here = vtk and state_files        # a cluster's tasks wrote the VTK files; the maps are drawn here
+
+        def write_vtk(st: StereoState) -> None:
+            bg.submit(functools.partial(write_state, folder / "vtk", st), f"the VTK file of state {st.state}")
+
         if vtk_here or plot_every or dice is not None:
             axes = None
             maps = {}
             if plot_every:
                 load_matplotlib()
-                maps = dict(scales=_run_scales(store, plot_every, grid.active, limits), frame=frame_name,
-                            movies={q: MapMovie(folder / "maps" / f"{q}.mp4") for q in animate},
+                # the VTK files written while the states are read for the maps' scales: the children busy
+                # while the caller reads, the long tasks (the maps) handed out together after
+                maps = dict(scales=_run_scales(store, plot_every, grid.active, limits,
+                                               each=write_vtk if vtk_here else None),
+                            frame=frame_name, movies={q: MapMovie(folder / "maps" / f"{q}.mp4") for q in animate},
                             painter=MapPainter())
             try:
                 for st in progress(store.states(), "writing", total=n, unit="state"):
@@ -184,9 +194,8 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
                             for part in _map_parts(list(state_maps(st)), bg.workers, len(range(0, n, plot_every))):
                                 bg.submit(functools.partial(draw, names=part),
                                           f"the maps of state {st.state} ({', '.join(part)})")
-                    if vtk_here:
-                        bg.submit(functools.partial(write_state, folder / "vtk", st),
-                                  f"the VTK file of state {st.state}")
+                    if vtk_here and not plot_every:
+                        write_vtk(st)
                     if dice is not None:
                         dice(st)
             finally:
