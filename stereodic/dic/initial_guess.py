@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from stereodic.dic.background import thread_map
+from stereodic.dic.background import thread_map, threads
 
 MAX_FEATURES = 4000   # ORB features kept per image (the strongest corners)
 DETECT_SIDE = 1024    # features are found on the image shrunk until its longer side is at most this (pixels)
@@ -110,11 +110,23 @@ def _matches(ref: Features, dfm: Features) -> tuple[np.ndarray, np.ndarray]:
     """Matched positions (K, 2) in the reference and deformed images that pass the ratio test."""
     if len(ref.pts) < 2 or len(dfm.pts) < 2:
         return np.zeros((0, 2)), np.zeros((0, 2))
-    pairs = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(ref.desc, dfm.desc, k=2)
+    # the reference's descriptors in one block a thread (OpenCV releases the GIL): the same matches
+    blocks = np.array_split(np.arange(len(ref.desc)), threads())
+    pairs = [m for part in thread_map(lambda rows: _knn(ref.desc[rows], dfm.desc, rows[0] if rows.size else 0),
+                                      blocks) for m in part]
     good = [m[0] for m in pairs if len(m) == 2 and m[0].distance < RATIO * m[1].distance]
     qi = np.array([m.queryIdx for m in good], np.int64)
     ti = np.array([m.trainIdx for m in good], np.int64)
     return ref.pts[qi].reshape(-1, 2), dfm.pts[ti].reshape(-1, 2)
+
+
+def _knn(desc: np.ndarray, train: np.ndarray, first: int) -> list:
+    """OpenCV's two nearest (Hamming) of `train` for each of `desc`, whose query indices start at `first`."""
+    pairs = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(desc, train, k=2) if len(desc) else []
+    for m in pairs:
+        for match in m:
+            match.queryIdx += first
+    return pairs
 
 
 def _inliers(p: np.ndarray, q: np.ndarray) -> np.ndarray:

@@ -103,11 +103,12 @@ def row_alignment(left: np.ndarray, right: np.ndarray, *, max_dy: int | None = N
         The refined matches, rectified pixels; empty when none converged.
     """
     from stereodic.dic import BSplineImage, DicSettings, correlate_points
+    from stereodic.dic.background import side_by_side
     from stereodic.dic.initial_guess import consistent_matches, image_features
 
     h, w = left.shape
     max_dy = row_band(h) if max_dy is None else int(max_dy)
-    p, q = consistent_matches(image_features(left), image_features(right))
+    p, q = consistent_matches(*side_by_side(lambda: image_features(left), lambda: image_features(right)))
     side = 2 * half + 1
     kernel = np.ones((side + 2, side + 2), np.uint8)
     inside = [cv2.erode((img > 0).astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
