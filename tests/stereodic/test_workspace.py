@@ -507,7 +507,7 @@ def test_dic2d_states_number_as_the_gauges_do(tmp_path):
     i = src.nearest(float(r["x"]), float(r["y"]))
     assert (src.x[i], src.y[i]) == (float(r["x"]), float(r["y"]))
     hist = src.history(i, "u")
-    np.testing.assert_allclose(hist, [0.0, float(r["u"])], atol=1e-9)
+    np.testing.assert_allclose(hist, [0.0, float(r["u"])], atol=5e-7)    # the CSV's 6 decimals
     assert abs(hist[1] - 3.4) < 0.05 and src.values(0, "status")[i] == 0 and src.values(0, "zncc")[i] == 1.0
 
 
