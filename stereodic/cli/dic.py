@@ -227,7 +227,6 @@ def run(args) -> int:
     import functools
     import os
     import sys
-    import threading
     from concurrent.futures import ThreadPoolExecutor
     from pathlib import Path
 
@@ -238,6 +237,7 @@ def run(args) -> int:
     from calib.progress import note
     from calib.sequences import frame_times
     from stereodic.cli.common import memory_reuse, wrote
+    from stereodic.dic.background import threads
     memory_reuse()
     from stereodic.dic3d import epipolar
     from stereodic.dic3d.refit import reference_geometry
@@ -246,13 +246,15 @@ def run(args) -> int:
     from stereodic.stereo.rig import load_rig
 
     rig = load_rig(args.rig)
-    # beside the checks and the correlation: the rig file's hash for the run's record (hashlib releases
-    # the GIL), the kernels of the states' points and strains loaded, matplotlib imported for the maps
-    # (not after them, on the critical path)
-    hashing = ThreadPoolExecutor(1)
-    rig_hash = hashing.submit(file_sha256, args.rig)
-    hashing.shutdown(wait=False)
-    threading.Thread(target=_load, args=(rig, not args.no_plot), name="load kernels", daemon=True).start()
+    # on more than one thread, beside the checks and the correlation: the rig file's hash for the run's
+    # record (hashlib releases the GIL), the kernels of the states' points and strains loaded, matplotlib
+    # imported for the maps (not after them, on the critical path); on one, each when it is needed
+    rig_hash = None
+    if threads() > 1:
+        beside = ThreadPoolExecutor(2)
+        rig_hash = beside.submit(file_sha256, args.rig)
+        beside.submit(_load, rig, not args.no_plot)
+        beside.shutdown(wait=False)
     width, height = rig.sensor.width, rig.sensor.height
     data = _states(args, rig)                   # every state and file checked before the work
     settings = _settings(args)
@@ -268,7 +270,8 @@ def run(args) -> int:
     if not (args.roi or args.mask or args.roi_polygon):   # the options were checked above, before the work
         grid, seeds = dic_grid(args, width, height, "rectified image", str(data.left[0]),
                                reference=lambda: data.rectified_pair(rig, 0)[0])
-    record, inputs = _run_record(args, rig_hash.result(), data, settings, grid)
+    record, inputs = _run_record(args, file_sha256(args.rig) if rig_hash is None else rig_hash.result(), data,
+                                 settings, grid)
     out = Path(args.output)
     store = RunStore(out)
     n = len(data)
