@@ -444,8 +444,8 @@ class ImageRef:
 
     def noise(self, xs: np.ndarray, ys: np.ndarray, half: int) -> np.ndarray:
         """`texture.predicted_noise` of subsets at (xs, ys) in this image (its SSSIG maps kept per size)."""
-        if half not in self._sssig:   # with the noise estimate beside, if not made yet (OpenCV's filters)
-            self._sssig[half] = side_by_side(lambda: sssig(self.bspline, half), lambda: self.sigma)[0]
+        if half not in self._sssig:
+            self._sssig[half] = sssig(self.bspline, half)
         return predicted_noise(self.bspline, xs, ys, half, self.sigma, self._sssig[half])
 
     def subsets(self, xs: np.ndarray, ys: np.ndarray, settings: DicSettings) -> np.ndarray | None:

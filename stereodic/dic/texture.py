@@ -12,7 +12,6 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from stereodic.dic.background import thread_map
 from stereodic.dic.interpolation import BSplineImage
 
 # Immerkaer's noise operator: the difference of two Laplacians, blind to linear intensity ramps
@@ -37,8 +36,8 @@ def sssig(ref: BSplineImage, half: int) -> tuple[np.ndarray, np.ndarray]:
     pixels inside)."""
     g = ref.pixel_gradients()
     side = 2 * half + 1
-    sx, sy = thread_map(lambda c: cv2.boxFilter(np.square(g[c], dtype=np.float32), cv2.CV_32F, (side, side),
-                                                normalize=False, borderType=cv2.BORDER_CONSTANT), (1, 2))
+    sx, sy = (cv2.boxFilter(np.square(g[c], dtype=np.float32), cv2.CV_32F, (side, side), normalize=False,
+                            borderType=cv2.BORDER_CONSTANT) for c in (1, 2))
     return sx, sy
 
 
