@@ -237,7 +237,7 @@ def run(args) -> int:
     from calib.progress import note
     from calib.sequences import frame_times
     from stereodic.cli.common import memory_reuse, wrote
-    from stereodic.dic.background import threads
+    from stereodic.dic.background import finish_before_fork, threads
     memory_reuse()
     from stereodic.dic3d import epipolar
     from stereodic.dic3d.refit import reference_geometry
@@ -253,7 +253,7 @@ def run(args) -> int:
     if threads() > 1:
         beside = ThreadPoolExecutor(2)
         rig_hash = beside.submit(file_sha256, args.rig)
-        beside.submit(_load, rig, not args.no_plot)
+        finish_before_fork(beside.submit(_load, rig, not args.no_plot))   # it imports: no fork meanwhile
         beside.shutdown(wait=False)
     width, height = rig.sensor.width, rig.sensor.height
     data = _states(args, rig)                   # every state and file checked before the work

@@ -59,6 +59,17 @@ def side_by_side(*tasks: Callable[[], T]) -> list[T]:
         return [tasks[0]()] + [f.result() for f in later]
 
 
+_BEFORE_FORK: list = []  # futures of threads that import modules: finished before any fork (`finish_before_fork`)
+
+
+def finish_before_fork(future) -> None:
+    """Make the next fork of this process (`Background.submit`) wait for `future` (a
+    concurrent.futures.Future; its error, if any, ignored). A thread that imports modules holds import
+    locks, which a child forked meanwhile would inherit held and never see released: the child would hang
+    on its first import of such a module."""
+    _BEFORE_FORK.append(future)
+
+
 class Background:
     """Run tasks in at most `workers` forked children (module docstring), a task waiting for a free one;
     0 workers: every task in the caller, in order. Used as a context manager, which waits for every child on leaving; a child that
@@ -96,6 +107,8 @@ class Background:
         while len(self.running) >= self.workers:
             multiprocessing.connection.wait([proc.sentinel for _, proc in self.running])
             self._reap()
+        while _BEFORE_FORK:
+            _BEFORE_FORK.pop().exception()       # waits; the thread's own error is not this task's
         proc = multiprocessing.get_context("fork").Process(target=task, name=name, daemon=True)
         proc.start()
         self.running.append((name, proc))

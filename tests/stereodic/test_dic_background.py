@@ -105,3 +105,22 @@ def test_a_command_after_numba_started_keeps_its_pool_and_limits_its_threads(tmp
     out = subprocess.run([sys.executable, str(script)], env={**env, "NUMBA_CACHE_DIR": str(tmp_path / "cache")},
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0 and out.stdout.split() == ["1", "6.0"], out.stderr[-500:]
+
+
+def test_no_child_is_forked_while_a_thread_imports(tmp_path):
+    """A thread that imports modules (`stereodic.cli.dic` loads numba's kernels and matplotlib beside the
+    work) is waited for before the next fork: a child forked meanwhile would inherit its import locks held."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from stereodic.dic.background import finish_before_fork
+
+    def importing():
+        time.sleep(0.4)
+        (tmp_path / "imported").write_text(repr(time.time()))
+
+    with ThreadPoolExecutor(1) as pool:
+        finish_before_fork(pool.submit(importing))
+        with Background(1) as bg:
+            bg.submit(lambda: _write(tmp_path / "task.txt", repr(time.time())), "the task")
+    started = float((tmp_path / "task.txt").read_text().split(" from ")[0])
+    assert started >= float((tmp_path / "imported").read_text())
