@@ -29,7 +29,6 @@ from calib.capture import Frame, load_capture
 from calib.errors import InputError
 from calib.image_files import expand, natural_key
 from calib.imageio import IMAGE_SUFFIXES, check_size, read_gray
-from stereodic.dic.background import side_by_side
 from stereodic.stereo.rectify import rectify_pair
 from stereodic.stereo.rig import SIDES, Rig, check_camera_sizes
 
@@ -57,10 +56,8 @@ class DicStates:
         return f"state {k}: {self.names[k]}" if self.names else f"state {k} ({self.left[k].name})"
 
     def read(self, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """The raw (left, right) images of state k (uint8 or uint16), read side by side (OpenCV's decoders
-        release the GIL)."""
-        left, right = side_by_side(lambda: read_gray(self.left[k]), lambda: read_gray(self.right[k]))
-        return left, right
+        """The raw (left, right) images of state k (uint8 or uint16)."""
+        return read_gray(self.left[k]), read_gray(self.right[k])
 
     def rectified_pair(self, rig: Rig, k: int) -> tuple[np.ndarray, np.ndarray]:
         """The rectified (left, right) images of state k, float32 (`rectify_pair(exact=True)`: grey levels
