@@ -180,8 +180,12 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
                                                each=write_vtk if vtk_here else None),
                             frame=frame_name, movies={q: MapMovie(folder / "maps" / f"{q}.mp4") for q in animate},
                             painter=MapPainter())
+            # every state when each needs something here (DICe's files, VTK files without maps), else the
+            # states drawn only: the scales' pass read them all already
+            every = plot_every if plot_every and dice is None else 1
             try:
-                for st in progress(store.states(), "writing", total=n, unit="state"):
+                for st in progress((store.read_state(k) for k in range(0, n, every)), "writing",
+                                   total=len(range(0, n, every)), unit="state"):
                     if axes is None and plot_every:  # state 0: the reference surface gives every map its mm axes
                         axes = surface_axes(grid.xs, grid.ys, st.points, grid.active)
                     if plot_every and st.state % plot_every == 0:
