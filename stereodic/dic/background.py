@@ -72,8 +72,8 @@ def finish_before_fork(future) -> None:
 
 class Background:
     """Run tasks in at most `workers` forked children (module docstring), a task waiting for a free one;
-    0 workers: every task in the caller, in order. Used as a context manager, which waits for every child on leaving; a child that
-    failed raises RuntimeError then (its traceback went to stderr)."""
+    0 workers: every task in the caller, in order. Used as a context manager, which waits for every child
+    on leaving; a child that failed raises RuntimeError then (its traceback went to stderr)."""
 
     def __init__(self, workers: int):
         self.workers = workers if hasattr(os, "fork") else 0

@@ -103,7 +103,6 @@ def row_alignment(left: np.ndarray, right: np.ndarray, *, max_dy: int | None = N
         The refined matches, rectified pixels; empty when none converged.
     """
     from stereodic.dic import BSplineImage, DicSettings, correlate_points
-    from stereodic.dic.background import side_by_side
     from stereodic.dic.initial_guess import consistent_matches, image_features
 
     h, w = left.shape

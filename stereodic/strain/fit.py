@@ -200,7 +200,7 @@ def _fit(X, D, window, min_count, exx, eyy, exy, ok, grad, normal, e1):  # pragm
             for a in range(3):
                 for b in range(3):
                     cov[a, b] = B[a, b] / count - A[a] * A[b] / (count * count)
-            l0, l1, l2 = _smallest_eigenvector(cov, n)
+            _, l1, l2 = _smallest_eigenvector(cov, n)
             if n[2] < 0:
                 for a in range(3):
                     n[a] = -n[a]
