@@ -10,8 +10,8 @@ Fixed-point fields (`%.Nf`) are rounded as Python rounds them, to the nearest of
 scaled by 10^N (ties to even): the scaled value v * 10^N is computed in float64, within half a unit in its
 last place of the exact product, so its nearest integer is the right one unless it lies within one unit in
 the last place of a half-integer. Those few values, `%g` values that are not integers below 10^6 in
-magnitude, values beyond 2^50 scaled, NaN and the infinities are formatted by Python itself (`_python`),
-as is any other format and `%.Nf` with N > 15.
+magnitude and values beyond 2^50 scaled are formatted by Python itself (`_python`), as is any other format
+and `%.Nf` with N > 15; NaN and the infinities are spelled as Python spells them.
 """
 
 from __future__ import annotations
@@ -106,9 +106,26 @@ def _column(values: np.ndarray, fmt: str) -> np.ndarray:
     if values.dtype.kind in "fiub" and (fixed or fmt == "%g"):
         v = np.asarray(values, np.float64)
         fields, fallback = _fixed(v, int(fmt[2:-1])) if fixed else _whole_g(v)
+        fields, fallback = _non_finite(v, fields, fallback)
     if fields is None:          # any other format: Python's own
         fields, fallback = np.zeros((values.size, 0), np.uint8), np.ones(values.size, bool)
     return _python(fields, fallback, values, fmt)
+
+
+def _non_finite(values: np.ndarray, fields: np.ndarray, fallback: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(fields, fallback) with NaN, inf and -inf spelled as `%g` and `%.Nf` spell them ("nan" whatever
+    its sign, "inf", "-inf") in their rows of `fields` (N, W) uint8 (widened to 4 if narrower), and taken
+    out of `fallback` (N,) bool."""
+    bad = ~np.isfinite(values)
+    if not bad.any():
+        return fields, fallback
+    if fields.shape[1] < 4:
+        fields = np.hstack([fields, np.zeros((fields.shape[0], 4 - fields.shape[1]), np.uint8)])
+    v = values[bad]
+    words = np.where(np.isnan(v), b"nan", np.where(v > 0, b"inf", b"-inf")).astype("S4")
+    fields[bad] = NUL
+    fields[bad, :4] = words.view(np.uint8).reshape(-1, 4)
+    return fields, fallback & ~bad
 
 
 def _python(fields: np.ndarray, fallback: np.ndarray, values: np.ndarray, fmt: str) -> np.ndarray:

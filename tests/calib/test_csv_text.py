@@ -91,3 +91,13 @@ def test_empty_columns_and_a_mismatch_of_columns_and_formats():
     assert format_rows([np.zeros(0), np.zeros(0, int)], ["%.6f", "%d"]) == ""
     with pytest.raises(ValueError):
         format_rows([np.zeros(3)], ["%d", "%d"])
+
+
+@pytest.mark.parametrize("fmt", ["%.0f", "%.1f", "%.6f", "%g"])
+def test_columns_of_nan_and_infinities_alone_and_among_narrow_values(fmt):
+    """NaN and the infinities are spelled by the formatter itself (not left to Python): a column of nothing
+    else, whose fields are narrower than "-inf", and float32 ones."""
+    special = np.array([np.nan, -np.nan, np.inf, -np.inf] * 5)
+    small = np.array([0.0, 1.0, -2.0, np.nan, 3.0, np.inf, -0.0, -np.inf])
+    for values in (special, small, special.astype(np.float32), np.array([7.0, np.nan])):
+        assert format_rows([values, values], [fmt, fmt]) == python_rows([values, values], [fmt, fmt])

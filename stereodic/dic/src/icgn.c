@@ -202,36 +202,75 @@ static void sums_generic(const double *J, int lanes, int m, int n, double *H, do
 }
 
 /* sums_generic for the fast path's planes gx, gy, fc (`plane` values apart) of a subset of half-width
- * `half`, the 6 steepest-descent values (gx, gx dx, gx dy, gy, gy dx, gy dy) formed on the way, in
- * scalars. */
+ * `half`. The 6 steepest-descent values are (gx, gx dx, gx dy, gy, gy dx, gy dy); every sum is a sum over
+ * the rows (dy) of a row's sum of a product of gx, gy, fc and dx, times 1, dy or dy^2. So each row's 17
+ * such sums (`R_*`) are taken eight pixels at a time (lanes past the row's end masked out), and folded
+ * into the totals with their weights once per row. */
+enum { R_X, R_XD, R_Y, R_YD, R_XF, R_XDF, R_YF, R_YDF, R_XX, R_XXD, R_XXDD, R_XY, R_XYD, R_XYDD, R_YY, R_YYD,
+       R_YYDD, R_COUNT };
+
 static void sums_affine(const double *J, long plane, int half, double *H, double *JS, double *JF)
 {
-    double h00 = 0, h10 = 0, h11 = 0, h20 = 0, h21 = 0, h22 = 0, h30 = 0, h31 = 0, h32 = 0, h33 = 0, h40 = 0;
-    double h41 = 0, h42 = 0, h43 = 0, h44 = 0, h50 = 0, h51 = 0, h52 = 0, h53 = 0, h54 = 0, h55 = 0;
-    double s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0, s5 = 0, f0 = 0, f1 = 0, f2 = 0, f3 = 0, f4 = 0, f5 = 0;
+    const int side = 2 * half + 1;
     const double *GX = J, *GY = J + plane, *F = J + 2 * plane;
-    long k = 0;
-    for (int dy = -half; dy <= half; ++dy) {
-        for (int dx = -half; dx <= half; ++dx, ++k) {
-            const double c = F[k], j0 = GX[k], j1 = GX[k] * dx, j2 = GX[k] * dy, j3 = GY[k], j4 = GY[k] * dx,
-                         j5 = GY[k] * dy;
-            s0 += j0; s1 += j1; s2 += j2; s3 += j3; s4 += j4; s5 += j5;
-            f0 += j0 * c; f1 += j1 * c; f2 += j2 * c; f3 += j3 * c; f4 += j4 * c; f5 += j5 * c;
-            h00 += j0 * j0;
-            h10 += j1 * j0; h11 += j1 * j1;
-            h20 += j2 * j0; h21 += j2 * j1; h22 += j2 * j2;
-            h30 += j3 * j0; h31 += j3 * j1; h32 += j3 * j2; h33 += j3 * j3;
-            h40 += j4 * j0; h41 += j4 * j1; h42 += j4 * j2; h43 += j4 * j3; h44 += j4 * j4;
-            h50 += j5 * j0; h51 += j5 * j1; h52 += j5 * j2; h53 += j5 * j3; h54 += j5 * j4; h55 += j5 * j5;
+    const v8d lane = {0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0};
+    v8d t0[R_COUNT], t1[R_COUNT], t2[R_COUNT];     /* sums over the rows of a row's sum times 1, dy, dy^2 */
+    for (int k = 0; k < R_COUNT; ++k)
+        t0[k] = t1[k] = t2[k] = (v8d){0.0};
+    for (int j = 0; j < side; ++j) {
+        const double dy = j - half;
+        const double *gxr = GX + (long)j * side, *gyr = GY + (long)j * side, *fr = F + (long)j * side;
+        v8d r[R_COUNT];
+        for (int k = 0; k < R_COUNT; ++k)
+            r[k] = (v8d){0.0};
+        for (int i = 0; i < side; i += 8) {
+            const v8d mask = __builtin_convertvector(-(lane < (double)(side - i)), v8d);   /* 1 within the row */
+            const v8d dx = lane + (double)(i - half);
+            const v8d gx = load8d(gxr + i) * mask, gy = load8d(gyr + i) * mask, f = load8d(fr + i);
+            const v8d a = gx * dx, b = gy * dx;
+            r[R_X] += gx;
+            r[R_XD] += a;
+            r[R_Y] += gy;
+            r[R_YD] += b;
+            r[R_XF] += gx * f;
+            r[R_XDF] += a * f;
+            r[R_YF] += gy * f;
+            r[R_YDF] += b * f;
+            r[R_XX] += gx * gx;
+            r[R_XXD] += gx * a;
+            r[R_XXDD] += a * a;
+            r[R_XY] += gx * gy;
+            r[R_XYD] += gx * b;
+            r[R_XYDD] += a * b;
+            r[R_YY] += gy * gy;
+            r[R_YYD] += gy * b;
+            r[R_YYDD] += b * b;
+        }
+        for (int k = 0; k < R_COUNT; ++k) {
+            t0[k] += r[k];
+            t1[k] += r[k] * dy;
+            t2[k] += r[k] * (dy * dy);
         }
     }
-    const double lower[21] = {h00, h10, h11, h20, h21, h22, h30, h31, h32, h33, h40,
-                              h41, h42, h43, h44, h50, h51, h52, h53, h54, h55};
-    for (int a = 0, i = 0; a < 6; ++a)
+    double s0[R_COUNT], s1[R_COUNT], s2[R_COUNT];
+    for (int k = 0; k < R_COUNT; ++k) {
+        s0[k] = sum8(t0[k]);
+        s1[k] = sum8(t1[k]);
+        s2[k] = sum8(t2[k]);
+    }
+    /* J = (gx, gx dx, gx dy, gy, gy dx, gy dy) */
+    const double lower[21] = {
+        s0[R_XX],
+        s0[R_XXD], s0[R_XXDD],
+        s1[R_XX], s1[R_XXD], s2[R_XX],
+        s0[R_XY], s0[R_XYD], s1[R_XY], s0[R_YY],
+        s0[R_XYD], s0[R_XYDD], s1[R_XYD], s0[R_YYD], s0[R_YYDD],
+        s1[R_XY], s1[R_XYD], s2[R_XY], s1[R_YY], s1[R_YYD], s2[R_YY]};
+    for (int a = 0, q = 0; a < 6; ++a)
         for (int b = 0; b <= a; ++b)
-            H[a * 6 + b] = lower[i++];
-    JS[0] = s0; JS[1] = s1; JS[2] = s2; JS[3] = s3; JS[4] = s4; JS[5] = s5;
-    JF[0] = f0; JF[1] = f1; JF[2] = f2; JF[3] = f3; JF[4] = f4; JF[5] = f5;
+            H[a * 6 + b] = lower[q++];
+    JS[0] = s0[R_X]; JS[1] = s0[R_XD]; JS[2] = s1[R_X]; JS[3] = s0[R_Y]; JS[4] = s0[R_YD]; JS[5] = s1[R_Y];
+    JF[0] = s0[R_XF]; JF[1] = s0[R_XDF]; JF[2] = s1[R_XF]; JF[3] = s0[R_YF]; JF[4] = s0[R_YDF]; JF[5] = s1[R_YF];
 }
 
 /* The rows of the reference subset at (x0, y0) in w->J, one per pixel: on the fast path (gx, gy, f, 1),
@@ -244,6 +283,18 @@ static int subset_rows(const Problem *pb, Work *w, double x0, double y0)
         return OUTSIDE;
     const int on_pixel = x0 == floor(x0) && y0 == floor(y0);
     const long ix0 = (long)x0, iy0 = (long)y0, plane = (long)width * height;
+    if (fast && on_pixel) {      /* the common case: the planes' rows copied from the pixels' own values */
+        for (int j = 0; j < side; ++j) {
+            const float *at = pb->refpix + (iy0 + j - half) * width + ix0 - half;
+            double *gx = w->J + (long)j * side, *gy = gx + w->plane, *f = gx + 2 * w->plane;
+            for (int i = 0; i < side; ++i) {
+                f[i] = at[i];
+                gx[i] = at[plane + i];
+                gy[i] = at[2 * plane + i];
+            }
+        }
+        return OK;
+    }
     double *Jk = w->J;
     for (int j = 0; j < side; ++j) {
         const double dy = j - half;
@@ -297,16 +348,26 @@ static int reference_side(const Problem *pb, Work *w, double x0, double y0, doub
     if (st != OK)
         return st;
     double *J = w->J, *values = J + w->value;
-    double fsum = 0.0;
-    for (int k = 0; k < m; ++k)
-        fsum += values[(long)k * lanes];
-    const double fmean = fsum / m;
-    double ss = 0.0;
-    for (int k = 0; k < m; ++k) {
-        double *c = values + (long)k * lanes;
-        *c -= fmean;
-        ss += *c * *c;
+    double fsum = 0.0, ss = 0.0;
+    if (lanes == 1) {            /* the fast path's plane: contiguous values, summed in vectors */
+        for (int k = 0; k < m; ++k)
+            fsum += values[k];
+        const double mean = fsum / m;
+        for (int k = 0; k < m; ++k) {
+            values[k] -= mean;
+            ss += values[k] * values[k];
+        }
+    } else {
+        for (int k = 0; k < m; ++k)
+            fsum += values[(long)k * lanes];
+        const double mean = fsum / m;
+        for (int k = 0; k < m; ++k) {
+            double *c = values + (long)k * lanes;
+            *c -= mean;
+            ss += *c * *c;
+        }
     }
+    const double fmean = fsum / m;
     if (ss <= 1e-10 * m)
         return NO_TEXTURE;
     double *H = w->H, *JS = w->JS, *JF = w->JF;
@@ -330,8 +391,12 @@ static int cached_side(const Problem *pb, Work *w, double x0, double y0, const d
         return st;
     const double fmean = row[REF_MEAN];
     double *values = w->J + w->value;
-    for (int k = 0; k < m; ++k)
-        values[(long)k * lanes] -= fmean;
+    if (lanes == 1)
+        for (int k = 0; k < m; ++k)
+            values[k] -= fmean;
+    else
+        for (int k = 0; k < m; ++k)
+            values[(long)k * lanes] -= fmean;
     memcpy(w->JS, row + REF_HEAD, sizeof(double) * (size_t)n);
     memcpy(w->JF, row + REF_HEAD + n, sizeof(double) * (size_t)n);
     memcpy(w->H, row + REF_HEAD + 2 * n, sizeof(double) * (size_t)(n * n));
