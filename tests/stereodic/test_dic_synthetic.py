@@ -206,3 +206,33 @@ def test_a_stale_start_converges_from_the_blend_of_its_lattice(speckle):
     assert f.ok.all()
     assert np.max(np.hypot(f.u - tu, f.v - tv)) < 0.01
     assert f.points.iterations.mean() < 3
+
+
+def _affine(stretch, angle):
+    c = N / 2
+    ca, sa = np.cos(angle), np.sin(angle)
+    return lambda x, y: ((1 + stretch) * (ca * (x - c) - sa * (y - c)) + c + 1.3 - x,
+                         sa * (x - c) + ca * (y - c) + c - 0.6 - y)
+
+
+@pytest.mark.parametrize("stretch, angle_deg", [(0.0, 0.0), (0.09, 0.0), (0.0, 7.0), (-0.08, -6.0), (0.2, 12.0)])
+def test_stretched_and_turned_subsets_are_measured_as_a_shifted_one(speckle, stretch, angle_deg):
+    """IC-GN samples eight pixels of a subset row at once; a stretch or turn of up to 1/7 moves some of
+    them a tap row or column on (each lane then takes its own taps), more than that is sampled pixel by
+    pixel: all three measure the known affine motion from its true warp as closely as a shift."""
+    ref = render(speckle, bits=None)
+    field = _affine(stretch, np.deg2rad(angle_deg))
+    dfm = render(speckle, field, bits=None, supersample=4)
+    grid = make_grid(N, N, subset=31, step=9, roi=(64, 64, N - 65, N - 65))
+    X, Y = grid.points()
+    tu, tv = field(X, Y)
+    a = np.deg2rad(angle_deg)
+    ux, uy = (1 + stretch) * np.cos(a) - 1, -(1 + stretch) * np.sin(a)
+    vx, vy = np.sin(a), np.cos(a) - 1
+    start = np.column_stack([tu, np.full(X.size, ux), np.full(X.size, uy), tv, np.full(X.size, vx),
+                             np.full(X.size, vy)])
+    res = correlate_points(BSplineImage.from_image(ref), BSplineImage.from_image(dfm), X, Y, start,
+                           settings=DicSettings(subset=31))
+    assert (res.status == OK).all()
+    assert np.min(res.zncc) > 0.99
+    assert np.max(np.hypot(res.u - tu, res.v - tv)) < 0.01
