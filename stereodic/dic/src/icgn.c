@@ -339,6 +339,43 @@ static int subset_rows(const Problem *pb, Work *w, double x0, double y0)
     return OK;
 }
 
+/* The m values `step` apart from v: their sum (`total`), their sum of squares (`squares`), each less
+ * `mean` (`subtract`). Step 1 (the fast path's contiguous plane) has its own loop, which the compiler
+ * runs in vectors; a step known only at run time would keep it scalar. */
+static inline double total(const double *v, long step, int m)
+{
+    double s = 0.0;
+    if (step == 1)
+        for (int k = 0; k < m; ++k)
+            s += v[k];
+    else
+        for (int k = 0; k < m; ++k)
+            s += v[(long)k * step];
+    return s;
+}
+
+static inline double squares(const double *v, long step, int m)
+{
+    double s = 0.0;
+    if (step == 1)
+        for (int k = 0; k < m; ++k)
+            s += v[k] * v[k];
+    else
+        for (int k = 0; k < m; ++k)
+            s += v[(long)k * step] * v[(long)k * step];
+    return s;
+}
+
+static inline void subtract(double *v, long step, int m, double mean)
+{
+    if (step == 1)
+        for (int k = 0; k < m; ++k)
+            v[k] -= mean;
+    else
+        for (int k = 0; k < m; ++k)
+            v[(long)k * step] -= mean;
+}
+
 /* Reference side of one subset: its rows (subset_rows) with zero-mean values, the Hessian's Cholesky
  * factor H (n, n), JS = sum J, JF = sum J fc. Returns the status; *fmean = the mean value, *norm = |fc|. */
 static int reference_side(const Problem *pb, Work *w, double x0, double y0, double *fmean_, double *norm)
@@ -348,26 +385,9 @@ static int reference_side(const Problem *pb, Work *w, double x0, double y0, doub
     if (st != OK)
         return st;
     double *J = w->J, *values = J + w->value;
-    double fsum = 0.0, ss = 0.0;
-    if (lanes == 1) {            /* the fast path's plane: contiguous values, summed in vectors */
-        for (int k = 0; k < m; ++k)
-            fsum += values[k];
-        const double mean = fsum / m;
-        for (int k = 0; k < m; ++k) {
-            values[k] -= mean;
-            ss += values[k] * values[k];
-        }
-    } else {
-        for (int k = 0; k < m; ++k)
-            fsum += values[(long)k * lanes];
-        const double mean = fsum / m;
-        for (int k = 0; k < m; ++k) {
-            double *c = values + (long)k * lanes;
-            *c -= mean;
-            ss += *c * *c;
-        }
-    }
-    const double fmean = fsum / m;
+    const double fmean = total(values, lanes, m) / m;
+    subtract(values, lanes, m, fmean);
+    const double ss = squares(values, lanes, m);
     if (ss <= 1e-10 * m)
         return NO_TEXTURE;
     double *H = w->H, *JS = w->JS, *JF = w->JF;
@@ -391,12 +411,7 @@ static int cached_side(const Problem *pb, Work *w, double x0, double y0, const d
         return st;
     const double fmean = row[REF_MEAN];
     double *values = w->J + w->value;
-    if (lanes == 1)
-        for (int k = 0; k < m; ++k)
-            values[k] -= fmean;
-    else
-        for (int k = 0; k < m; ++k)
-            values[(long)k * lanes] -= fmean;
+    subtract(values, lanes, m, fmean);
     memcpy(w->JS, row + REF_HEAD, sizeof(double) * (size_t)n);
     memcpy(w->JF, row + REF_HEAD + n, sizeof(double) * (size_t)n);
     memcpy(w->H, row + REF_HEAD + 2 * n, sizeof(double) * (size_t)(n * n));
