@@ -37,8 +37,12 @@ beyond the smallest. At the border of the data - the image's, or where a larger 
 such as the band a display that does not fill the view leaves - a window becomes one-sided and
 `edge_span` times longer (the off-centre evaluation of a polynomial is noisier), and the larger windows
 fit a line there (`Adaptive.edge_order`), which the base has made enough; the smallest keeps the cubic,
-for a local bump near the border. Window sums come from running sums (numba), so a window costs the
-same whatever its size.
+for a local bump near the border. Being one-sided and longer, the smallest window reaches 2 x
+`edge_span` times farther from a border pixel than from an interior one, and bends a bump there that
+it follows inside: the ladder has one more window, half the smallest (`Adaptive.edge_rungs`), that
+only the pixels within a window of the border may choose (a free-form lens's bumps near the border
+had 3x the interior's systematic error over the outer 30 px, 640 x 512; docs/calibration.md). Window
+sums come from running sums (numba), so a window costs the same whatever its size.
 
 Where the ladder starts is measured (`finest_scale`): the finest scale of the structure the fields of
 two stage planes share (the lens's), told from the noise and the display's own errors, which differ
@@ -357,20 +361,22 @@ def _fit_axis1(a, lo, hi, g, centre, scale, start, end, half, span, interior, ed
 
 
 @numba.njit(cache=True, parallel=True)
-def _lepski(fits, sigma, var_v, var_u, top, threshold):
-    """(H, W) uint8 index of the largest window j <= top whose fit differs from every smaller window i's
-    by at most threshold standard deviations of the difference, sigma * sqrt(var_i - var_j) (exact for
-    nested local polynomial fits: the larger window's weights are a polynomial on the smaller window, so
-    Cov(f_i, f_j) = Var(f_j))."""
+def _lepski(fits, sigma, var_v, var_u, bottom, top, threshold):
+    """(H, W) uint8 index of the largest window bottom <= j <= top whose fit differs from every smaller
+    window i's (from bottom) by at most threshold standard deviations of the difference, sigma *
+    sqrt(var_i - var_j) (exact for nested local polynomial fits: the larger window's weights are a
+    polynomial on the smaller window, so Cov(f_i, f_j) = Var(f_j))."""
     nw, h, w = fits.shape
     index = np.zeros((h, w), np.uint8)
     for r in numba.prange(h):
         for c in range(w):
             s2 = (threshold * sigma[r, c]) ** 2
-            for j in range(1, min(nw, top[r, c] + 1)):
+            b = bottom[r, c]
+            index[r, c] = b
+            for j in range(b + 1, min(nw, top[r, c] + 1)):
                 vj = var_v[j, r, c] * var_u[j, r, c]
                 ok = True
-                for i in range(j):
+                for i in range(b, j):
                     d = fits[j, r, c] - fits[i, r, c]
                     if d * d > s2 * (var_v[i, r, c] * var_u[i, r, c] - vj):
                         ok = False
@@ -424,30 +430,42 @@ class Adaptive:
 
     half_window: the smallest window's half size m (pixels); levels: the number of windows (those wider
     than the image are dropped); order: the local polynomial's; edge_order: that of the larger windows'
-    one-sided fits at the image border (lower is less noisy there; the smallest window keeps `order`,
-    so the test can fall back to it where the field bends); threshold: how many standard deviations
-    of their difference a window's fit may differ from a smaller one's; coverage: the least fraction of
-    valid pixels among a window's pixels inside the data (the rest: filled holes) for it to be used
-    (beyond the smallest); blend: the half size (in smallest half windows) of the median, erosion and
-    box filters applied to the chosen window index.
+    one-sided fits at the border of the data (lower is less noisy there; the smallest windows keep
+    `order`, so the test can fall back to them where the field bends); edge_rungs: how many windows,
+    each half the last, the ladder reaches below m for the pixels within one window (2m+1) of the
+    border of the data (`_border_band`), where a window is one-sided and `Smoother.edge_span` times
+    longer, so that the smallest reaches that much farther from its pixel; threshold: how many
+    standard deviations of their difference a window's fit may differ from a smaller one's; coverage:
+    the least fraction of valid pixels among a window's pixels inside the data (the rest: filled holes)
+    for it to be used (beyond the smallest); blend: the half size (in half windows m) of the median,
+    erosion and box filters applied to the chosen window index.
     """
 
     half_window: int = 20
     levels: int = 4
     order: int = 3
     edge_order: int = 1
+    edge_rungs: int = 1
     threshold: float = 3.0
     coverage: float = 0.9
     blend: float = 1.0
 
     @property
     def window(self) -> int:
-        """The smallest window (pixels)."""
+        """The smallest window away from the border (pixels)."""
         return 2 * self.half_window + 1
 
+    @property
+    def below(self) -> int:
+        """The windows of the ladder below `half_window`, used at the border only: as many of
+        `edge_rungs` as keep a half window of at least 2 (a cubic's least)."""
+        return sum(1 for k in range(1, self.edge_rungs + 1) if self.half_window >> k >= 2)
+
     def ladder(self) -> list[Smoother]:
-        return [Smoother(self.half_window * 2 ** j, self.order, self.order if j == 0 else self.edge_order)
-                for j in range(self.levels)]
+        """The windows, smallest first: the `below` border-only ones, then `levels` doubling from m."""
+        lower = [Smoother(self.half_window >> k, self.order, self.order) for k in range(self.below, 0, -1)]
+        return lower + [Smoother(self.half_window * 2 ** j, self.order, self.order if j == 0 else self.edge_order)
+                        for j in range(self.levels)]
 
 
 @dataclass
@@ -657,6 +675,16 @@ def _smooth_index(index: np.ndarray, levels: int, size: int, inside: np.ndarray 
     return _box(np.where(inside, ero, 0), size) / np.maximum(_box(f, size), 1e-6)
 
 
+def _border_band(inside: np.ndarray | None, h: int, w: int, width: int) -> np.ndarray:
+    """(H, W) bool: the pixels less than `width` pixels (along a row or column) from the border of the
+    data, the image's or where the pixels inside the data (`_inside`; None: all) end."""
+    r, c = np.ogrid[:h, :w]
+    band = np.minimum(np.minimum(r, h - 1 - r), np.minimum(c, w - 1 - c)) < width
+    if inside is not None:
+        band |= cv2.distanceTransform(inside.astype(np.uint8), cv2.DIST_C, 3) <= width
+    return band
+
+
 def _inside(valid: np.ndarray) -> np.ndarray | None:
     """The pixels the smoothing windows may span: the valid ones and the holes among them, the invalid
     pixels within FILL_PX of a valid one (filled with their nearest valid neighbour's remainder, which
@@ -723,19 +751,24 @@ def smooth_fields(fields: np.ndarray, valid: np.ndarray, smoother: Smoother | Ad
     ladder = smoother.ladder() if isinstance(smoother, Adaptive) else [smoother]
     ladder = [s for s in ladder if s.window < min(h, w)]
     nw = len(ladder)
+    below = smoother.below if isinstance(smoother, Adaptive) else 0
     fitter = _Fitter(ladder, valid)
     inside, pv, pu = fitter.inside, fitter.pv, fitter.pu
     vf = valid.astype(np.float32)
-    box = ladder[0].window
+    box = ladder[below].window
     count = _box(vf, box)
     # the largest window allowed at each pixel: one whose share of valid pixels among those inside the
-    # data reaches `coverage` (holes are filled, not fitted)
-    top = np.zeros((h, w), np.uint8)
-    for j, s in enumerate(ladder[1:], 1):
+    # data reaches `coverage` (holes are filled, not fitted); the smallest: the border-only windows
+    # (`Adaptive.edge_rungs`) within the border band, else the first above them
+    top = np.full((h, w), below, np.uint8)
+    for j, s in enumerate(ladder[below + 1:], below + 1):
         share = _box(vf, s.window)
         if inside is not None:
             share = share / np.maximum(_box(inside.astype(np.float32), s.window), 1e-6)
         top[share >= smoother.coverage] = j
+    bottom = np.zeros((h, w), np.uint8)
+    if below:
+        bottom[~_border_band(inside, h, w, ladder[below].window)] = below
     windows = np.array([s.window for s in ladder], np.float32)
     out = np.empty((k, h, w))
     noise = np.empty((k, h, w), np.float32)
@@ -746,18 +779,18 @@ def smooth_fields(fields: np.ndarray, valid: np.ndarray, smoother: Smoother | Ad
         base = _base(fields[i], valid)
         rem = fitter.filled(_masked(fields[i] - base, valid))
         fits = fitter.fits(rem)
-        e2 = _box(_residual2(rem, fits[0], pv[0], pu[0], valid), box)
+        e2 = _box(_residual2(rem, fits[below], pv[below], pu[below], valid), box)
         sigma = np.sqrt(np.maximum(e2, 0) / np.maximum(count, 1e-6))
         index = np.zeros((h, w), np.float32)
         if nw > 1:
-            index = _lepski(fits, sigma, pv, pu, top, smoother.threshold)
-            size = 2 * int(round(smoother.blend * ladder[0].half_window)) + 1
+            index = _lepski(fits, sigma, pv, pu, bottom, top, smoother.threshold)
+            size = 2 * int(round(smoother.blend * ladder[below].half_window)) + 1
             index = _smooth_index(index, nw, size, inside)
         out[i], gain[i], win = _blend(fits, index, pv, pu, base, valid, windows)
         noise[i] = np.where(valid, sigma, np.nan)
         window += win / k
         if nw > 1:
-            smaller = _blend(fits, np.maximum(index - 1, 0).astype(np.float32), pv, pu, base, valid, windows)
+            smaller = _blend(fits, np.maximum(index - 1, bottom).astype(np.float32), pv, pu, base, valid, windows)
             bias[i] = _bias(out[i], gain[i], smaller[0], smaller[1], sigma, valid)
     return Regularised(out, noise, gain, window, bias)
 
