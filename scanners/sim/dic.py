@@ -357,9 +357,12 @@ def dic_lenses(width: int = 640, height: int = 512, seed: int = 0, lens: str = "
 
 def simulate_dic(out_dir: str | os.PathLike, states: list[DicState] | None = None, width: int = 640,
                  height: int = 512, seed: int = 0, lens: str = "brown", supersample: int = 2, noise: bool = True,
-                 tilt_deg: float = 10.0, dot_px: float = 1.3, bit_depth: int = 8) -> Capture:
+                 tilt_deg: float = 10.0, dot_px: float = 1.3, bit_depth: int = 8,
+                 plate: tuple[float, float] = (1.45, 1.45)) -> Capture:
     """Render a DIC dataset (module docstring) to `out_dir` and return it loaded. states: default
-    `standard_states()`; dot_px: the speckle dots' Gaussian radius in pixels (a dot looks ~4x as wide)."""
+    `standard_states()`; dot_px: the speckle dots' Gaussian radius in pixels (a dot looks ~4x as wide);
+    plate: the plate's size over the field of view along x and y (above 1: it fills the images; below:
+    a part on a dark background, as a tension bar is seen)."""
     states = standard_states() if states is None else states
     if not states:
         raise InputError("states", "need at least one state")
@@ -368,7 +371,7 @@ def simulate_dic(out_dir: str | os.PathLike, states: list[DicState] | None = Non
     left, right = dic_lenses(width, height, seed, lens)
     unit = mm_per_pixel(left)
     fov = unit * width
-    specimen = Specimen(tilt_deg=tilt_deg, size_mm=(1.45 * fov, 1.45 * fov * height / width), unit_mm=unit,
+    specimen = Specimen(tilt_deg=tilt_deg, size_mm=(plate[0] * fov, plate[1] * fov * height / width), unit_mm=unit,
                         dot_radius=dot_px, seed=seed)
     truth = DicTruth(specimen, states, {"field_of_view_mm": fov, "cameras": list(CAMERAS),
                                         "lenses": {"family": lens, "width": width, "height": height, "seed": seed}})
