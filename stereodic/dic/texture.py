@@ -14,6 +14,12 @@ import numpy as np
 
 from stereodic.dic.interpolation import BSplineImage
 
+# the core of a subset that must be on the specimen (`specimen_mask`): its half-width (pixels, at least) and
+# the RMS of its gradients over the noise's. No 7 x 7 core of white noise passes (none of 336,400); of a
+# speckle so faint that a fifth to two thirds of its 21-41 px subsets pass the subset's test, the core test
+# takes at most 0.12 %; a core of subset // 8 held to the subset's contrast of 3 took 65-70 % (docs/dic.md)
+CORE_HALF, CORE_CONTRAST = 3, 1.75
+
 # Immerkaer's noise operator: the difference of two Laplacians, blind to linear intensity ramps
 _KERNEL = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
 
@@ -74,11 +80,12 @@ def specimen_mask(image: np.ndarray, *, subset: int, contrast: float = 3.0, nois
     A subset is usable where its texture's gradients, in x and in y (the smaller SSSIG, `sssig`), have at
     least `contrast` times the RMS that the image's noise alone gives (`estimate_noise`,
     `noise_gradient_gain`): a dark background, a blank fixture or a saturated patch has only the noise's
-    gradients. Its centre must be on the specimen too: the core of the subset (half-width `subset` // 8,
-    at least 1) passes the same test, holes in that map smaller than a subset's area (the gaps of a sparse
-    speckle) filled. A subset centred off the part's edge has speckle in a strip of it only, and its
-    centre's displacement is an extrapolation from that strip: errors of tenths of a pixel, where the
-    part's own points have thousandths (docs/dic.md). Subsets leaving the image are not usable; patches
+    gradients. Its centre must be on the specimen too: the core of the subset (`CORE_HALF` or `subset` // 8
+    pixels about it, whichever is larger) must have gradients of CORE_CONTRAST times the noise's RMS, holes
+    in that map smaller than a subset's area (the gaps of a sparse speckle) filled. A subset centred off
+    the part's edge has speckle in a strip of it only, and its centre's displacement is an extrapolation
+    from that strip: errors of tenths of a pixel, where the part's own points have thousandths
+    (docs/dic.md). Subsets leaving the image are not usable; patches
     of usable subsets smaller than 4 subsets' area (isolated specks) are left out, or, in an image too
     small for that, smaller than half of the subset centres that fit in it.
 
@@ -105,11 +112,12 @@ def specimen_mask(image: np.ndarray, *, subset: int, contrast: float = 3.0, nois
     b = BSplineImage.from_image(img, order=3, prefilter_sigma=0.0)
     sx, sy = sssig(b, half)
     sigma = max(estimate_noise(img) if noise is None else noise, 1e-3 * max(float(np.ptp(img)), 1e-12))
-    per_pixel = contrast ** 2 * noise_gradient_gain() * sigma ** 2
-    mask = np.minimum(sx, sy) >= per_pixel * subset ** 2
-    core = max(subset // 8, 1)
+    noise_energy = noise_gradient_gain() * sigma ** 2            # per pixel and direction
+    mask = np.minimum(sx, sy) >= contrast ** 2 * noise_energy * subset ** 2
+    core = max(CORE_HALF, subset // 8)
     cx, cy = sssig(b, core)
-    mask &= _fill_small_holes(np.minimum(cx, cy) >= per_pixel * (2 * core + 1) ** 2, subset ** 2)
+    on = np.minimum(cx, cy) >= CORE_CONTRAST ** 2 * noise_energy * (2 * core + 1) ** 2
+    mask &= _fill_small_holes(on, subset ** 2)
     inside = np.zeros((h, w), bool)
     inside[half:h - half, half:w - half] = True
     mask &= inside

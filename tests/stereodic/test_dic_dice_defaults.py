@@ -41,7 +41,7 @@ def test_the_defaults_measure_what_dice_measured(tmp_path, capsys):
     # of speckle) spread it to 1454 microstrain, and every strain window that takes them
     for exx, eyy, valid in strains:
         for e in (exx[valid], eyy[valid]):
-            assert abs(np.mean(e)) < 30e-6 and np.std(e) < 300e-6, (np.mean(e), np.std(e))
+            assert abs(np.mean(e)) < 30e-6 and np.std(e) < 400e-6, (np.mean(e), np.std(e))
     f = dice_fields()
     ok = f["SIGMA"][0] >= 0
     uv0 = np.stack([f["SUBSET_COORDINATES_X"][0], f["SUBSET_COORDINATES_Y"][0]], 1)[ok]

@@ -164,3 +164,39 @@ def test_a_bar_on_a_dark_background_is_measured_to_its_edges_and_no_further(tmp_
         assert np.sqrt(np.mean(e[deep, :2] ** 2)) < 0.01
         assert np.sqrt(np.mean(e[edge & c, :2] ** 2)) < 0.03
     assert (np.abs(err[3][:2]) <= np.abs(err[1][:2]) + 0.002).all(), err
+
+
+def _speckle(gain: float, shape=(400, 400)) -> np.ndarray:
+    """The simulator's speckle at `gain` times its contrast about grey 128, with white noise of 2 grey levels."""
+    from scanners.sim.speckle import make_speckle, render
+    img = render(make_speckle(shape[1], shape[0], seed=2), noise_sigma=0.0, seed=1).astype(np.float64)
+    return 128 + (img - img.mean()) * gain + np.random.default_rng(0).normal(0, 2.0, img.shape)
+
+
+@pytest.mark.parametrize("gain", [1.0, 0.32, 0.3])
+@pytest.mark.parametrize("subset", [21, 29, 41])
+def test_the_core_test_keeps_a_faint_speckles_points(monkeypatch, gain, subset):
+    """Of a speckle so faint that a fifth to two thirds of its subsets pass the subset's own test, the test
+    of the subset's core (`texture.CORE_CONTRAST`) takes at most 0.2 %, and adds none."""
+    from stereodic.dic import texture
+    img = _speckle(gain)
+    mask = specimen_mask(img, subset=subset)
+    monkeypatch.setattr(texture, "CORE_CONTRAST", 0.0)      # every core passes: the subset's test alone
+    alone = specimen_mask(img, subset=subset)
+    assert alone.mean() > (0.8 if gain == 1.0 else 0.15)
+    assert not (mask & ~alone).any() and mask[alone].mean() >= 0.998
+
+
+def test_the_mask_ends_where_the_speckle_ends(monkeypatch):
+    """Speckle on the left half, white noise of the same mean grey on the right: the subsets that reach
+    over the seam have texture, but the points go no further than the core's half-width past it (with
+    the subset's test alone: about half a subset)."""
+    from stereodic.dic import texture
+    img = _speckle(1.0)
+    img[:, 200:] = 128 + np.random.default_rng(1).normal(0, 2.0, (400, 200))
+    for core_contrast, reach in ((texture.CORE_CONTRAST, texture.CORE_HALF + 1), (0.0, 29 // 2 + 1)):
+        monkeypatch.setattr(texture, "CORE_CONTRAST", core_contrast)
+        mask = specimen_mask(img, subset=29)
+        last = np.array([np.flatnonzero(row).max() for row in mask[30:-30]]) - 199.5
+        assert mask[30:-30, 30:190].all() and last.max() <= reach, (core_contrast, last.max())
+    assert last.min() >= texture.CORE_HALF + 2      # alone, the subset's test reaches further than the core
