@@ -85,9 +85,9 @@ def specimen_mask(image: np.ndarray, *, subset: int, contrast: float = 3.0, nois
     in that map smaller than a subset's area (the gaps of a sparse speckle) filled. A subset centred off
     the part's edge has speckle in a strip of it only, and its centre's displacement is an extrapolation
     from that strip: errors of tenths of a pixel, where the part's own points have thousandths
-    (docs/dic.md). Subsets leaving the image are not usable; patches
-    of usable subsets smaller than 4 subsets' area (isolated specks) are left out, or, in an image too
-    small for that, smaller than half of the subset centres that fit in it.
+    (docs/dic.md). Subsets leaving the image are not usable; patches of usable subsets smaller than 4
+    subsets' area (isolated specks) are left out, or, in an image too small for that, smaller than half of
+    the subset centres that fit in it.
 
     Parameters
     ----------
