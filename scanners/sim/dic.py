@@ -368,6 +368,8 @@ def simulate_dic(out_dir: str | os.PathLike, states: list[DicState] | None = Non
         raise InputError("states", "need at least one state")
     if width < 32 or height < 32:
         raise InputError("--width/--height", f"sensor must be at least 32x32, got {width}x{height}")
+    if not min(plate) > 0:
+        raise InputError("plate", f"the plate's size over the field of view must be positive, got {plate}")
     left, right = dic_lenses(width, height, seed, lens)
     unit = mm_per_pixel(left)
     fov = unit * width

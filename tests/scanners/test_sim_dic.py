@@ -93,3 +93,11 @@ def test_dataset_has_states_true_cameras_and_truth(dataset):
 def test_default_lenses_see_the_same_field_at_any_size():
     small, big = dic_lenses(320, 256)[0], dic_lenses(1280, 1024)[0]
     assert small.pixel_mm == pytest.approx(4 * big.pixel_mm)
+
+
+@pytest.mark.parametrize("plate", [(0.0, 1.0), (0.5, -0.3)])
+def test_a_plate_of_no_size_is_bad_input_before_any_file(tmp_path, plate):
+    from calib.errors import InputError
+    with pytest.raises(InputError, match="plate"):
+        simulate_dic(tmp_path / "out", plate=plate)
+    assert not (tmp_path / "out").exists()
