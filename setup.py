@@ -11,6 +11,6 @@ FLAGS = ["-O3", "-march=native", "-fopenmp", "-fno-math-errno", "-funsafe-math-o
 
 setup(ext_modules=[Extension(
     "stereodic.dic._kernels",
-    sources=[f"stereodic/dic/src/{name}.c" for name in ("module", "bspline", "icgn", "propagation")],
-    depends=[f"stereodic/dic/src/{name}.h" for name in ("bspline", "icgn", "propagation")],
+    sources=[f"stereodic/dic/src/{name}.c" for name in ("module", "bspline", "icgn", "propagation", "raster")],
+    depends=[f"stereodic/dic/src/{name}.h" for name in ("bspline", "icgn", "propagation", "raster")],
     extra_compile_args=FLAGS, extra_link_args=["-fopenmp"])])

@@ -4,7 +4,7 @@
 ``"".join(",".join(f % v for f, v in zip(formats, row)) + "\\n" for row in zip(*columns))`` for the
 %-formats `%d` (integers, bools), `%s` (strings), `%g` and `%.Nf`, in a small fraction of the time: every
 field is spelled digit by digit into its own slot of a (rows, characters) byte matrix whose unused bytes
-are NUL, and the text is the matrix with its NULs taken out.
+are NUL, and the text is the matrix with its NULs taken out, BLOCK_ROWS rows at a time.
 
 Fixed-point fields (`%.Nf`) are rounded as Python rounds them, to the nearest of the exact binary value
 scaled by 10^N (ties to even): the scaled value v * 10^N is computed in float64, within half a unit in its
@@ -26,6 +26,7 @@ _TENS = np.repeat(np.arange(48, 58, dtype=np.uint8), 10)   # the characters of k
 _UNITS = np.tile(np.arange(48, 58, dtype=np.uint8), 10)
 _LARGEST = 2.0 ** 50   # scaled values up to this are whole numbers of float64 and int64 exactly
 NUL, MINUS, DOT, COMMA, NEWLINE = 0, ord("-"), ord("."), ord(","), ord("\n")
+BLOCK_ROWS = 8192      # rows formatted at once: a few MB of byte matrices, in cache and reused block after block
 
 
 def _digits(n: np.ndarray, out: np.ndarray, *, leading: bool) -> None:
@@ -164,6 +165,8 @@ def format_rows(columns: Sequence[np.ndarray], formats: Sequence[str]) -> str:
     n = len(columns[0]) if columns else 0
     if n == 0:
         return ""
+    if n > BLOCK_ROWS:          # a block at a time: its byte matrices stay small, their memory reused
+        return "".join(format_rows([c[s:s + BLOCK_ROWS] for c in columns], formats) for s in range(0, n, BLOCK_ROWS))
     parts = []
     for k, (values, fmt) in enumerate(zip(columns, formats)):
         parts.append(_column(values, fmt))

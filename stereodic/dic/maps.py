@@ -199,65 +199,26 @@ def grid_cells(x: np.ndarray, y: np.ndarray, *, origin: tuple[float, float], cel
     """The cells of a raster of `shape` (rows, columns) - cell (i, j) centred at origin + (j, i) * cell, in
     the units of x, y - that fall in the triangles of the grid points x, y (ny, nx; NaN: not placed): two
     triangles per square of neighbouring points whose corners are all placed, so that a hole in the grid
-    is never bridged; a triangle with a side longer than `longest` (a stray point) is left out. Each
-    triangle's candidate cells are those of its bounding box, tested all at once (numpy), the triangles
-    taken a band of grid rows at a time and grouped by the size of their box."""
+    is never bridged; a triangle with a side longer than `longest` (a stray point) is left out. A cell on
+    a side shared by two triangles goes to the first of them in the grid's order (row by row; in a square,
+    the triangle of its top-left corner first). Each triangle tests the cells of its bounding box (the
+    compiled kernel `_kernels.grid_cells`, serial: the maps are drawn in forked children)."""
+    from stereodic.dic import _kernels
+
     ny, nx = np.shape(x)
-    px = (np.asarray(x, float).ravel() - origin[0]) / cell              # in cells
-    py = (np.asarray(y, float).ravel() - origin[1]) / cell
-    idx = np.arange(ny * nx).reshape(ny, nx)
-    found = [(np.zeros(0, np.intp), np.zeros((0, 3), np.intp), np.zeros((0, 3)))]
-    band = max(1, 2 ** 18 // max(1, nx))
-    for r in range(0, ny - 1, band):
-        q = idx[r:r + band + 1]
-        a, b, c, d = q[:-1, :-1], q[:-1, 1:], q[1:, :-1], q[1:, 1:]
-        tri = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([b, d, c], -1).reshape(-1, 3)])
-        tx, ty = px[tri], py[tri]
-        side = np.hypot(tx - np.roll(tx, 1, 1), ty - np.roll(ty, 1, 1)).max(1)
-        det = (ty[:, 1] - ty[:, 2]) * (tx[:, 0] - tx[:, 2]) + (tx[:, 2] - tx[:, 1]) * (ty[:, 0] - ty[:, 2])
-        with np.errstate(invalid="ignore"):
-            ok = np.isfinite(det) & (np.abs(det) > 1e-12) & (side <= longest / cell)
-        tri, tx, ty, det = tri[ok], tx[ok], ty[ok], det[ok]
-        j0, i0 = np.ceil(tx.min(1)).astype(np.intp), np.ceil(ty.min(1)).astype(np.intp)
-        span = np.maximum(np.floor(tx.max(1)) - j0, np.floor(ty.max(1)) - i0).astype(np.intp) + 1
-        # the weights of corners 0 and 1 are affine in the cell's column and row: w = base + a * dj + b * di
-        ex, ey = j0 - tx[:, 2], i0 - ty[:, 2]
-        a0, b0 = (ty[:, 1] - ty[:, 2]) / det, (tx[:, 2] - tx[:, 1]) / det
-        a1, b1 = (ty[:, 2] - ty[:, 0]) / det, (tx[:, 0] - tx[:, 2]) / det
-        coef = np.column_stack([a0 * ex + b0 * ey, a0, b0, a1 * ex + b1 * ey, a1, b1])
-        size = np.ceil(np.log2(np.maximum(span, 1))).astype(int)      # boxes of up to 2**size cells a side
-        for group in np.unique(size):
-            t = np.flatnonzero(size == group)
-            found.append(_cells_in(tri[t], j0[t], i0[t], coef[t], 2 ** int(group), shape))
-    index = np.concatenate([f[0] for f in found])
-    index, first = np.unique(index, return_index=True)      # a cell on a shared side: one triangle
-    return Cells(tuple(shape), nx, index, np.concatenate([f[1] for f in found])[first],
-                 np.concatenate([f[2] for f in found])[first])
-
-
-def _cells_in(tri: np.ndarray, j0: np.ndarray, i0: np.ndarray, coef: np.ndarray, span: int,
-              shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`grid_cells` for triangles whose boxes are at most `span` cells a side from (j0, i0): the raster
-    cells (flat) inside them, their triangles' corners and their weights."""
-    h, w = shape
-    dj, di = (o.ravel() for o in np.meshgrid(np.arange(span), np.arange(span)))
-    index, vertices, weights = [], [], []
-    chunk = max(1, 2 ** 20 // (span * span))
-    tol = 1e-9
-    for s in range(0, len(tri), chunk):
-        t = slice(s, s + chunk)
-        c = coef[t]
-        w0 = c[:, 0:1] + c[:, 1:2] * dj + c[:, 2:3] * di
-        w1 = c[:, 3:4] + c[:, 4:5] * dj + c[:, 5:6] * di
-        k, m = np.nonzero((w0 >= -tol) & (w1 >= -tol) & (w0 + w1 <= 1 + tol))
-        cj, ci = j0[t][k] + dj[m], i0[t][k] + di[m]
-        keep = (cj >= 0) & (cj < w) & (ci >= 0) & (ci < h)
-        k, m, cj, ci = k[keep], m[keep], cj[keep], ci[keep]
-        u0, u1 = w0[k, m], w1[k, m]
-        index.append(ci * w + cj)
-        vertices.append(tri[t][k])
-        weights.append(np.column_stack([u0, u1, 1.0 - u0 - u1]))
-    return np.concatenate(index), np.concatenate(vertices), np.concatenate(weights)
+    px = (np.asarray(x, np.float64).ravel() - origin[0]) / cell              # in cells
+    py = (np.asarray(y, np.float64).ravel() - origin[1]) / cell
+    triangle = np.full(tuple(shape), -1, np.int64)
+    weights = np.empty((*shape, 2))
+    _kernels.grid_cells(px, py, nx, float(longest) / cell, triangle, weights)
+    index = np.flatnonzero(triangle.ravel() >= 0)
+    square, second = np.divmod(triangle.ravel()[index], 2)
+    r, c = np.divmod(square, max(nx - 1, 1))
+    a = r * nx + c
+    vertices = np.where(second[:, None] == 1, np.column_stack([a + 1, a + nx + 1, a + nx]),
+                        np.column_stack([a, a + 1, a + nx]))
+    w = weights.reshape(-1, 2)[index]
+    return Cells(tuple(shape), nx, index, vertices, np.column_stack([w, 1.0 - w.sum(1)]))
 
 
 def _spacing(x: np.ndarray, y: np.ndarray) -> float:

@@ -203,6 +203,35 @@ def test_the_field_over_the_image_is_the_linear_interpolation_between_the_points
     assert hole.any() and np.isnan(field[hole]).all()
 
 
+def test_grid_cells_keep_to_the_raster_whatever_the_points():
+    """A point thrown far off the raster (1e30: its triangles' boxes cover everything) leaves its
+    triangles' cells on the raster only, and every other cell where matplotlib's triangle finder (an
+    independent point-in-triangle test) puts it; a raster of the wrong weights' shape is refused."""
+    from matplotlib.tri import Triangulation
+
+    from stereodic.dic import _kernels
+    from stereodic.dic.maps import grid_cells
+    x, y = _slanted()
+    x[5, 7] = 1e30
+    cells = grid_cells(x, y, origin=(0.0, 0.0), cell=2.0, shape=(115, 170))
+    idx = np.arange(x.size).reshape(x.shape)
+    a, c, d, e = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
+    tri = np.concatenate([np.stack([a, c, d], -1).reshape(-1, 3), np.stack([c, e, d], -1).reshape(-1, 3)])
+    tri = tri[~np.isin(tri, idx[5, 7]).any(1)]
+    gy, gx = np.mgrid[0:115, 0:170] * 2.0
+    found = Triangulation(x.ravel(), y.ravel(), tri).get_trifinder()(gx, gy).ravel() >= 0
+    assert found.sum() > 10000
+    mine = np.zeros(found.size, bool)
+    mine[cells.index] = True
+    assert (cells.index >= 0).all() and (cells.index < 115 * 170).all()
+    far = cells.index[np.isin(cells.vertices, idx[5, 7]).any(1)]       # the huge triangles' cells
+    assert far.size and (~np.isin(np.flatnonzero(mine & ~found), far)).sum() <= 5
+    assert (found & ~mine).sum() <= 5                                   # cells on the outer edges, either way
+    with pytest.raises(ValueError, match="weights"):
+        _kernels.grid_cells(x.ravel().astype(float), y.ravel().astype(float), x.shape[1], np.inf,
+                            np.full((10, 10), -1, np.int64), np.empty((10, 9, 2)))
+
+
 def test_a_maps_pixels_are_the_colour_maps_colours_of_the_values(tmp_path):
     """The PNG's pixel at a grid point, in the plain map and over the image, is matplotlib's colour of
     the point's value: exactly in the plain map (the pixel is in the point's cell, 17 pixels across),

@@ -1,5 +1,6 @@
-/* stereodic.dic._kernels: the compiled kernels of the 2D DIC engine (B-splines, IC-GN, propagation),
- * called by stereodic.dic.interpolation, .icgn and .propagation, which document them.
+/* stereodic.dic._kernels: the compiled kernels of the 2D DIC engine (B-splines, IC-GN, propagation) and of its maps
+ * (raster cells),
+ * called by stereodic.dic.interpolation, .icgn, .propagation and .maps, which document them.
  *
  * Arrays come in through the buffer protocol (numpy arrays, C-contiguous, of the dtype each function
  * names); every shape is checked here, so a wrong call raises ValueError instead of reading out of
@@ -11,6 +12,7 @@
 #include <string.h>
 
 #include "propagation.h"
+#include "raster.h"
 
 #define MAX_BUFFERS 24
 #define ANY (-1)
@@ -418,6 +420,40 @@ static PyObject *py_guesses_from_lattice(PyObject *self, PyObject *args)
     return PyLong_FromLong(count);
 }
 
+static PyObject *py_grid_cells(PyObject *self, PyObject *args)
+{
+    PyObject *px, *py, *triangle, *weights;
+    long nx;
+    double longest;
+    if (!PyArg_ParseTuple(args, "OOldOO", &px, &py, &nx, &longest, &triangle, &weights))
+        return NULL;
+    Buffers bs = {.n = 0};
+    Py_ssize_t n[1], raster[2];
+    const double *x, *y = NULL;
+    int64_t *tri = NULL;
+    double *w = NULL;
+    if ((x = array(&bs, px, 'd', 1, NULL, n, 0, "px"))) {
+        const Py_ssize_t one[1] = {n[0]};
+        if ((y = array(&bs, py, 'd', 1, one, NULL, 0, "py")) &&
+            (tri = array(&bs, triangle, 'q', 2, NULL, raster, 1, "triangle"))) {
+            const Py_ssize_t three[3] = {raster[0], raster[1], 2};
+            w = array(&bs, weights, 'd', 3, three, NULL, 1, "weights");
+        }
+    }
+    long found = -1;
+    if (w && (nx < 1 || n[0] % nx != 0))
+        PyErr_SetString(PyExc_ValueError, "the points do not make a grid");
+    else if (w) {
+        Py_BEGIN_ALLOW_THREADS
+        found = grid_cells(x, y, n[0] / nx, nx, longest, (long)raster[0], (long)raster[1], tri, w);
+        Py_END_ALLOW_THREADS
+    }
+    release(&bs);
+    if (found < 0)
+        return NULL;
+    return PyLong_FromLong(found);
+}
+
 static PyMethodDef methods[] = {
     {"spline_coefficients", py_spline_coefficients, METH_VARARGS,
      "spline_coefficients(image, order, out): B-spline coefficients of a float64 image into the padded float32 out."},
@@ -432,6 +468,8 @@ static PyMethodDef methods[] = {
      "Reference-side status of every point, and optionally its reference data (see stereodic.dic.icgn)."},
     {"propagate", py_propagate, METH_VARARGS, "Reliability-guided propagation (see stereodic.dic.propagation)."},
     {"guesses_from_lattice", py_guesses_from_lattice, METH_VARARGS, "Guesses from the solved lattice."},
+    {"grid_cells", py_grid_cells, METH_VARARGS,
+     "grid_cells(px, py, nx, longest, triangle, weights): raster cells in a grid's triangles (see raster.c)."},
     {NULL, NULL, 0, NULL},
 };
 
