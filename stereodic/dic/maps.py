@@ -539,8 +539,10 @@ def _paste(buffer: np.ndarray, image) -> None:
     h, w = rgb.shape[:2]
     j = np.floor((x - left) / (right - left) * w).astype(np.intp)
     i = np.floor((y - first) / (last - first) * h).astype(np.intp)
-    cin, rin = (j >= 0) & (j < w), (i >= 0) & (i < h)
-    buffer[(buffer.shape[0] - 1 - rows[rin])[:, None], cols[cin][None, :], :3] = rgb[i[rin]][:, j[cin]]
+    cin, rin = (j >= 0) & (j < w), (i >= 0) & (i < h)   # each a run of pixels: i, j are monotonic
+    if cin.any() and rin.any():
+        c, r = cols[cin], buffer.shape[0] - 1 - rows[rin]   # the buffer's rows from the top: descending
+        buffer[r[-1]:r[0] + 1, c[0]:c[-1] + 1, :3] = rgb.take(i[rin][::-1], axis=0).take(j[cin], axis=1)
 
 
 def write_png(path: str | os.PathLike, rgb: np.ndarray) -> None:

@@ -180,22 +180,30 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
                                                each=write_vtk if vtk_here else None),
                             frame=frame_name, movies={q: MapMovie(folder / "maps" / f"{q}.mp4") for q in animate},
                             painter=MapPainter())
+            drawn = list(range(0, n, plot_every)) if plot_every else []
+            # many states' maps in children: blocks of states, each child drawing its block with one painter
+            blocks = bool(drawn) and not maps["movies"] and 0 < bg.workers <= len(drawn)
+            if blocks:
+                axes = surface_axes(grid.xs, grid.ys, store.read_state(0).points, grid.active)
+                for part in _state_blocks(drawn, bg.workers):
+                    bg.submit(functools.partial(_draw_block, store, folder / "maps", part, axes, labels, image_of,
+                                                **maps), f"the maps of states {part[0]}..{part[-1]}")
             # every state when each needs something here (DICe's files, VTK files without maps), else the
-            # states drawn only: the scales' pass read them all already
+            # states whose maps are handed out here, one by one (the scales' pass read them all already)
             every = plot_every if plot_every and dice is None else 1
+            reads = range(0, n, every) if dice is not None or not blocks else range(0)
             try:
-                for st in progress((store.read_state(k) for k in range(0, n, every)), "writing",
-                                   total=len(range(0, n, every)), unit="state"):
+                for st in progress((store.read_state(k) for k in reads), "writing", total=len(reads), unit="state"):
                     if axes is None and plot_every:  # state 0: the reference surface gives every map its mm axes
                         axes = surface_axes(grid.xs, grid.ys, st.points, grid.active)
-                    if plot_every and st.state % plot_every == 0:
+                    if plot_every and st.state % plot_every == 0 and not blocks:
                         draw = functools.partial(_draw_maps, folder / "maps", st, axes,
                                                  labels[st.state] if labels else f"state {st.state}", image_of,
                                                  **maps)
                         if maps["movies"]:
                             draw()      # a movie takes its frames in order, in this process
                         else:           # in children, which find matplotlib imported (`load_matplotlib`)
-                            for part in _map_parts(list(state_maps(st)), bg.workers, len(range(0, n, plot_every))):
+                            for part in _map_parts(list(state_maps(st)), bg.workers, len(drawn)):
                                 bg.submit(functools.partial(draw, names=part),
                                           f"the maps of state {st.state} ({', '.join(part)})")
                     if vtk_here and not plot_every:
@@ -220,10 +228,25 @@ def _draw_maps(folder: Path, st: StereoState, axes: MapAxes, label: str, image_o
     plot_state(folder, st, axes, label, image=None if image_of is None else image_of(st.state), **options)
 
 
+def _draw_block(store: RunStore, folder: Path, states: list[int], axes: MapAxes, labels: list[str] | None,
+                image_of: Callable[[int], np.ndarray] | None, **options) -> None:
+    """`_draw_maps` of each of `states` (state numbers), read from the store here (in the child that draws
+    them), with one painter: its figures and their drawn axes serve the whole block."""
+    for k in states:
+        _draw_maps(folder, store.read_state(k), axes, labels[k] if labels else f"state {k}", image_of, **options)
+
+
+def _state_blocks(states: list[int], workers: int) -> list[list[int]]:
+    """The states to draw split into blocks of consecutive states for `workers` children (at least as
+    many states as workers): two blocks a worker, so that a child pays once for its figures over many
+    states and the blocks still even out."""
+    return [b.tolist() for b in np.array_split(np.array(states), min(len(states), 2 * workers))]
+
+
 def _map_parts(names: list[str], workers: int, states: int) -> list[list[str]]:
-    """A state's map quantities `names` split into tasks: one task a state when the run has at least as many
-    states to draw as `workers` (children), else each state's maps shared among its share of the workers
-    (a task pays once for its figures and the state's picture over the image: not one a map)."""
+    """A state's map quantities `names` split into tasks when the run has fewer states to draw than
+    `workers` (children): each state's maps shared among its share of the workers (a task pays once for
+    its figures and the state's picture over the image: not one a map); one task a state otherwise."""
     parts = max(1, min(len(names), workers // max(states, 1)))
     return [list(part) for part in np.array_split(np.array(names, dtype=object), parts)]
 

@@ -264,3 +264,25 @@ def test_a_maps_pixels_are_the_colour_maps_colours_of_the_values(tmp_path):
             cx, cy = ax.transData.transform(point)
             pixel = png[int(png.shape[0] - cy), int(cx)]
             assert np.abs(pixel - want).max() <= spread, (i, j, pixel, want)
+
+
+def test_a_block_of_states_drawn_by_one_child_gives_the_maps_of_one_child_a_state(dic_sim, tmp_path, monkeypatch):
+    """Many states' maps in children go in blocks of consecutive states, one painter for a block: its
+    figures, drawn for the first state, must give every later state's maps exactly as a fresh painter does
+    (pixel for pixel: a title, a colour bar or a picture left over from the state before would show)."""
+    import cv2
+
+    import stereodic.dic3d.run as run
+    assert run._state_blocks(list(range(0, 40, 2)), 2) == [list(range(k, k + 10, 2)) for k in range(0, 40, 10)]
+    assert run._state_blocks([0, 1, 2], 2) == [[0], [1], [2]]
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")
+    outs = {}
+    for name, blocks in (("one", lambda states, workers: [states]), ("each", lambda states, workers: [[k] for k in states])):
+        monkeypatch.setattr(run, "_state_blocks", blocks)
+        outs[name] = tmp_path / name
+        assert main(["dic", str(dic_sim / "rig.npz"), str(dic_sim), "--step", "8", "--no-vtk", "-o", str(outs[name])]) == 0
+    assert (outs["one"] / "dic.csv").read_bytes() == (outs["each"] / "dic.csv").read_bytes()
+    drawn = sorted(p.name for p in (outs["one"] / "maps").glob("*.png"))
+    assert len(drawn) == 3 * 7 and drawn == sorted(p.name for p in (outs["each"] / "maps").glob("*.png"))
+    for png in drawn:
+        assert np.array_equal(cv2.imread(str(outs["one"] / "maps" / png)), cv2.imread(str(outs["each"] / "maps" / png)))
