@@ -16,13 +16,13 @@ Positions in pixels, (x, y) = (column, row) of the reference image.
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 from stereodic.dic.background import thread_map, threads
+from stereodic.dic.kept import kept
 
 MAX_FEATURES = 4000   # ORB features kept per image (the strongest corners)
 DETECT_SIDE = 1024    # features are found on the image shrunk until its longer side is at most this (pixels)
@@ -33,8 +33,6 @@ NEIGHBOURS = 12       # matches per point's local affine fit
 MIN_INLIERS = 6       # fewer matches in a cell or a point's fit: no model there
 MAX_NODES = 1024      # nodes of the lattice the local affines are fitted on, at most
 
-_KEPT: dict = {}      # ("features", id of a read-only image, max_features) -> (weak reference to it, its Features);
-#                       ("matches", ids of two Features) -> (weak references to both, their consistent matches)
 
 
 @dataclass(frozen=True)
@@ -69,25 +67,7 @@ def image_features(img: np.ndarray, *, max_features: int = MAX_FEATURES) -> Feat
     img = np.asarray(img)
     if img.flags.writeable:
         return _orb(img, max_features)
-    key = ("features", id(img), max_features)
-    kept = _KEPT.get(key)
-    if kept is not None and kept[0]() is img:
-        return kept[1]
-    features = _orb(img, max_features)
-    _keep(key, (img,), features)
-    return features
-
-
-def _keep(key: tuple, owners: tuple, value) -> None:
-    """Keep `value` in _KEPT under `key` while every one of `owners` lives."""
-    refs = []
-
-    def forget(dead) -> None:
-        if _KEPT.get(key, (None,))[0] is refs[0]:
-            del _KEPT[key]
-
-    refs[:] = [weakref.ref(o, forget) for o in owners]
-    _KEPT[key] = (*refs, value)
+    return kept(("features", id(img), max_features), (img,), lambda: _orb(img, max_features))
 
 
 def _orb(img: np.ndarray, max_features: int) -> Features:
@@ -189,10 +169,11 @@ def consistent_matches(ref: Features, dfm: Features) -> tuple[np.ndarray, np.nda
     p, q : (K, 2) float64
         Matched positions in the reference and the deformed image, pixels (x = column, y = row); K may be 0.
     """
-    key = ("matches", id(ref), id(dfm))
-    kept = _KEPT.get(key)
-    if kept is not None and kept[0]() is ref and kept[1]() is dfm:
-        return kept[2]
+    return kept(("matches", id(ref), id(dfm)), (ref, dfm), lambda: _consistent(ref, dfm))
+
+
+def _consistent(ref: Features, dfm: Features) -> tuple[np.ndarray, np.ndarray]:
+    """`consistent_matches` computed (read-only arrays)."""
     p, q = _matches(ref, dfm)
     if len(p) < MIN_INLIERS:
         p, q = np.zeros((0, 2)), np.zeros((0, 2))
@@ -201,9 +182,7 @@ def consistent_matches(ref: Features, dfm: Features) -> tuple[np.ndarray, np.nda
         p, q = p[keep], q[keep]
     for a in (p, q):
         a.flags.writeable = False
-    matches = (p, q)
-    _keep(key, (ref, dfm), matches)
-    return matches
+    return p, q
 
 
 def feature_guess(matches: tuple[np.ndarray, np.ndarray], xs: np.ndarray, ys: np.ndarray

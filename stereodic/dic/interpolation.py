@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from stereodic.dic import _kernels
+from stereodic.dic.kept import kept
 
 PAD = _kernels.PAD  # coefficient border (pixels) so that every tap of a point inside the image is in the array
 
@@ -48,10 +49,20 @@ class BSplineImage:
         Returns
         -------
         bspline : BSplineImage
-            ``coef`` (H + 2 PAD, W + 2 PAD) float32 coefficients, the order and the image size.
+            ``coef`` (H + 2 PAD, W + 2 PAD) float32 coefficients, the order and the image size. That of a
+            read-only image is kept while the image lives and given again for it (`stereodic.dic.kept`: a
+            run's rectified reference pair is interpolated by the rig check, its region and the run).
         """
         if order not in (3, 5):
             raise ValueError(f"B-spline order must be 3 or 5, got {order}")
+        if isinstance(image, np.ndarray) and not image.flags.writeable:
+            return kept(("bspline", id(image), order, float(prefilter_sigma)), (image,),
+                        lambda: cls._computed(image, order, prefilter_sigma))
+        return cls._computed(image, order, prefilter_sigma)
+
+    @classmethod
+    def _computed(cls, image: np.ndarray, order: int, prefilter_sigma: float) -> "BSplineImage":
+        """`from_image` computed."""
         img = np.ascontiguousarray(image, dtype=np.float64)
         if prefilter_sigma > 0:
             img = gaussian_lowpass(img, prefilter_sigma)

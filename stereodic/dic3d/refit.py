@@ -145,7 +145,7 @@ def pair_report(rig: Rig, left: np.ndarray, offsets: RowOffsets) -> EpipolarRepo
     """`epipolar.check` of the offsets' matched features (their inliers), with their predicted noise in
     the left image."""
     m, k = offsets.matches, offsets.inliers
-    noise = ImageRef.prepare(left.astype(np.float32)).noise(m.x[k], m.y[k], MATCH_HALF)
+    noise = ImageRef.prepare(np.asarray(left, np.float32)).noise(m.x[k], m.y[k], MATCH_HALF)   # `left`'s B-spline
     return check(rig, m.x[k], m.y[k], m.x_right[k], m.y[k] + m.dy[k], noise)
 
 

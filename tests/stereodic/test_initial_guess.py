@@ -1,11 +1,12 @@
-"""`stereodic.dic.initial_guess.image_features`: the features of a read-only image are computed once."""
+"""What is computed of a read-only image is computed once (`stereodic.dic.kept`): its features
+(`initial_guess.image_features`), their matches, its B-spline (`BSplineImage.from_image`)."""
 
 import gc
 
 import numpy as np
 
 from scanners.sim.speckle import make_speckle, render
-from stereodic.dic import initial_guess
+from stereodic.dic import BSplineImage, kept as cache
 from stereodic.dic.initial_guess import consistent_matches, image_features
 
 
@@ -21,10 +22,10 @@ def test_features_of_a_read_only_image_are_kept_while_it_lives():
     other = img.copy()
     other.flags.writeable = False
     assert image_features(other) is not kept        # another array, even with the same pixels
-    before = len(initial_guess._KEPT)
+    before = len(cache._KEPT)
     del img, other
     gc.collect()
-    assert len(initial_guess._KEPT) == before - 2   # forgotten with the image
+    assert len(cache._KEPT) == before - 2   # forgotten with the image
 
 
 def test_matches_of_kept_features_are_kept():
@@ -39,3 +40,20 @@ def test_matches_of_kept_features_are_kept():
     np.testing.assert_array_equal(kept[0], p0)
     np.testing.assert_array_equal(kept[1], q0)
     assert not kept[0].flags.writeable
+
+
+def test_the_b_spline_of_a_read_only_image_is_kept_while_it_lives():
+    img = render(make_speckle(256, 192, seed=4), noise_sigma=1.0, seed=1).astype(np.float32)
+    fresh = BSplineImage.from_image(img, order=3, prefilter_sigma=0.7)
+    assert BSplineImage.from_image(img, order=3, prefilter_sigma=0.7) is not fresh
+    img.flags.writeable = False
+    kept = BSplineImage.from_image(img, order=3, prefilter_sigma=0.7)
+    assert BSplineImage.from_image(img, order=3, prefilter_sigma=0.7) is kept
+    np.testing.assert_array_equal(kept.coef, fresh.coef)
+    other = BSplineImage.from_image(img, order=5, prefilter_sigma=0.7)     # another order, another low-pass
+    assert other is not kept and BSplineImage.from_image(img, order=3, prefilter_sigma=0.0) is not kept
+    assert not np.array_equal(other.coef, kept.coef)
+    before = len(cache._KEPT)
+    del img
+    gc.collect()
+    assert len(cache._KEPT) == before - 3
