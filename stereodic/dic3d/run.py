@@ -30,7 +30,7 @@ from stereodic.dic3d.output import (STRAIN_FLOOR, csv_rows, plot_state, state_ar
                                     write_npz)
 from stereodic.dic3d.stereo import PreparedPair, StereoRun, StereoSettings, StereoState, solve_state
 from stereodic.dic3d.store import RunStore
-from stereodic.dic3d.vtk import write_collection, write_state
+from stereodic.dic3d.vtk import state_file, write_collection, write_state
 from stereodic.stereo.rig import Rig
 
 
@@ -40,25 +40,26 @@ def prepare_pair(data: DicStates, rig: Rig, settings: StereoSettings, k: int) ->
 
 
 def run_states(store: RunStore, data: DicStates, rig: Rig, grid: Grid, seeds, settings: StereoSettings, *,
-               report: Callable[[StereoState], None] = lambda state: None, rows: bool = False) -> StereoState:
+               report: Callable[[StereoState], None] = lambda state: None, rows: bool = False,
+               vtk: bool = False) -> StereoState:
     """Solve the states the store has not finished (`store.open` first), saving each; `report` is called
     with each state solved (state 0 also when it is read back). `rows`: also keep each solved state's rows
-    of dic.csv in the store (`RunStore.write_rows`), formatted from the state in memory by a forked child
-    while the next state is solved (`background.Background`; with one thread, by the caller), so that
-    `write_outputs` need not read the states back for them: for a dic.csv in the rig's frame (the states
-    as solved). The last state's rows are left to `write_outputs`, which formats them beside its maps
-    rather than after the run. The next state's pair is read and prepared while a state is solved, the
-    reference's included. Returns state 0."""
+    of dic.csv in the store (`RunStore.write_rows`), `vtk`: its VTK file (`RunStore.write_vtk`), made
+    from the state in memory by a forked child while the next state is solved (`background.Background`;
+    with one thread, by the caller), so that `write_outputs` need not read the states back for them nor
+    make them after the run: for outputs in the rig's frame (the states as solved). The last state's are
+    left to `write_outputs`, which makes them beside its maps rather than after the run. The next
+    state's pair is read and prepared while a state is solved, the reference's included. Returns state 0."""
     n = len(data)
     done = store.done
     pair0 = prepare_pair(data, rig, settings, 0)
     run = StereoRun.prepare(rig, grid, settings, seeds, pair0)
-    with Background(threads() - 1 if rows else 0) as bg:
+    with Background(threads() - 1 if rows or vtk else 0) as bg:
         def keep(state: StereoState, carry) -> None:
             store.write_state(state, carry)
-            if rows and state.state < n - 1:
-                bg.submit(functools.partial(_keep_rows, store, grid, state.state, state),
-                          f"the CSV rows of state {state.state}")
+            if (rows or vtk) and state.state < n - 1:
+                bg.submit(functools.partial(_keep_files, store, grid, state, rows=rows, vtk=vtk),
+                          f"the CSV rows and VTK file of state {state.state}")
             report(state)
 
         pairs = prefetch(range(done, n), lambda k: pair0 if k == 0 else prepare_pair(data, rig, settings, k))
@@ -166,8 +167,9 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
                   "dic.npz")
         vtk_here = vtk and state_files        # a cluster's tasks wrote the VTK files; the maps are drawn here
 
-        def write_vtk(st: StereoState) -> None:
-            bg.submit(functools.partial(write_state, folder / "vtk", st), f"the VTK file of state {st.state}")
+        def write_vtk(st: StereoState) -> None:      # moved from the store where the run kept it, else made
+            if not store.take_vtk(st.state, folder / "vtk" / state_file(st.state)):
+                bg.submit(functools.partial(write_state, folder / "vtk", st), f"the VTK file of state {st.state}")
 
         if vtk_here or plot_every or dice is not None:
             axes = None
@@ -249,6 +251,14 @@ def _map_parts(names: list[str], workers: int, states: int) -> list[list[str]]:
     its figures and the state's picture over the image: not one a map); one task a state otherwise."""
     parts = max(1, min(len(names), workers // max(states, 1)))
     return [list(part) for part in np.array_split(np.array(names, dtype=object), parts)]
+
+
+def _keep_files(store: RunStore, grid: Grid, state: StereoState, *, rows: bool, vtk: bool) -> None:
+    """Keep a solved state's rows of dic.csv (with `rows`) and its VTK file (with `vtk`) in the store."""
+    if rows:
+        _keep_rows(store, grid, state.state, state)
+    if vtk:
+        store.write_vtk(state)
 
 
 def _keep_rows(store: RunStore, grid: Grid, k: int, state: StereoState | None = None) -> None:

@@ -10,7 +10,10 @@ so that results stream to disk state by state and an interrupted run resumes whe
   state, and the combined status);
   `DIR/states/carry.npz`: what the state after the last finished one needs (`StereoCarry`);
   `DIR/states/state{k:06d}.csv`: state k's rows of dic.csv, where a cluster's task formatted them beside
-  the chain (`output.csv_rows`); taken into dic.csv when it is written, then removed.
+  the chain (`output.csv_rows`), or a forked child beside the run's next state; taken into dic.csv when it
+  is written, then removed;
+  `DIR/states/state{k:06d}.vtp`: state k's VTK file, written beside the run's next state; moved into the
+  run's vtk folder when the outputs are written.
 Every file is written atomically, in the order state file, carry, manifest: wherever a run stops, the
 folder is consistent and the run resumes after the carry's state (a state file beyond it is computed
 again, to the same bytes). A run whose settings or inputs differ from the folder's is refused.
@@ -29,6 +32,7 @@ from calib.atomic import write_json, write_npz, write_text
 from calib.errors import InputError
 from stereodic.dic3d.output import state_arrays, state_from_arrays
 from stereodic.dic3d.stereo import StereoCarry, StereoState
+from stereodic.dic3d.vtk import polydata
 
 FORMAT = "stereodic.dic-run/1"
 MANIFEST = "run.json"
@@ -73,7 +77,7 @@ class RunStore:
         new = {"format": FORMAT, "settings": settings, "inputs": inputs, "states": states}
         old = self._read_manifest()
         if old is not None and restart:
-            for p in [*self.states_dir.glob("*.npz"), *self.states_dir.glob("*.csv")]:
+            for p in [*self.states_dir.glob("*.npz"), *self.states_dir.glob("*.csv"), *self.states_dir.glob("*.vtp")]:
                 p.unlink()
             old = None
         if old is not None:
@@ -125,6 +129,23 @@ class RunStore:
         """State k's rows of dic.csv if they were kept (`write_rows`), else None."""
         path = self.rows_path(k)
         return path.read_text() if path.is_file() else None
+
+    def vtk_path(self, k: int) -> Path:
+        return self.states_dir / f"state{k:06d}.vtp"
+
+    def write_vtk(self, state: StereoState) -> None:
+        """Keep a state's VTK file (`vtk.polydata`: the state as solved, in the rig's frame) for the run's
+        vtk folder (`take_vtk`)."""
+        write_text(self.vtk_path(state.state), polydata(state))
+
+    def take_vtk(self, k: int, path: str | os.PathLike) -> bool:
+        """Move state k's kept VTK file (`write_vtk`) to `path`; False if none was kept."""
+        kept = self.vtk_path(k)
+        if not kept.is_file():
+            return False
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        os.replace(kept, path)
+        return True
 
     def remove_rows(self) -> None:
         """Remove the kept rows (once dic.csv holds them)."""

@@ -50,9 +50,14 @@ def polydata(state: StereoState) -> str:
             "</Piece>\n</PolyData>\n</VTKFile>\n")
 
 
+def state_file(k: int) -> str:
+    """The name of state k's file in a run's vtk folder (and in its collection)."""
+    return f"state{k:03d}.vtp"
+
+
 def write_state(folder: str | os.PathLike, state: StereoState) -> Path:
     """Write folder/state{k:03d}.vtp of one state; returns its path."""
-    path = Path(folder) / f"state{state.state:03d}.vtp"
+    path = Path(folder) / state_file(state.state)
     write_text(path, polydata(state))
     return path
 
@@ -60,7 +65,7 @@ def write_state(folder: str | os.PathLike, state: StereoState) -> Path:
 def write_collection(folder: str | os.PathLike, states: Iterable[int]) -> Path:
     """Write folder/states.pvd, the collection of the states' .vtp files (time = state index); returns
     its path."""
-    entries = [f'<DataSet timestep="{k}" part="0" file="state{k:03d}.vtp"/>' for k in states]
+    entries = [f'<DataSet timestep="{k}" part="0" file="{state_file(k)}"/>' for k in states]
     pvd = Path(folder) / "states.pvd"
     write_text(pvd, '<?xml version="1.0"?>\n<VTKFile type="Collection" version="1.0">\n<Collection>\n'
                + "\n".join(entries) + "\n</Collection>\n</VTKFile>\n")

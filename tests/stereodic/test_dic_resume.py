@@ -113,3 +113,29 @@ def test_a_state_file_keeps_every_combined_status():
     back = state_from_arrays(state_arrays(st), None)
     assert back.status.tolist() == combined.tolist()
     assert csv_rows(grid, back) == csv_rows(grid, st)
+
+
+@pytest.mark.parametrize("threads", ["1", "2"])
+def test_the_vtk_files_made_beside_the_run_are_the_states_as_saved(dic_sim, tmp_path, monkeypatch, threads):
+    """Each state's VTK file but the last is made while the next state is solved (in a forked child on
+    two threads) and kept in the run folder, then moved into vtk/: the same bytes as the file made at the
+    end from the saved state; none is left behind. With --frame specimen they are the specimen frame's."""
+    from stereodic.dic3d.store import RunStore
+    from stereodic.dic3d.vtk import polydata
+    monkeypatch.setenv("OMP_NUM_THREADS", threads)
+    made = []
+    real = dic_run.RunStore.write_vtk
+    monkeypatch.setattr(dic_run.RunStore, "write_vtk", lambda self, st: (made.append(st.state), real(self, st)))
+    out = tmp_path / "out"
+    assert main(["dic", str(dic_sim / "rig.npz"), str(dic_sim), "--step", "12", "--no-plot", "-o", str(out)]) == 0
+    if threads == "1":                      # in this process: seen here (on two threads, in the children)
+        assert made == [0, 1]
+    store = RunStore(out).attach()
+    for k in range(3):
+        assert (out / "vtk" / f"state{k:03d}.vtp").read_text() == polydata(store.read_state(k))
+    assert not list((out / "states").glob("*.vtp"))
+    framed = tmp_path / "framed"
+    assert main(["dic", str(dic_sim / "rig.npz"), str(dic_sim), "--step", "12", "--no-plot", "--frame", "specimen",
+                 "-o", str(framed)]) == 0
+    assert (framed / "vtk" / "state002.vtp").read_text() != (out / "vtk" / "state002.vtp").read_text()
+    assert (framed / "vtk" / "state000.vtp").read_text() != (out / "vtk" / "state000.vtp").read_text()
