@@ -97,12 +97,12 @@ class Background:
                     self.failed.append(name)
         self.running = still
 
-    def submit(self, task: Callable[[], object], name: str) -> None:
+    def submit(self, task: Callable[[], object], name: str) -> multiprocessing.Process | None:
         """Run `task` (named `name` in errors) in a new child once fewer than `workers` are running (with 0
-        workers, here and now)."""
+        workers, here and now: None). Returns the child, for `wait_for`."""
         if self.workers == 0:
             task()
-            return
+            return None
         self._reap()
         while len(self.running) >= self.workers:
             multiprocessing.connection.wait([proc.sentinel for _, proc in self.running])
@@ -112,6 +112,15 @@ class Background:
         proc = multiprocessing.get_context("fork").Process(target=task, name=name, daemon=True)
         proc.start()
         self.running.append((name, proc))
+        return proc
+
+    def wait_for(self, children: Iterable[multiprocessing.Process | None]) -> None:
+        """Wait for these children (`submit`'s; None: a task already run here) while the others go on; a
+        failed one is reported when the context is left, with the others (`wait`)."""
+        for proc in children:
+            if proc is not None:
+                proc.join()
+        self._reap()
 
     def wait(self) -> None:
         """Wait for every child; RuntimeError naming the tasks that failed."""

@@ -158,11 +158,10 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
     # the files are independent: written side by side by threads() forked children, the caller handing out
     # the tasks (with one thread, the caller writes them)
     with Background(threads() if threads() > 1 else 0) as bg:
-        # dic.csv: each state's rows as a cluster's task kept them, or formatted here; beside children, one
-        # task a state (kept in the store, joined below)
-        for k in range(n if csv and bg.workers else 0):
-            if not store.rows_path(k).is_file():
-                bg.submit(functools.partial(_keep_rows, store, grid, k), f"the CSV rows of state {k}")
+        # dic.csv: each state's rows as the run or a cluster's task kept them, or formatted here; beside
+        # children, one task a state (kept in the store, joined below while the maps are drawn)
+        rows = [bg.submit(functools.partial(_keep_rows, store, grid, k), f"the CSV rows of state {k}")
+                for k in range(n if csv and bg.workers else 0) if not store.rows_path(k).is_file()]
         bg.submit(lambda: write_npz(folder / "dic.npz", grid, store.values, n, has_strain, settings, info, has_def),
                   "dic.npz")
         vtk_here = vtk and state_files        # a cluster's tasks wrote the VTK files; the maps are drawn here
@@ -215,10 +214,11 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
             finally:
                 for movie in maps.get("movies", {}).values():
                     movie.close()
-    if csv:
-        write_csv(folder / "dic.csv", (store.read_rows(k) or csv_rows(grid, store.read_state(k)) for k in range(n)),
-                  has_strain=has_strain, has_deformation=has_def)
-        store.remove_rows()
+        if csv:           # here, while the children draw the maps: once the rows of every state are formatted
+            bg.wait_for(rows)
+            write_csv(folder / "dic.csv", (store.read_rows(k) or csv_rows(grid, store.read_state(k)) for k in range(n)),
+                      has_strain=has_strain, has_deformation=has_def)
+            store.remove_rows()
     if vtk:
         write_collection(folder / "vtk", range(n))
 

@@ -31,6 +31,19 @@ def test_tasks_run_in_children_and_none_waits_behind_a_long_one(tmp_path):
     assert all(float(t.split()[1]) < os.path.getmtime(tmp_path / "0.txt") - 0.5 for t in texts[1:])
 
 
+def test_the_caller_waits_for_some_children_while_the_others_go_on(tmp_path):
+    with Background(2) as bg:
+        slow = bg.submit(lambda: _write(tmp_path / "slow.txt", "slow", 1.0), "slow")
+        quick = bg.submit(lambda: _write(tmp_path / "quick.txt", "quick", 0.1), "quick")
+        bg.wait_for([quick, None])
+        assert (tmp_path / "quick.txt").is_file() and not (tmp_path / "slow.txt").exists()
+        assert slow.exitcode is None                    # still running
+    assert (tmp_path / "slow.txt").is_file()            # leaving the context waited for it
+    with pytest.raises(RuntimeError, match="broken"):   # a failure among those waited for: named at the end
+        with Background(1) as bg:
+            bg.wait_for([bg.submit(lambda: 1 / 0, "broken")])
+
+
 def test_one_worker_runs_the_tasks_one_after_the_other(tmp_path):
     with Background(1) as bg:
         for k in range(3):
