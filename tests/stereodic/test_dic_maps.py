@@ -174,6 +174,27 @@ def _slanted():
     return 1.1 * x + 0.05 * y + 3.0, 0.97 * y - 0.04 * x + 8.0
 
 
+def test_a_colour_bar_drawn_once_gives_the_pixels_of_one_drawn_again():
+    """A painter draws a quantity's colour bar once for its run scale (the same in every state) and
+    pastes it in the maps after: pixel for pixel what a fresh painter draws, plain or over the image,
+    with the bar's arrows as each map's values need them."""
+    from stereodic.dic.maps import Backdrop, ColourScale, MapPainter
+    rng = np.random.default_rng(3)
+    image = (rng.random((220, 320)) * 255).astype(np.uint8)
+    x, y = np.meshgrid(XS, YS)
+    axes = pixel_axes(XS, YS)
+    scale = ColourScale(-400.0, 400.0, "RdBu_r")
+    states = [rng.normal(0.0, 100.0, x.shape), rng.normal(50.0, 150.0, x.shape), rng.normal(0.0, 300.0, x.shape)]
+    for backdrop in (None, Backdrop(image, x, y)):
+        painter = MapPainter()
+        for k, values in enumerate(states):
+            options = dict(title=f"state {k}", quantity="exx", unit="microstrain", decimals=0, scale=scale,
+                           backdrop=backdrop)
+            assert np.array_equal(painter.draw(values, axes, **options), MapPainter().draw(values, axes, **options))
+        kept = painter._layouts[backdrop is not None].bar_pixels
+        assert len(kept) == 2                 # without arrows (states 0, 1: drawn once), with (state 2)
+
+
 def test_the_field_over_the_image_is_the_linear_interpolation_between_the_points():
     """Backdrop.raster against matplotlib's LinearTriInterpolator (an independent linear interpolation) on
     the same triangles, two per square of neighbouring grid points; a hole in the grid left blank, not
