@@ -213,16 +213,6 @@ def _summary(st, n, active, search_px) -> str:
     return text if why is None else f"{text}\n{why}"
 
 
-def _load(rig, maps: bool) -> None:
-    """What a run takes later, loaded beforehand (in a thread): `stereo.load_kernels`, and with `maps`
-    matplotlib (`maps.load_matplotlib`)."""
-    from stereodic.dic3d.stereo import load_kernels
-    load_kernels(rig)
-    if maps:
-        from stereodic.dic.maps import load_matplotlib
-        load_matplotlib()
-
-
 def run(args) -> int:
     import functools
     import os
@@ -247,14 +237,16 @@ def run(args) -> int:
 
     rig = load_rig(args.rig)
     # on more than one thread, beside the checks and the correlation: the rig file's hash for the run's
-    # record (hashlib releases the GIL), the kernels of the states' points and strains loaded, matplotlib
-    # imported for the maps (not after them, on the critical path); on one, each when it is needed
-    rig_hash = None
+    # record (hashlib releases the GIL), the kernels of the states' points and strains loaded (the rig
+    # check needs them first), matplotlib imported for the maps once the correlation runs, whose kernels
+    # leave the interpreter's lock free (beside the checks it would hold it from their Python); on one
+    # thread, each when it is needed
+    rig_hash = beside = None
     if threads() > 1:
+        from stereodic.dic3d.stereo import load_kernels
         beside = ThreadPoolExecutor(2)
         rig_hash = beside.submit(file_sha256, args.rig)
-        finish_before_fork(beside.submit(_load, rig, not args.no_plot))   # it imports: no fork meanwhile
-        beside.shutdown(wait=False)
+        finish_before_fork(beside.submit(load_kernels, rig))   # it imports: no fork meanwhile
     width, height = rig.sensor.width, rig.sensor.height
     data = _states(args, rig)                   # every state and file checked before the work
     settings = _settings(args)
@@ -292,6 +284,11 @@ def run(args) -> int:
         return 0
     if done:
         print(f"{out}: resuming a run with {done} of {n} states done")
+    if beside is not None:
+        if not args.no_plot:
+            from stereodic.dic.maps import load_matplotlib
+            finish_before_fork(beside.submit(load_matplotlib))
+        beside.shutdown(wait=False)
     active = int(grid.active.sum())
     summary = functools.partial(_summary, n=active, active=grid.active, search_px=args.search)
 
