@@ -315,10 +315,12 @@ def run(args) -> int:
             note(summary(st))
             if st.state == 0:
                 nothing_measured(st)
-        # dic.csv's rows and the VTK files made as the states are solved, where they show the states as solved
+        # dic.csv's rows, the VTK files and the maps' value ranges made as the states are solved, where they
+        # show the states as solved
         as_solved = args.frame != "specimen" and not args.remove_rigid
         state0 = run_states(store, data, rig, grid, seeds, settings, report=report,
-                            rows=args.columns != "dice" and as_solved, vtk=not args.no_vtk and as_solved)
+                            rows=args.columns != "dice" and as_solved, vtk=not args.no_vtk and as_solved,
+                            ranges=not args.no_plot and as_solved)
     c0 = state0.left.ok & state0.right.ok         # matched, whether or not the rays meet
     X, Y = (a.reshape(grid.shape) for a in grid.points())
     report = epipolar.check(rig, X[c0], Y[c0], (X + state0.right.u)[c0], (Y + state0.right.v)[c0],

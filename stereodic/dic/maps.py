@@ -115,6 +115,17 @@ class ColourScale:
     cmap: str
 
 
+def value_range(values: np.ndarray, active: np.ndarray | None = None) -> tuple[float, float] | None:
+    """The 1st and 99th percentiles of a map's finite `values` at the `active` points (None: all), what
+    a run's colour scale spans (`RunScales`); None where none is finite."""
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v) & (True if active is None else active)]
+    if not v.size:
+        return None
+    lo, hi = np.percentile(v, [1, 99])
+    return float(lo), float(hi)
+
+
 class RunScales:
     """The colour scales of a run's quantities (module docstring), gathered state by state: `add(name,
     values, signed=...)` for every state's map, then `scale(name)`. `given` fixes a quantity's limits
@@ -127,11 +138,14 @@ class RunScales:
         self._signed: dict[str, bool] = {}
 
     def add(self, name: str, values: np.ndarray, *, signed: bool, active: np.ndarray | None = None) -> None:
-        v = np.asarray(values, float)
-        v = v[np.isfinite(v) & (True if active is None else active)]
+        """One state's map of quantity `name`: its values (NaN: not measured) at the `active` points."""
+        self.add_range(name, value_range(values, active), signed=signed)
+
+    def add_range(self, name: str, lo_hi: tuple[float, float] | None, *, signed: bool) -> None:
+        """One state's map of quantity `name` by its `value_range` (None: nothing measured)."""
         self._signed[name] = signed
-        if v.size:
-            lo, hi = np.percentile(v, [1, 99])
+        if lo_hi is not None:
+            lo, hi = lo_hi
             r = self._range.setdefault(name, [lo, hi])
             r[0], r[1] = min(r[0], lo), max(r[1], hi)
 

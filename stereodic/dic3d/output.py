@@ -32,7 +32,7 @@ from calib.csv_text import format_rows
 from calib.npz_stream import write_stacked_npz
 from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import OK, OUTSIDE, STATUS_NAMES
-from stereodic.dic.maps import Backdrop, MapAxes, MapMovie, MapPainter, RunScales, save_map
+from stereodic.dic.maps import Backdrop, MapAxes, MapMovie, MapPainter, RunScales, save_map, value_range
 from stereodic.dic.output import STRAIN_COLUMNS
 from stereodic.dic3d.stereo import NO_REFERENCE, RAY_GAP, CameraMatch, StereoSettings, StereoState
 from stereodic.strain.measures import StrainMeasure
@@ -181,6 +181,12 @@ def state_maps(st: StereoState) -> dict[str, tuple[np.ndarray, str, int]]:
     if st.measure is not None:
         maps.update({c: (getattr(st.measure, c) * 1e6, "microstrain", 0) for c in ("exx", "eyy", "exy")})
     return maps
+
+
+def state_ranges(st: StereoState, active: np.ndarray | None) -> dict[str, tuple[float, float] | None]:
+    """Each map quantity's `maps.value_range` in state `st` at the grid's `active` points: what the run's
+    colour scales take of it (`maps.RunScales.add_range`)."""
+    return {name: value_range(values, active) for name, (values, _, _) in state_maps(st).items()}
 
 
 STRAIN_FLOOR = 100.0   # microstrain: the least half-range of a strain map's colours (a run at rest)

@@ -26,8 +26,8 @@ from stereodic.dic.grid import Grid
 from stereodic.dic.maps import MapAxes, MapMovie, MapPainter, RunScales, load_matplotlib, surface_axes
 from stereodic.dic.sequence import prefetch
 from stereodic.dic3d.dataset import DicStates
-from stereodic.dic3d.output import (STRAIN_FLOOR, csv_rows, plot_state, state_arrays, state_maps, write_csv,
-                                    write_npz)
+from stereodic.dic3d.output import (STRAIN_FLOOR, csv_rows, plot_state, state_arrays, state_maps, state_ranges,
+                                    write_csv, write_npz)
 from stereodic.dic3d.stereo import PreparedPair, StereoRun, StereoSettings, StereoState, solve_state
 from stereodic.dic3d.store import RunStore
 from stereodic.dic3d.vtk import state_file, write_collection, write_state
@@ -41,25 +41,26 @@ def prepare_pair(data: DicStates, rig: Rig, settings: StereoSettings, k: int) ->
 
 def run_states(store: RunStore, data: DicStates, rig: Rig, grid: Grid, seeds, settings: StereoSettings, *,
                report: Callable[[StereoState], None] = lambda state: None, rows: bool = False,
-               vtk: bool = False) -> StereoState:
+               vtk: bool = False, ranges: bool = False) -> StereoState:
     """Solve the states the store has not finished (`store.open` first), saving each; `report` is called
     with each state solved (state 0 also when it is read back). `rows`: also keep each solved state's rows
-    of dic.csv in the store (`RunStore.write_rows`), `vtk`: its VTK file (`RunStore.write_vtk`), made
-    from the state in memory by a forked child while the next state is solved (`background.Background`;
-    with one thread, by the caller), so that `write_outputs` need not read the states back for them nor
-    make them after the run: for outputs in the rig's frame (the states as solved). The last state's are
-    left to `write_outputs`, which makes them beside its maps rather than after the run. The next
-    state's pair is read and prepared while a state is solved, the reference's included. Returns state 0."""
+    of dic.csv in the store (`RunStore.write_rows`), `vtk`: its VTK file (`RunStore.write_vtk`), `ranges`:
+    its maps' value ranges (`RunStore.write_ranges`), made from the state in memory by a forked child while
+    the next state is solved (`background.Background`; with one thread, by the caller), so that
+    `write_outputs` need not read the states back for them nor make them after the run: for outputs in
+    the rig's frame (the states as solved). The last state's are left to `write_outputs`, which makes
+    them beside its maps rather than after the run. The next state's pair is read and prepared while a
+    state is solved, the reference's included. Returns state 0."""
     n = len(data)
     done = store.done
     pair0 = prepare_pair(data, rig, settings, 0)
     run = StereoRun.prepare(rig, grid, settings, seeds, pair0)
-    with Background(threads() - 1 if rows or vtk else 0) as bg:
+    with Background(threads() - 1 if rows or vtk or ranges else 0) as bg:
         def keep(state: StereoState, carry) -> None:
             store.write_state(state, carry)
-            if (rows or vtk) and state.state < n - 1:
-                bg.submit(functools.partial(_keep_files, store, grid, state, rows=rows, vtk=vtk),
-                          f"the CSV rows and VTK file of state {state.state}")
+            if (rows or vtk or ranges) and state.state < n - 1:
+                bg.submit(functools.partial(_keep_files, store, grid, state, rows=rows, vtk=vtk, ranges=ranges),
+                          f"the CSV rows, VTK file and value ranges of state {state.state}")
             report(state)
 
         pairs = prefetch(range(done, n), lambda k: pair0 if k == 0 else prepare_pair(data, rig, settings, k))
@@ -136,16 +137,19 @@ def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: Ste
 
 
 def _run_scales(store: RunStore, every: int, active, limits: dict | None = None,
-                each: Callable[[StereoState], None] | None = None) -> RunScales:
-    """The colour scales of the maps of every `every`-th state, read one state at a time (`limits`: those
-    given); `each(state)` is called with every state read (a task that needs the states anyway)."""
+                each: Callable[[int, Callable[[], StereoState]], None] | None = None) -> RunScales:
+    """The colour scales of the maps of every `every`-th state (`limits`: those given), from the value
+    ranges the run kept (`RunStore.read_ranges`), else from the state read here; `each(k, state)` is
+    called for every state k with a callable that reads it (once: a task that may need the states anyway)."""
     scales = RunScales(given=limits, floor={c: STRAIN_FLOOR for c in ("exx", "eyy", "exy")})
-    for st in store.states():
+    for k in range(store.manifest["states"]):
+        state = functools.cache(functools.partial(store.read_state, k))
         if each is not None:
-            each(st)
-        if st.state % every == 0:
-            for name, (values, _, _) in state_maps(st).items():
-                scales.add(name, values, signed=name != "Z", active=active)
+            each(k, state)
+        if k % every == 0:
+            ranges = store.read_ranges(k)
+            for name, lo_hi in (state_ranges(state(), active) if ranges is None else ranges).items():
+                scales.add_range(name, lo_hi, signed=name != "Z")
     return scales
 
 
@@ -166,9 +170,9 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
                   "dic.npz")
         vtk_here = vtk and state_files        # a cluster's tasks wrote the VTK files; the maps are drawn here
 
-        def write_vtk(st: StereoState) -> None:      # moved from the store where the run kept it, else made
-            if not store.take_vtk(st.state, folder / "vtk" / state_file(st.state)):
-                bg.submit(functools.partial(write_state, folder / "vtk", st), f"the VTK file of state {st.state}")
+        def write_vtk(k: int, state: Callable[[], StereoState]) -> None:   # moved from the store where the run
+            if not store.take_vtk(k, folder / "vtk" / state_file(k)):          # kept it, else made
+                bg.submit(functools.partial(write_state, folder / "vtk", state()), f"the VTK file of state {k}")
 
         if vtk_here or plot_every or dice is not None:
             axes = None
@@ -208,7 +212,7 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
                                 bg.submit(functools.partial(draw, names=part),
                                           f"the maps of state {st.state} ({', '.join(part)})")
                     if vtk_here and not plot_every:
-                        write_vtk(st)
+                        write_vtk(st.state, lambda st=st: st)
                     if dice is not None:
                         dice(st)
             finally:
@@ -219,6 +223,7 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
             write_csv(folder / "dic.csv", (store.read_rows(k) or csv_rows(grid, store.read_state(k)) for k in range(n)),
                       has_strain=has_strain, has_deformation=has_def)
             store.remove_rows()
+    store.remove_ranges()
     if vtk:
         write_collection(folder / "vtk", range(n))
 
@@ -253,12 +258,15 @@ def _map_parts(names: list[str], workers: int, states: int) -> list[list[str]]:
     return [list(part) for part in np.array_split(np.array(names, dtype=object), parts)]
 
 
-def _keep_files(store: RunStore, grid: Grid, state: StereoState, *, rows: bool, vtk: bool) -> None:
-    """Keep a solved state's rows of dic.csv (with `rows`) and its VTK file (with `vtk`) in the store."""
+def _keep_files(store: RunStore, grid: Grid, state: StereoState, *, rows: bool, vtk: bool, ranges: bool) -> None:
+    """Keep a solved state's rows of dic.csv (with `rows`), its VTK file (with `vtk`) and its maps' value
+    ranges (with `ranges`) in the store."""
     if rows:
         _keep_rows(store, grid, state.state, state)
     if vtk:
         store.write_vtk(state)
+    if ranges:
+        store.write_ranges(state.state, state_ranges(state, grid.active))
 
 
 def _keep_rows(store: RunStore, grid: Grid, k: int, state: StereoState | None = None) -> None:

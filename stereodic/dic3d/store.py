@@ -13,7 +13,10 @@ so that results stream to disk state by state and an interrupted run resumes whe
   the chain (`output.csv_rows`), or a forked child beside the run's next state; taken into dic.csv when it
   is written, then removed;
   `DIR/states/state{k:06d}.vtp`: state k's VTK file, written beside the run's next state; moved into the
-  run's vtk folder when the outputs are written.
+  run's vtk folder when the outputs are written;
+  `DIR/states/state{k:06d}.ranges.json`: the value ranges of state k's maps (`output.state_ranges`),
+  written beside the run's next state, so that the maps' colour scales need not read the states again;
+  removed once the maps are drawn.
 Every file is written atomically, in the order state file, carry, manifest: wherever a run stops, the
 folder is consistent and the run resumes after the carry's state (a state file beyond it is computed
 again, to the same bytes). A run whose settings or inputs differ from the folder's is refused.
@@ -77,7 +80,8 @@ class RunStore:
         new = {"format": FORMAT, "settings": settings, "inputs": inputs, "states": states}
         old = self._read_manifest()
         if old is not None and restart:
-            for p in [*self.states_dir.glob("*.npz"), *self.states_dir.glob("*.csv"), *self.states_dir.glob("*.vtp")]:
+            for p in [*self.states_dir.glob("*.npz"), *self.states_dir.glob("*.csv"), *self.states_dir.glob("*.vtp"),
+                      *self.states_dir.glob("*.json")]:
                 p.unlink()
             old = None
         if old is not None:
@@ -146,6 +150,25 @@ class RunStore:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         os.replace(kept, path)
         return True
+
+    def ranges_path(self, k: int) -> Path:
+        return self.states_dir / f"state{k:06d}.ranges.json"
+
+    def write_ranges(self, k: int, ranges: dict) -> None:
+        """Keep state k's maps' value ranges (`output.state_ranges`) for the run's colour scales."""
+        write_json(self.ranges_path(k), {name: None if r is None else list(r) for name, r in ranges.items()})
+
+    def read_ranges(self, k: int) -> dict | None:
+        """State k's kept value ranges (`write_ranges`), or None."""
+        path = self.ranges_path(k)
+        if not path.is_file():
+            return None
+        return {name: None if r is None else tuple(r) for name, r in json.loads(path.read_text()).items()}
+
+    def remove_ranges(self) -> None:
+        """Remove the kept value ranges (once the maps are drawn)."""
+        for p in self.states_dir.glob("state*.ranges.json"):
+            p.unlink()
 
     def remove_rows(self) -> None:
         """Remove the kept rows (once dic.csv holds them)."""

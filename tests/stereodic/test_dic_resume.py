@@ -139,3 +139,32 @@ def test_the_vtk_files_made_beside_the_run_are_the_states_as_saved(dic_sim, tmp_
                  "-o", str(framed)]) == 0
     assert (framed / "vtk" / "state002.vtp").read_text() != (out / "vtk" / "state002.vtp").read_text()
     assert (framed / "vtk" / "state000.vtp").read_text() != (out / "vtk" / "state000.vtp").read_text()
+
+
+def test_the_maps_scales_from_the_kept_ranges_are_those_of_the_states(dic_sim, tmp_path, monkeypatch):
+    """Each state's maps' value ranges but the last are kept as the run goes (`RunStore.write_ranges`), so
+    that the colour scales need not read the states again: the scales from them are exactly those from the
+    states themselves; the files go once the maps are drawn."""
+    from stereodic.dic3d.store import RunStore
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    out = tmp_path / "out"
+    monkeypatch.setattr(dic_run.RunStore, "remove_ranges", lambda self: None)
+    assert main(["dic", str(dic_sim / "rig.npz"), str(dic_sim), "--step", "12", "--no-vtk", "-o", str(out)]) == 0
+    store = RunStore(out).attach()
+    assert sorted(p.name for p in (out / "states").glob("*.ranges.json")) == [
+        "state000000.ranges.json", "state000001.ranges.json"]
+    active = np.load(out / "dic.npz")["active"]
+    kept = dic_run._run_scales(store, 1, active)
+    states = [store.read_state(k) for k in range(3)]
+    for q, values in (("Z", lambda st: st.points[..., 2]), ("dX", lambda st: st.displacement[..., 0]),
+                      ("exx", lambda st: st.measure.exx * 1e6), ("eyy", lambda st: st.measure.eyy * 1e6)):
+        ranges = [np.percentile(v[np.isfinite(v) & active], [1, 99]) for v in map(values, states)]
+        assert kept._range[q] == [min(r[0] for r in ranges), max(r[1] for r in ranges)]   # numpy's own, per state
+    for p in (out / "states").glob("*.ranges.json"):
+        p.unlink()
+    read = dic_run._run_scales(store, 1, active)
+    names = ["Z", "dX", "dY", "dZ", "exx", "eyy", "exy"]
+    assert all(kept.scale(q) == read.scale(q) and read.scale(q) is not None for q in names)
+    monkeypatch.undo()
+    store.remove_ranges()
+    assert not list((out / "states").glob("*.json"))
