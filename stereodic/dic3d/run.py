@@ -127,13 +127,13 @@ def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: Ste
                    frame_name=frame_name, animate=animate, limits=limits)
     if frame is None:
         _write_outputs(store, grid, folder, settings, info, state_files=state_files, **options)
-        return
-    view = _framed_store(store, folder, frame)
-    try:
-        _write_outputs(view, grid, folder, settings, info, state_files=True, **options)
-    finally:
-        shutil.rmtree(folder / ".frame", ignore_errors=True)
-    store.remove_rows()               # rows kept in the rig's frame (`run_states(rows=True)`) are not these
+    else:
+        view = _framed_store(store, folder, frame)
+        try:
+            _write_outputs(view, grid, folder, settings, info, state_files=True, **options)
+        finally:
+            shutil.rmtree(folder / ".frame", ignore_errors=True)
+    store.remove_kept()               # written, or (kept in the rig's frame) not these
 
 
 def _run_scales(store: RunStore, every: int, active, limits: dict | None = None,
@@ -222,8 +222,6 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
             bg.wait_for(rows)
             write_csv(folder / "dic.csv", (store.read_rows(k) or csv_rows(grid, store.read_state(k)) for k in range(n)),
                       has_strain=has_strain, has_deformation=has_def)
-            store.remove_rows()
-    store.remove_ranges()
     if vtk:
         write_collection(folder / "vtk", range(n))
 

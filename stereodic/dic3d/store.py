@@ -10,13 +10,12 @@ so that results stream to disk state by state and an interrupted run resumes whe
   state, and the combined status);
   `DIR/states/carry.npz`: what the state after the last finished one needs (`StereoCarry`);
   `DIR/states/state{k:06d}.csv`: state k's rows of dic.csv, where a cluster's task formatted them beside
-  the chain (`output.csv_rows`), or a forked child beside the run's next state; taken into dic.csv when it
-  is written, then removed;
+  the chain (`output.csv_rows`), or a forked child beside the run's next state; taken into dic.csv;
   `DIR/states/state{k:06d}.vtp`: state k's VTK file, written beside the run's next state; moved into the
-  run's vtk folder when the outputs are written;
+  run's vtk folder;
   `DIR/states/state{k:06d}.ranges.json`: the value ranges of state k's maps (`output.state_ranges`),
   written beside the run's next state, so that the maps' colour scales need not read the states again;
-  removed once the maps are drawn.
+  these three are removed once the combined outputs are written (`remove_kept`).
 Every file is written atomically, in the order state file, carry, manifest: wherever a run stops, the
 folder is consistent and the run resumes after the carry's state (a state file beyond it is computed
 again, to the same bytes). A run whose settings or inputs differ from the folder's is refused.
@@ -165,15 +164,12 @@ class RunStore:
             return None
         return {name: None if r is None else tuple(r) for name, r in json.loads(path.read_text()).items()}
 
-    def remove_ranges(self) -> None:
-        """Remove the kept value ranges (once the maps are drawn)."""
-        for p in self.states_dir.glob("state*.ranges.json"):
-            p.unlink()
-
-    def remove_rows(self) -> None:
-        """Remove the kept rows (once dic.csv holds them)."""
-        for p in self.states_dir.glob("state*.csv"):
-            p.unlink()
+    def remove_kept(self) -> None:
+        """Remove what was kept for the combined outputs - rows, VTK files, value ranges - once they are
+        written (or, written in another frame, do not take them)."""
+        for pattern in ("state*.csv", "state*.vtp", "state*.ranges.json"):
+            for p in self.states_dir.glob(pattern):
+                p.unlink()
 
     def write_state(self, state: StereoState, carry: StereoCarry) -> None:
         """Save a finished state and the carry after it, then record it done."""

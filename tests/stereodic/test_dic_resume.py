@@ -148,7 +148,7 @@ def test_the_maps_scales_from_the_kept_ranges_are_those_of_the_states(dic_sim, t
     from stereodic.dic3d.store import RunStore
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
     out = tmp_path / "out"
-    monkeypatch.setattr(dic_run.RunStore, "remove_ranges", lambda self: None)
+    monkeypatch.setattr(dic_run.RunStore, "remove_kept", lambda self: None)
     assert main(["dic", str(dic_sim / "rig.npz"), str(dic_sim), "--step", "12", "--no-vtk", "-o", str(out)]) == 0
     store = RunStore(out).attach()
     assert sorted(p.name for p in (out / "states").glob("*.ranges.json")) == [
@@ -166,5 +166,5 @@ def test_the_maps_scales_from_the_kept_ranges_are_those_of_the_states(dic_sim, t
     names = ["Z", "dX", "dY", "dZ", "exx", "eyy", "exy"]
     assert all(kept.scale(q) == read.scale(q) and read.scale(q) is not None for q in names)
     monkeypatch.undo()
-    store.remove_ranges()
+    store.remove_kept()
     assert not list((out / "states").glob("*.json"))
