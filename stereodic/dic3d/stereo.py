@@ -62,7 +62,7 @@ from stereodic.dic3d.refit import offset_at, offset_seed_search
 from stereodic.stereo.rig import Rig
 from stereodic.strain.fit import Strain, StrainFit, strain_3d
 from stereodic.strain.measures import StrainMeasure, measure_strain
-from stereodic.stereo.triangulate import triangulate
+from stereodic.stereo.triangulate import ray_distances, triangulate
 
 CROSS_DECORRELATED = tuple(c for c in DECORRELATED if c != OUTSIDE)
 
@@ -446,7 +446,7 @@ def load_kernels(rig: Rig) -> None:
     state's correlation rather than after it."""
     x = np.zeros(1)
     triangulate(rig, x, x, x)
-    epipolar_error(rig, x, x, x, x)
+    ray_distances(rig, x, x, x, x, compiled=True)
     StrainFit(np.zeros((3, 3, 3)))(np.zeros((3, 3, 3)))
 
 

@@ -157,18 +157,32 @@ def _ray_distances(xl, rl, xr, rr, origin, eu, ev, dir_l, dir_r, out):  # pragma
         out[k] = dot / np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
 
 
-def ray_distances(rig: Rig, x_left, row_left, x_right, row_right) -> np.ndarray:
+# below this many matches `ray_distances` takes numpy rather than its kernel, whose first call in a
+# process loads numba's machinery (0.4-0.5 s, mostly holding the interpreter's lock): the rig check's few
+# hundred features, before the correlation, need not wait for it
+FEW_MATCHES = 4096
+
+
+def ray_distances(rig: Rig, x_left, row_left, x_right, row_right, *, compiled: bool | None = None) -> np.ndarray:
     """Signed distances between the left ray at (x_left, row_left) and the right ray at (x_right,
     row_right), virtual pixels (broadcast to one shape; EVM-corrected rays, `rays_at`), mm: (o_r - o_l) .
     n / |n| with n = d_l x d_r (the sign tells on which side of the left ray the right one passes); NaN
-    where a ray is blank or the two are parallel. A numba kernel, matches in parallel."""
+    where a ray is blank or the two are parallel. `compiled`: True a numba kernel (matches in parallel;
+    0.1 us a match once loaded), False numpy (about 1 us a match, nothing to load), None: numpy below
+    FEW_MATCHES matches, the kernel from there."""
     arrays = np.broadcast_arrays(*(np.asarray(a, np.float64) for a in (x_left, row_left, x_right, row_right)))
     xl, rl, xr, rr = (np.ascontiguousarray(a, np.float64).ravel() for a in arrays)
     sensor = rig.sensor
-    out = np.empty(xl.size)
-    _ray_distances(xl, rl, xr, rr, sensor.origin, sensor.axis_u * sensor.pitch_mm[0],
-                   sensor.axis_v * sensor.pitch_mm[1], np.ascontiguousarray(rig.left.direction, np.float64),
-                   np.ascontiguousarray(rig.right.direction, np.float64), out)
+    eu, ev = sensor.axis_u * sensor.pitch_mm[0], sensor.axis_v * sensor.pitch_mm[1]
+    if compiled or (compiled is None and xl.size >= FEW_MATCHES):
+        out = np.empty(xl.size)
+        _ray_distances(xl, rl, xr, rr, sensor.origin, eu, ev, np.ascontiguousarray(rig.left.direction, np.float64),
+                       np.ascontiguousarray(rig.right.direction, np.float64), out)
+    else:
+        n = np.cross(bilinear(rig.left.direction, xl, rl), bilinear(rig.right.direction, xr, rr))
+        w = (xr - xl)[:, None] * eu + (rr - rl)[:, None] * ev   # o_r - o_l, the rays' points on the common plane
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out = np.einsum("ij,ij->i", w, n) / np.linalg.norm(n, axis=1)
     return out.reshape(arrays[0].shape)
 
 

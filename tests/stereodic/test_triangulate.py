@@ -83,10 +83,14 @@ def test_numba_kernel_equals_the_numpy_statement(corrected):
     assert np.abs(got.gap_mm[ok] - ref.gap_mm[ok]).max() < 1e-9
 
 
-def test_ray_distances_are_the_signed_gap_of_the_triangulation():
-    """The kernel's signed distance between the two rays: its size is triangulate's gap (the same rays,
-    another kernel), zero for the simulator's true matches, and it changes sign across the epipolar row."""
-    from stereodic.stereo.triangulate import ray_distances
+@pytest.mark.parametrize("compiled", [True, False, None])
+def test_ray_distances_are_the_signed_gap_of_the_triangulation(compiled):
+    """The signed distance between the two rays, by the kernel and by numpy (and by the choice on the
+    count): its size is triangulate's gap (the same rays, another kernel), zero for the simulator's true
+    matches, and it changes sign across the epipolar row."""
+    import functools
+    from stereodic.stereo import triangulate as tr
+    ray_distances = functools.partial(tr.ray_distances, compiled=compiled)
     ll, lr, pl, pr, rig = pair("noncentral", "brown")
     x = volume_points(rig, 500, 1.0, seed=5)
     left, right = seen_at(rig, ll, pl, x), seen_at(rig, lr, pr, x)
