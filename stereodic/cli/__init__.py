@@ -42,14 +42,27 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
-def thread_limits() -> None:
+# commands whose work is the project's own parallel kernels (OpenMP, numba): numpy's BLAS kept to one
+# thread there (`thread_limits`)
+OWN_KERNELS = ("dic", "dic2d")
+
+
+def thread_limits(command: str | None = None) -> None:
     """OMP_NUM_THREADS, when set, for OpenCV's and numba's own thread pools too (OPENCV_FOR_THREADS_NUM,
     NUMBA_NUM_THREADS, unless set: both are read when the library loads, after this), so that a run
     told to use n threads (`stereodic.dic.background.threads`) uses n cores in every library. Where numba
     was loaded before (a notebook, a test session that ran a command earlier) its pool has its size:
     changing NUMBA_NUM_THREADS then would fail numba's next compilation, so the calling thread's share
-    of the pool is limited instead (`numba.set_num_threads`)."""
+    of the pool is limited instead (`numba.set_num_threads`).
+
+    For the commands of OWN_KERNELS, numpy's OpenBLAS is kept to one thread (OPENBLAS_NUM_THREADS=1,
+    unless set; read when numpy loads): there BLAS only serves a few least-squares fits (a map's axes over
+    80k points), and after each threaded call OpenBLAS's threads spin on every core for a while, taking
+    it from the correlation's kernels and the writing's children (0.18 CPU-s on 2 threads on the bench
+    pair, 0.2-0.3 s of its wall time)."""
     n = os.environ.get("OMP_NUM_THREADS", "").strip()
+    if command in OWN_KERNELS:
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     if n.isdigit() and int(n) > 0:
         os.environ.setdefault("OPENCV_FOR_THREADS_NUM", n)
         if "numba" in sys.modules:
@@ -75,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
         written), 1 a hardware or cluster fault or an internal error, 130 interrupted.
     """
     argv = sys.argv[1:] if argv is None else list(argv)
-    thread_limits()
+    thread_limits(argv[0] if argv else None)
     parser = build_parser(argv[0] if argv and argv[0] in COMMANDS else None)
     args = parser.parse_args(argv)
     from stereodic.cli.common import check_paths, new_folders, remove_empty

@@ -101,6 +101,24 @@ def test_one_thread_is_one_core_in_opencv_and_numba():
     assert out.stdout.split() == ["1", "1"], out.stderr
 
 
+@pytest.mark.parametrize("command, blas", [("dic", 1), ("dic2d", 1), ("calibrate", 2)])
+def test_the_dic_commands_keep_numpys_blas_to_one_thread(command, blas):
+    """Asked for 2 threads, numpy's OpenBLAS (its own library, asked through ctypes) has one under the DIC
+    commands, whose parallel work is their own kernels, and 2 under the others."""
+    code = ("import ctypes, glob, os, sys\n"
+            "from stereodic.cli import thread_limits\n"
+            f"thread_limits({command!r})\n"
+            "import numpy\n"
+            "lib = ctypes.CDLL(glob.glob(os.path.dirname(numpy.__file__) + '.libs/*openblas*')[0])\n"
+            "get = next(getattr(lib, n) for n in ('scipy_openblas_get_num_threads64_', 'openblas_get_num_threads64_',\n"
+            "                                     'openblas_get_num_threads') if hasattr(lib, n))\n"
+            "print(get())\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS",)}
+    out = subprocess.run([sys.executable, "-c", code], env={**env, "OMP_NUM_THREADS": "2"}, capture_output=True,
+                         text=True, timeout=120)
+    assert out.stdout.split() == [str(blas)], out.stderr[-500:]
+
+
 def test_a_command_after_numba_started_keeps_its_pool_and_limits_its_threads(tmp_path):
     """numba loaded and its pool running before a command is told OMP_NUM_THREADS=1 (a notebook, a test
     session): numba compiles afresh afterwards (an empty cache) without the 'Cannot set
