@@ -14,6 +14,7 @@ one line).
 from __future__ import annotations
 
 import argparse
+import gc
 import importlib
 import keyword
 import os
@@ -87,7 +88,19 @@ def main(argv: list[str] | None = None) -> int:
         The exit status: 0 done, 2 bad input (one line on stderr naming the file or option; nothing
         written), 1 a hardware or cluster fault or an internal error, 130 interrupted.
     """
-    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv is not None:
+        return _run(list(argv))
+    try:
+        return _run(sys.argv[1:])
+    finally:
+        # the process ends after this: its objects frozen (gc.freeze), the interpreter's shutdown does not
+        # walk them again in each of its garbage collections (0.3 s after a `dic` run, on one core); a
+        # caller in the same process (argv given: a test, a notebook) keeps its collector as it was
+        gc.freeze()
+
+
+def _run(argv: list[str]) -> int:
+    """`main` of these arguments."""
     thread_limits(argv[0] if argv else None)
     parser = build_parser(argv[0] if argv and argv[0] in COMMANDS else None)
     args = parser.parse_args(argv)

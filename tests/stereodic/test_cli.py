@@ -40,3 +40,20 @@ def test_the_parsers_defaults_are_the_librarys():
     from stereodic.dic.sequence import SWITCH_ZNCC
     from stereodic.strain.measures import MEASURES
     assert common.SWITCH_ZNCC == SWITCH_ZNCC and common.STRAIN_MEASURES == MEASURES
+
+
+def test_the_process_command_freezes_its_objects_for_the_shutdown_and_a_caller_keeps_its_collector(monkeypatch):
+    """`main()` (the process's own command) leaves its objects frozen for the interpreter's shutdown; a
+    caller that gives the arguments (a test, a notebook) keeps its garbage collector as it was."""
+    import gc
+    gc.unfreeze()
+    with pytest.raises(SystemExit):
+        main(["--version"])
+    assert gc.get_freeze_count() == 0
+    monkeypatch.setattr(sys, "argv", ["stereodic", "--version"])
+    try:
+        with pytest.raises(SystemExit):
+            main()
+        assert gc.get_freeze_count() > 1000
+    finally:
+        gc.unfreeze()
