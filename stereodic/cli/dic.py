@@ -214,7 +214,16 @@ def _summary(st, n, active, search_px) -> str:
 
 
 def run(args) -> int:
+    import gc
+    try:
+        return _run(args)
+    finally:
+        gc.unfreeze()         # what `_run` froze, collectable again for a caller in the same process
+
+
+def _run(args) -> int:
     import functools
+    import gc
     import os
     import sys
     from concurrent.futures import ThreadPoolExecutor
@@ -235,6 +244,10 @@ def run(args) -> int:
     from stereodic.dic3d.store import RunStore
     from stereodic.stereo.rig import load_rig
 
+    # the objects alive now (the modules imported) frozen for the run: the collector's full passes (one in
+    # the thread that imports matplotlib beside the rig check, holding the interpreter's lock) need not
+    # walk them again (0.13-0.15 -> 0.05 s of collection a run)
+    gc.freeze()
     rig = load_rig(args.rig)
     # on more than one thread, beside the checks and the correlation: the rig file's hash for the run's
     # record (hashlib releases the GIL), the kernels of the states' points and strains loaded (the rig
