@@ -239,10 +239,23 @@ def feature_guess(matches: tuple[np.ndarray, np.ndarray], xs: np.ndarray, ys: np
     return warp, ok
 
 
+# from this many point-to-match distances `_nearest` takes scipy's k-d tree rather than the distance
+# matrix and its partial sort (numpy, 5-15 ns a distance), whose first use in a process imports
+# scipy.spatial (0.04-0.15 s; `dic` imports it beside its first state, `stereo.load_kernels`): a `dic2d`
+# lattice's guess (2M distances) stays on numpy, a stereo run's temporal guess of a deformed state (6-10M
+# distances, 0.2 s a state) takes the tree (0.01-0.02 s)
+TREE_DISTANCES = 2 ** 22
+
+
 def _nearest(p: np.ndarray, xs: np.ndarray, ys: np.ndarray, k: int) -> np.ndarray:
-    """(N, k) indices of the k points of p (M, 2) nearest to each (xs, ys), by blocks of rows of the
-    distance matrix (at most 2^20 distances at a time), the blocks side by side on the run's threads
-    (numpy releases the GIL)."""
+    """(N, k) indices of the k points of p (M, 2) nearest to each (xs, ys) (of points at equal distances,
+    either): scipy's k-d tree from TREE_DISTANCES distances, its queries on the run's threads (imported
+    here: a small `dic2d` loads no scipy), else the distance matrix by blocks of rows (at most 2^20
+    distances at a time) side by side on the run's threads (numpy releases the GIL)."""
+    if xs.size * len(p) >= TREE_DISTANCES:
+        from scipy.spatial import cKDTree
+        _, idx = cKDTree(p).query(np.column_stack([xs, ys]), k=k, workers=threads())
+        return np.asarray(idx, np.int64).reshape(xs.size, k)
     out = np.empty((xs.size, k), np.int64)
     block = max(1, 2 ** 20 // len(p))
 
