@@ -172,9 +172,10 @@ def _whole_command(ref: np.ndarray, dfm: np.ndarray, points: int, kernel_rate: f
 
 def _timed(argv: list[str], threads: int, record: str) -> tuple[float, float, float]:
     """(wall s, CPU s of the process and its children, CPU s of its main thread) of `stereodic ARGV` with
-    OMP_NUM_THREADS=threads, in a fresh process that writes its main thread's CPU time to `record` on exit."""
+    OMP_NUM_THREADS=threads, in a fresh process that writes its main thread's CPU time to `record` on exit
+    and runs the command as the shell does (`main()` of its own arguments, as the `stereodic` script)."""
     code = (f"import atexit, sys, time; atexit.register(lambda: open({record!r}, 'w').write(repr(time.thread_time())));"
-            f" from stereodic.cli import main; sys.exit(main({argv!r}))")
+            f" from stereodic.cli import main; sys.argv = ['stereodic'] + {argv!r}; sys.exit(main())")
     wall, cpu = time_process([sys.executable, "-c", code], env={"OMP_NUM_THREADS": str(threads)})
     return wall, cpu, float(Path(record).read_text())
 
