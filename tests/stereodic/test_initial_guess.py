@@ -75,3 +75,27 @@ def test_the_nearest_matches_by_the_tree_and_by_the_distance_matrix_are_the_true
             got = ig._nearest(p, xs, ys, 12)
             assert got.shape == (700, 12) and got.dtype == np.int64
             np.testing.assert_array_equal(np.sort(got, axis=1), truth)
+
+
+def test_the_first_deformed_states_matches_are_made_beside_the_reference_and_once(dic_sim, tmp_path, monkeypatch):
+    """A stereo run on 2 threads: the first deformed state's feature matches with the reference (its left
+    registration's start) are made by the thread that prepares its pair, beside the reference's
+    correlation, and the state finds them kept; no pair of images has its matches made twice."""
+    import threading
+
+    import stereodic.dic.initial_guess as ig
+    from stereodic.cli import main
+    made = []
+    real = ig._consistent
+
+    def spy(ref, dfm):
+        made.append((id(ref), id(dfm), threading.current_thread() is threading.main_thread()))
+        return real(ref, dfm)
+
+    monkeypatch.setattr(ig, "_consistent", spy)
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")
+    assert main(["dic", str(dic_sim / "rig.npz"), str(dic_sim), "--step", "12", "--no-plot", "--no-vtk",
+                 "-o", str(tmp_path / "out")]) == 0
+    pairs = [(r, d) for r, d, _ in made]
+    assert len(pairs) == len(set(pairs)) >= 2           # the rig check's (left, right), the first state's
+    assert made[0][2] and not all(main_thread for _, _, main_thread in made)
