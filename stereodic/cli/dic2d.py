@@ -98,6 +98,8 @@ def run(args) -> int:
     from stereodic.cli.common import dic_grid, memory_reuse, wrote
     memory_reuse()
     from stereodic.dic import STATUS_NAMES, DicSettings, ImageRef, correlate_sequence
+    from stereodic.dic.background import side_by_side
+    from stereodic.dic.initial_guess import consistent_matches, image_features
     from stereodic.dic.output import CsvWriter, image_arrays, image_maps, plot_image, write_npz
     from stereodic.dic3d.diagnose import diagnosis
     if args.strain_window:  # strain (and its scipy) only when asked for
@@ -126,8 +128,20 @@ def run(args) -> int:
                            prefilter_sigma=args.prefilter, min_zncc=args.min_zncc, **search_settings(args))
     # in-process, the reference prepared once: its noise estimate also places the points (specimen_mask)
     reference = None if args.scheduler else ImageRef.prepare(ref, settings, keep_subsets=True)
-    grid, seeds = dic_grid(args, width, height, "reference", args.ref, reference=lambda: ref,
-                           noise=None if reference is None else reference.sigma)
+
+    def place_points():
+        return dic_grid(args, width, height, "reference", args.ref, reference=lambda: ref,
+                        noise=None if reference is None else reference.sigma)
+
+    if preloaded and settings.feature_guess:
+        # the first image's registration starts from its feature matches with the reference (no motion
+        # before it): made beside the points' placement, and kept for it (`stereodic.dic.kept`: the
+        # images are read-only from here)
+        ref.flags.writeable = preloaded[0].flags.writeable = False
+        (grid, seeds), _ = side_by_side(place_points,
+                                        lambda: consistent_matches(reference.features(), image_features(preloaded[0])))
+    else:
+        grid, seeds = place_points()
     out = Path(args.output)
 
     has_strain = bool(args.strain_window)

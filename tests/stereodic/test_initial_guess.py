@@ -99,3 +99,28 @@ def test_the_first_deformed_states_matches_are_made_beside_the_reference_and_onc
     pairs = [(r, d) for r, d, _ in made]
     assert len(pairs) == len(set(pairs)) >= 2           # the rig check's (left, right), the first state's
     assert made[0][2] and not all(main_thread for _, _, main_thread in made)
+
+
+def test_dic2d_matches_the_first_image_beside_the_points_placement_and_once(tmp_path, monkeypatch):
+    """`dic2d` on 2 threads: the first image's feature matches with the reference are made beside the
+    points' placement (the specimen mask, on the main thread) and found kept by its registration."""
+    import threading
+
+    import stereodic.dic.initial_guess as ig
+    from calib.imageio import write_gray
+    from stereodic.cli import main
+    sp = make_speckle(320, 256, seed=5)
+    write_gray(tmp_path / "ref.png", render(sp, noise_sigma=1.0, seed=1))
+    write_gray(tmp_path / "def.png", render(sp, lambda x, y: (3.2, -1.7), noise_sigma=1.0, seed=2))
+    made = []
+    real = ig._consistent
+
+    def spy(ref, dfm):
+        made.append(threading.current_thread() is threading.main_thread())
+        return real(ref, dfm)
+
+    monkeypatch.setattr(ig, "_consistent", spy)
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")
+    assert main(["dic2d", str(tmp_path / "ref.png"), str(tmp_path / "def.png"), "--step", "8",
+                 "-o", str(tmp_path / "r.csv")]) == 0
+    assert made == [False]
