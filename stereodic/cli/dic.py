@@ -264,6 +264,15 @@ def _run(args) -> int:
     data = _states(args, rig)                   # every state and file checked before the work
     settings = _settings(args)
     grid, seeds = dic_grid(args, width, height, "rectified image", args.rig, original=rig.left.imm)
+    automatic = not (args.roi or args.mask or args.roi_polygon)    # the options were checked above
+    placed = None
+    if automatic and beside is not None:
+        # the specimen's points placed beside the rig check, on the reference as the rig rectifies it (placed
+        # again below if the check re-orients the rig)
+        left0 = data.rectified_pair(rig, 0)[0]
+        placed = beside.submit(dic_grid, args, width, height, "rectified image", str(data.left[0]),
+                               reference=lambda: left0)
+        finish_before_fork(placed)     # unused if the rig is re-oriented: still done before any fork
     geometry = reference_geometry(rig, lambda r: data.rectified_pair(r, 0), keep_rig=args.keep_rig,
                                   max_gap_px=args.max_gap, rig_name=args.rig)
     for line in geometry.notes:
@@ -272,7 +281,9 @@ def _run(args) -> int:
         else:
             print(line)
     rig, settings = geometry.rig, geometry.settings(settings, band=args.vertical_search)
-    if not (args.roi or args.mask or args.roi_polygon):   # the options were checked above, before the work
+    if placed is not None and geometry.correction is None:
+        grid, seeds = placed.result()
+    elif automatic:
         grid, seeds = dic_grid(args, width, height, "rectified image", str(data.left[0]),
                                reference=lambda: data.rectified_pair(rig, 0)[0])
     record, inputs = _run_record(args, file_sha256(args.rig) if rig_hash is None else rig_hash.result(), data,

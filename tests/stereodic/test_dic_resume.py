@@ -172,3 +172,29 @@ def test_the_maps_scales_from_the_kept_ranges_are_those_of_the_states(dic_sim, t
     monkeypatch.undo()
     store.remove_kept()
     assert not list((out / "states").glob("*.json"))
+
+
+def test_the_specimens_points_placed_beside_the_rig_check_are_those_placed_after_it(dic_sim, tmp_path, monkeypatch):
+    """On two threads the automatic specimen mask runs beside the rig check (on the reference as the rig
+    rectifies it); on one, after it: the same points, the same dic.csv."""
+    import threading
+
+    import stereodic.cli.dic as dic_cli
+    runs, placed_on = {}, {}
+    real = dic_cli.dic_grid
+
+    def spy(*args, reference=None, **kw):
+        if reference is not None:
+            placed_on[threads] = threading.current_thread() is threading.main_thread()
+        return real(*args, reference=reference, **kw)
+
+    monkeypatch.setattr(dic_cli, "dic_grid", spy)
+    for threads in ("1", "2"):
+        monkeypatch.setenv("OMP_NUM_THREADS", threads)
+        out = tmp_path / threads
+        assert main(["dic", str(dic_sim / "rig.npz"), str(dic_sim), "--step", "12", "--no-plot", "--no-vtk",
+                     "-o", str(out)]) == 0
+        runs[threads] = (np.load(out / "dic.npz")["active"], (out / "dic.csv").read_bytes())
+    assert runs["1"][0].sum() > 50 and placed_on == {"1": True, "2": False}
+    np.testing.assert_array_equal(runs["1"][0], runs["2"][0])
+    assert runs["1"][1] == runs["2"][1]
