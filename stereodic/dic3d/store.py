@@ -79,9 +79,9 @@ class RunStore:
         new = {"format": FORMAT, "settings": settings, "inputs": inputs, "states": states}
         old = self._read_manifest()
         if old is not None and restart:
-            for p in [*self.states_dir.glob("*.npz"), *self.states_dir.glob("*.csv"), *self.states_dir.glob("*.vtp"),
-                      *self.states_dir.glob("*.json")]:
+            for p in self.states_dir.glob("*.npz"):
                 p.unlink()
+            self.remove_kept()
             old = None
         if old is not None:
             for key in ("settings", "inputs"):
