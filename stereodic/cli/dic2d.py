@@ -99,7 +99,6 @@ def run(args) -> int:
     memory_reuse()
     from stereodic.dic import STATUS_NAMES, DicSettings, ImageRef, correlate_sequence
     from stereodic.dic.background import side_by_side
-    from stereodic.dic.initial_guess import consistent_matches, image_features
     from stereodic.dic.output import CsvWriter, image_arrays, image_maps, plot_image, write_npz
     from stereodic.dic3d.diagnose import diagnosis
     if args.strain_window:  # strain (and its scipy) only when asked for
@@ -138,8 +137,7 @@ def run(args) -> int:
         # before it): made beside the points' placement, and kept for it (`stereodic.dic.kept`: the
         # images are read-only from here)
         ref.flags.writeable = preloaded[0].flags.writeable = False
-        (grid, seeds), _ = side_by_side(place_points,
-                                        lambda: consistent_matches(reference.features(), image_features(preloaded[0])))
+        (grid, seeds), _ = side_by_side(place_points, lambda: reference.matches(preloaded[0]))
     else:
         grid, seeds = place_points()
     out = Path(args.output)

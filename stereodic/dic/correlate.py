@@ -442,6 +442,12 @@ class ImageRef:
             self._features = image_features(self.image)
         return self._features
 
+    def matches(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`initial_guess.consistent_matches` of the image's features with those of `image`: what
+        `register_image` starts from without a start, kept for a read-only `image` (`stereodic.dic.kept`),
+        so that a caller can make them ahead of the registration (beside other work)."""
+        return consistent_matches(self.features(), image_features(image))
+
     def noise(self, xs: np.ndarray, ys: np.ndarray, half: int) -> np.ndarray:
         """`texture.predicted_noise` of subsets at (xs, ys) in this image (its SSSIG maps kept per size)."""
         if half not in self._sssig:

@@ -23,7 +23,6 @@ from calib.atomic import write_npz as save_npz
 from calib.progress import progress
 from stereodic.dic.background import Background, threads
 from stereodic.dic.grid import Grid
-from stereodic.dic.initial_guess import consistent_matches, image_features
 from stereodic.dic.maps import MapAxes, MapMovie, MapPainter, RunScales, load_matplotlib, surface_axes
 from stereodic.dic.sequence import prefetch
 from stereodic.dic3d.dataset import DicStates
@@ -69,7 +68,9 @@ def run_states(store: RunStore, data: DicStates, rig: Rig, grid: Grid, seeds, se
                 return pair0
             pair = prepare_pair(data, rig, settings, k)
             if k == 1 and settings.dic.feature_guess:
-                _first_matches(run, pair)
+                # the first deformed state's left registration has no motion before it to start from: its
+                # feature matches with the reference, made here beside the reference's correlation
+                run.ref.matches(pair.left)
             return pair
 
         pairs = prefetch(range(done, n), prepare)
@@ -87,14 +88,6 @@ def run_states(store: RunStore, data: DicStates, rig: Rig, grid: Grid, seeds, se
                 run = run.with_reference(state0)
             previous = pair
     return state0
-
-
-def _first_matches(run: StereoRun, pair: PreparedPair) -> None:
-    """The first deformed state's left registration starts from the feature matches with the reference
-    (no motion before it to start from, `sequence.register_direct`): its image's features and their
-    matches made here, where the pair is prepared (beside the reference's correlation on more than one
-    thread), and kept for the state (`stereodic.dic.kept`: the rectified images are read-only)."""
-    consistent_matches(run.ref.features(), image_features(pair.left))
 
 
 def write_state_files(folder: str | Path, st: StereoState, *, vtk: bool, plot_every: int, axes: MapAxes | None,
