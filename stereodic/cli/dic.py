@@ -222,8 +222,28 @@ def run(args) -> int:
 
 
 def _run(args) -> int:
-    import functools
     import gc
+
+    from stereodic.cli.common import memory_reuse
+    memory_reuse()
+    import stereodic.dic3d.run  # noqa: F401  (the run and its output tasks: imported before the workers fork)
+    from stereodic.dic.background import Background, threads
+    from stereodic.dic.maps import load_matplotlib
+
+    # the objects alive now (the modules imported) frozen for the run: the collector's full passes need
+    # not walk them again (0.13-0.15 -> 0.05 s of collection a run), nor touch the workers' copies of them
+    gc.freeze()
+    # the processes that write the outputs (`stereodic.dic.background`), forked now, while this process is
+    # small and runs one thread; they import matplotlib for the maps beside the checks (`--animate` draws
+    # the maps here, a movie's frames in order)
+    workers = threads() if threads() > 1 else 0
+    with Background(workers, prepare=None if args.no_plot or args.animate else load_matplotlib) as background:
+        return _measure(args, background)
+
+
+def _measure(args, background) -> int:
+    """The run (module docstring), its outputs written by `background`'s workers."""
+    import functools
     import os
     import sys
     from concurrent.futures import ThreadPoolExecutor
@@ -232,22 +252,16 @@ def _run(args) -> int:
     import numpy as np
 
     from calib.batch import file_sha256
-    from calib.imageio import read_gray
     from calib.progress import note
     from calib.sequences import frame_times
-    from stereodic.cli.common import memory_reuse, wrote
-    from stereodic.dic.background import finish_before_fork, threads
-    memory_reuse()
+    from stereodic.cli.common import wrote
+    from stereodic.dic.background import threads
     from stereodic.dic3d import epipolar
     from stereodic.dic3d.refit import reference_geometry
     from stereodic.dic3d.run import run_states, write_outputs
     from stereodic.dic3d.store import RunStore
     from stereodic.stereo.rig import load_rig
 
-    # the objects alive now (the modules imported) frozen for the run: the collector's full passes (one in
-    # the thread that imports matplotlib beside the rig check, holding the interpreter's lock) need not
-    # walk them again (0.13-0.15 -> 0.05 s of collection a run)
-    gc.freeze()
     rig = load_rig(args.rig)
     # on more than one thread, beside the checks and the correlation: the rig file's hash for the run's
     # record (hashlib releases the GIL), the kernels of the states' points and strains loaded (the rig
@@ -259,7 +273,7 @@ def _run(args) -> int:
         from stereodic.dic3d.stereo import load_kernels
         beside = ThreadPoolExecutor(2)
         rig_hash = beside.submit(file_sha256, args.rig)
-        finish_before_fork(beside.submit(load_kernels, rig))   # it imports: no fork meanwhile
+        beside.submit(load_kernels, rig)
     width, height = rig.sensor.width, rig.sensor.height
     data = _states(args, rig)                   # every state and file checked before the work
     settings = _settings(args)
@@ -272,7 +286,6 @@ def _run(args) -> int:
         left0 = data.rectified_pair(rig, 0)[0]
         placed = beside.submit(dic_grid, args, width, height, "rectified image", str(data.left[0]),
                                reference=lambda: left0)
-        finish_before_fork(placed)     # unused if the rig is re-oriented: still done before any fork
     geometry = reference_geometry(rig, lambda r: data.rectified_pair(r, 0), keep_rig=args.keep_rig,
                                   max_gap_px=args.max_gap, rig_name=args.rig)
     for line in geometry.notes:
@@ -309,9 +322,9 @@ def _run(args) -> int:
     if done:
         print(f"{out}: resuming a run with {done} of {n} states done")
     if beside is not None:
-        if not args.no_plot:
+        if args.animate and not args.no_plot:     # the maps drawn here (`_run`)
             from stereodic.dic.maps import load_matplotlib
-            finish_before_fork(beside.submit(load_matplotlib))
+            beside.submit(load_matplotlib)
         beside.shutdown(wait=False)
     active = int(grid.active.sum())
     summary = functools.partial(_summary, n=active, active=grid.active, search_px=args.search)
@@ -344,7 +357,7 @@ def _run(args) -> int:
         as_solved = args.frame != "specimen" and not args.remove_rigid
         state0 = run_states(store, data, rig, grid, seeds, settings, report=report,
                             rows=args.columns != "dice" and as_solved, vtk=not args.no_vtk and as_solved,
-                            ranges=not args.no_plot and as_solved)
+                            ranges=not args.no_plot and as_solved, background=background)
     c0 = state0.left.ok & state0.right.ok         # matched, whether or not the rays meet
     X, Y = (a.reshape(grid.shape) for a in grid.points())
     report = epipolar.check(rig, X[c0], Y[c0], (X + state0.right.u)[c0], (Y + state0.right.v)[c0],
@@ -379,9 +392,9 @@ def _run(args) -> int:
         dice = StereoDiceWriter(out, grid, data, settings, args.step)
     write_outputs(store, grid, out, settings, info, vtk=not args.no_vtk, plot_every=plot_every,
                   dice=dice, csv=args.columns != "dice", state_files=not args.scheduler, labels=labels, frame=frame,
-                  image_of=None if args.no_overlay else (lambda k: read_gray(data.left[k])),
+                  left_images=None if args.no_overlay else [str(p) for p in data.left],
                   frame_name=f"{args.frame}'s frame", animate=tuple(filter(None, args.animate.split(","))),
-                  limits=_limits(args, {*"Z dX dY dZ exx eyy exy dX_def dY_def dZ_def".split()}))
+                  limits=_limits(args, {*"Z dX dY dZ exx eyy exy dX_def dY_def dZ_def".split()}), background=background)
     store.record_outputs(outputs)
     states = f"{active} points x {n} states"
     if args.columns == "dice":

@@ -1,20 +1,29 @@
 """Work beside the caller: the threads a run may use (`threads`), work that releases the GIL (OpenCV,
 numpy, the compiled kernels) spread over them (`thread_map`, `side_by_side`), and output work off the
-critical path in forked child processes (`Background`).
+critical path in worker processes (`Background`).
 
 Every pool here keeps to `threads()` busy threads, the caller's included, so that a run at
 OMP_NUM_THREADS=1 uses one core (the command line passes the same limit to OpenCV's and numba's own
 pools: `stereodic.cli.thread_limits`).
 
 Formatting a CSV, drawing PNG maps with matplotlib and writing VTK files are Python work that holds the
-interpreter's lock, so threads would not overlap them; forked processes do, each with a copy-on-write view
-of the caller's arrays (nothing is pickled). `Background` keeps at most `workers` children running; when all
-are busy the next task waits for the first child to finish, so that no task waits behind a long one while
-a slot is free (the caller only hands out the tasks: give it `threads()` workers when it has nothing else
-to do, `threads() - 1` beside work of its own). A task is a callable without arguments that writes its own
-files (atomically, as every output); it returns nothing to the caller.
+interpreter's lock, so threads would not overlap them; processes do. `Background` forks its `workers`
+processes once, when it is made: a command makes it early, while it is small and runs one thread, and
+hands it the run's output tasks. A child forked per task from the grown, many-threaded run costs more
+than its task's share: the copy of the run's page tables, a copy-on-write fault for every page either
+side then writes, the other threads' CPUs told of every page made read-only (an interrupt between
+processors, an exit from a virtual machine), the child's exit, and a fresh start of matplotlib's fonts and
+figures in every child (on a 12-state 1920 x 1200 sequence on 2 threads, 3.3 CPU-s over one thread's run,
+about half of it this). The workers keep their memory, fonts and figures from task to task.
 
-The children only format and write: they run no OpenMP kernel (a forked child of a process whose OpenMP
+A task is a picklable callable without arguments (a module-level function, or `functools.partial` of one
+with picklable arguments) that writes its own files (atomically, as every output) and returns nothing to
+the caller; what it needs of the run it reads from the run's files (a state from the run folder), not
+from the caller's memory. `Background` keeps at most `workers` tasks running (`limit` fewer, beside work of
+the caller's own) and the caller only hands them out: give it `threads()` workers when it has nothing
+else to do.
+
+The workers only format and write: they run no OpenMP kernel (a process forked from one whose OpenMP
 threads have run must not start its own), and leave by os._exit (multiprocessing's fork start), so the
 caller's buffers and exit handlers are not run twice.
 """
@@ -22,9 +31,11 @@ caller's buffers and exit handlers are not run twice.
 from __future__ import annotations
 
 import multiprocessing
-import multiprocessing.connection
 import os
-from concurrent.futures import ThreadPoolExecutor
+import signal
+import sys
+import traceback
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
 from typing import Callable, Iterable, TypeVar
 
 T = TypeVar("T")
@@ -59,74 +70,84 @@ def side_by_side(*tasks: Callable[[], T]) -> list[T]:
         return [tasks[0]()] + [f.result() for f in later]
 
 
-_BEFORE_FORK: list = []  # futures of threads that import modules: finished before any fork (`finish_before_fork`)
-
-
-def finish_before_fork(future) -> None:
-    """Make the next fork of this process (`Background.submit`) wait for `future` (a
-    concurrent.futures.Future; its error, if any, ignored). A thread that imports modules holds import
-    locks, which a child forked meanwhile would inherit held and never see released: the child would hang
-    on its first import of such a module."""
-    _BEFORE_FORK.append(future)
-
-
 class Background:
-    """Run tasks in at most `workers` forked children (module docstring), a task waiting for a free one;
-    0 workers: every task in the caller, in order. Used as a context manager, which waits for every child
-    on leaving; a child that failed raises RuntimeError then (its traceback went to stderr)."""
+    """Run tasks in `workers` processes forked now (module docstring); 0 workers: every task in the
+    caller, when it is submitted. `prepare`, if given, runs first in each worker (e.g. imports its tasks
+    will need, beside the caller's work). Used as a context manager, which waits for every task on leaving
+    and ends the workers; a task that failed raises RuntimeError then (its traceback went to stderr)."""
 
-    def __init__(self, workers: int):
+    def __init__(self, workers: int, *, prepare: Callable[[], None] | None = None):
         self.workers = workers if hasattr(os, "fork") else 0
-        self.running: list[tuple[str, multiprocessing.Process]] = []
+        self.running: list[tuple[str, Future]] = []
         self.failed: list[str] = []
+        self._pool = None
+        if self.workers:
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("fork"),
+                                             initializer=_start_worker, initargs=(prepare,))
+            self._pool.submit(_nothing)              # a fork pool starts all of its workers at the first task
 
     def __enter__(self) -> "Background":
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.wait()
+    def __exit__(self, kind, *exc) -> None:
+        if kind is None:
+            self.wait()
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=kind is not None)
 
     def _reap(self) -> None:
         still = []
-        for name, proc in self.running:
-            if proc.exitcode is None:
-                still.append((name, proc))
-            else:
-                proc.join()
-                if proc.exitcode != 0:
-                    self.failed.append(name)
+        for name, future in self.running:
+            if not future.done():
+                still.append((name, future))
+            elif future.exception() is not None:
+                self.failed.append(name)
         self.running = still
 
-    def submit(self, task: Callable[[], object], name: str) -> multiprocessing.Process | None:
-        """Run `task` (named `name` in errors) in a new child once fewer than `workers` are running (with 0
-        workers, here and now: None). Returns the child, for `wait_for`."""
-        if self.workers == 0:
+    def submit(self, task: Callable[[], object], name: str, *, limit: int | None = None) -> Future | None:
+        """Run `task` (named `name` in errors) in a worker once fewer than `limit` (default: `workers`) of
+        the tasks submitted are unfinished (with 0 workers, here and now: None). Returns its future, for
+        `wait_for`."""
+        if self._pool is None:
             task()
             return None
         self._reap()
-        while len(self.running) >= self.workers:
-            multiprocessing.connection.wait([proc.sentinel for _, proc in self.running])
+        while len(self.running) >= min(limit or self.workers, self.workers):
+            wait([future for _, future in self.running], return_when=FIRST_COMPLETED)
             self._reap()
-        while _BEFORE_FORK:
-            _BEFORE_FORK.pop().exception()       # waits; the thread's own error is not this task's
-        proc = multiprocessing.get_context("fork").Process(target=task, name=name, daemon=True)
-        proc.start()
-        self.running.append((name, proc))
-        return proc
+        future = self._pool.submit(_run_task, task, name)
+        self.running.append((name, future))
+        return future
 
-    def wait_for(self, children: Iterable[multiprocessing.Process | None]) -> None:
-        """Wait for these children (`submit`'s; None: a task already run here) while the others go on; a
+    def wait_for(self, futures: Iterable[Future | None]) -> None:
+        """Wait for these tasks (`submit`'s; None: a task already run here) while the others go on; a
         failed one is reported when the context is left, with the others (`wait`)."""
-        for proc in children:
-            if proc is not None:
-                proc.join()
+        wait([future for future in futures if future is not None])
         self._reap()
 
     def wait(self) -> None:
-        """Wait for every child; RuntimeError naming the tasks that failed."""
-        for _, proc in self.running:
-            proc.join()
-        self._reap()
+        """Wait for every task; RuntimeError naming the tasks that failed."""
+        self.wait_for(future for _, future in self.running)
         if self.failed:
             failed, self.failed = self.failed, []
             raise RuntimeError(f"writing {', '.join(failed)} failed (the error is above)")
+
+
+def _start_worker(prepare: Callable[[], None] | None) -> None:
+    """A worker's start: Ctrl-C is the caller's to handle (it ends the workers), then `prepare`."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if prepare is not None:
+        prepare()
+
+
+def _nothing() -> None:
+    """The task that starts a fork pool's workers."""
+
+
+def _run_task(task: Callable[[], object], name: str) -> None:
+    """`task` in a worker, its traceback on stderr if it fails (the caller names the task)."""
+    try:
+        task()
+    except BaseException:
+        print(f"stereodic: writing {name} failed:\n{traceback.format_exc()}", file=sys.stderr, flush=True)
+        raise

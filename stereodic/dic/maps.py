@@ -216,7 +216,7 @@ def grid_cells(x: np.ndarray, y: np.ndarray, *, origin: tuple[float, float], cel
     is never bridged; a triangle with a side longer than `longest` (a stray point) is left out. A cell on
     a side shared by two triangles goes to the first of them in the grid's order (row by row; in a square,
     the triangle of its top-left corner first). Each triangle tests the cells of its bounding box (the
-    compiled kernel `_kernels.grid_cells`, serial: the maps are drawn in forked children)."""
+    compiled kernel `_kernels.grid_cells`, serial: the maps are drawn in worker processes)."""
     from stereodic.dic import _kernels
 
     ny, nx = np.shape(x)
@@ -393,9 +393,9 @@ class _Layout:
 
 
 def load_matplotlib() -> None:
-    """Import the parts of matplotlib that drawing a map takes (half a second), before forking the
-    children that draw maps (`stereodic.dic.background.Background`), which then find them imported; a
-    command that will draw maps runs it early in a thread, beside its correlation."""
+    """Import the parts of matplotlib that drawing a map takes (half a second) ahead of the first map: the
+    start of the worker processes that draw a run's maps (`stereodic.dic.background.Background`'s
+    `prepare`), beside the run's correlation, or a thread of a command that draws them itself."""
     import matplotlib.backends.backend_agg  # noqa: F401
     import matplotlib.figure  # noqa: F401
     from matplotlib import cm, colors, ticker  # noqa: F401

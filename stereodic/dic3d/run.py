@@ -12,14 +12,16 @@ whatever the length of the sequence.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import shutil
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
 from calib.atomic import write_npz as save_npz
+from calib.imageio import read_gray
 from calib.progress import progress
 from stereodic.dic.background import Background, threads
 from stereodic.dic.grid import Grid
@@ -41,26 +43,29 @@ def prepare_pair(data: DicStates, rig: Rig, settings: StereoSettings, k: int) ->
 
 def run_states(store: RunStore, data: DicStates, rig: Rig, grid: Grid, seeds, settings: StereoSettings, *,
                report: Callable[[StereoState], None] = lambda state: None, rows: bool = False,
-               vtk: bool = False, ranges: bool = False) -> StereoState:
+               vtk: bool = False, ranges: bool = False, background: Background | None = None) -> StereoState:
     """Solve the states the store has not finished (`store.open` first), saving each; `report` is called
     with each state solved (state 0 also when it is read back). `rows`: also keep each solved state's rows
     of dic.csv in the store (`RunStore.write_rows`), `vtk`: its VTK file (`RunStore.write_vtk`), `ranges`:
-    its maps' value ranges (`RunStore.write_ranges`), made from the state in memory by a forked child while
-    the next state is solved (`background.Background`; with one thread, by the caller), so that
-    `write_outputs` need not read the states back for them nor make them after the run: for outputs in
-    the rig's frame (the states as solved). The last state's are left to `write_outputs`, which makes
-    them beside its maps rather than after the run. The next state's pair is read and prepared while a
-    state is solved, the reference's included. Returns state 0."""
+    its maps' value ranges (`RunStore.write_ranges`), made by a worker process from the state's file while
+    the next state is solved (`background`, the command's `stereodic.dic.background.Background`, one made
+    here if None; with one thread, by the caller from the state in memory), so that `write_outputs` need
+    not read the states back for them nor make them after the run: for outputs in the rig's frame (the
+    states as solved). The last state's are left to `write_outputs`, which makes them beside its maps
+    rather than after the run. The next state's pair is read and prepared while a state is solved, the
+    reference's included. Returns state 0."""
     n = len(data)
     done = store.done
     pair0 = prepare_pair(data, rig, settings, 0)
     run = StereoRun.prepare(rig, grid, settings, seeds, pair0)
-    with Background(threads() - 1 if rows or vtk or ranges else 0) as bg:
+    keeping = rows or vtk or ranges
+    with _background(background, threads() if keeping and threads() > 1 else 0) as bg:
         def keep(state: StereoState, carry) -> None:
             store.write_state(state, carry)
-            if (rows or vtk or ranges) and state.state < n - 1:
-                bg.submit(functools.partial(_keep_files, store, grid, state, rows=rows, vtk=vtk, ranges=ranges),
-                          f"the CSV rows, VTK file and value ranges of state {state.state}")
+            if keeping and state.state < n - 1:
+                bg.submit(functools.partial(_keep_files, store, grid, _portable(bg, state), rows=rows, vtk=vtk,
+                                            ranges=ranges),
+                          f"the CSV rows, VTK file and value ranges of state {state.state}", limit=threads() - 1)
             report(state)
 
         def prepare(k: int) -> PreparedPair:
@@ -119,8 +124,9 @@ def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: Ste
                   vtk: bool = True, plot_every: int = 0, dice: Callable[[StereoState], None] | None = None,
                   csv: bool = True, state_files: bool = True, labels: list[str] | None = None,
                   frame: Callable[[StereoState], StereoState] | None = None,
-                  image_of: Callable[[int], np.ndarray] | None = None, frame_name: str = "rig's frame",
-                  animate: tuple[str, ...] = (), limits: dict[str, tuple[float, float]] | None = None) -> None:
+                  left_images: Sequence[str] | None = None, frame_name: str = "rig's frame",
+                  animate: tuple[str, ...] = (), limits: dict[str, tuple[float, float]] | None = None,
+                  background: Background | None = None) -> None:
     """The combined outputs from the store's state files (module docstring): folder/dic.csv (unless
     `dice` writes DICe's files instead, or not `csv`), folder/dic.npz, folder/vtk/ (with `vtk`),
     folder/maps/ (every `plot_every`-th state, 0 = none; titled by `labels`, one per state, default
@@ -128,13 +134,16 @@ def write_outputs(store: RunStore, grid: Grid, folder: str | Path, settings: Ste
     cluster's tasks); the rest is written here, the maps always (they need the whole run's scales). `frame`: every state turned
     into another reporting frame first (the specimen's), its VTK files and maps written here, titled
     `frame_name`. The maps written here share the run's colour scales (`stereodic.dic.maps.RunScales`),
-    and are also drawn over the state's original left image, `image_of(k)`, when it is given; `animate`:
+    and are also drawn over the state's original left image, the file `left_images[k]`, when they are
+    given; `animate`:
     the quantities (those of `output.state_maps`) whose maps also make folder/maps/<quantity>.mp4;
     `limits`: quantity -> (lo, hi), colour limits given instead of the run's.
-    `info["frame"]["rigid_motion_removed"]`: the states carry their deformation (dic.csv's dX_def...)."""
+    `info["frame"]["rigid_motion_removed"]`: the states carry their deformation (dic.csv's dX_def...).
+    The files are written side by side by the worker processes of `background` (the command's
+    `stereodic.dic.background.Background`; one made here if None), the caller handing out the tasks."""
     folder = Path(folder)
-    options = dict(vtk=vtk, plot_every=plot_every, dice=dice, csv=csv, labels=labels, image_of=image_of,
-                   frame_name=frame_name, animate=animate, limits=limits)
+    options = dict(vtk=vtk, plot_every=plot_every, dice=dice, csv=csv, labels=labels, left_images=left_images,
+                   frame_name=frame_name, animate=animate, limits=limits, background=background)
     if frame is None:
         _write_outputs(store, grid, folder, settings, info, state_files=state_files, **options)
     else:
@@ -164,44 +173,44 @@ def _run_scales(store: RunStore, every: int, active, limits: dict | None = None,
 
 
 def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSettings, info: dict, *,
-                   vtk: bool, plot_every: int, dice, csv: bool, state_files: bool, labels, image_of, frame_name,
-                   animate, limits) -> None:
+                   vtk: bool, plot_every: int, dice, csv: bool, state_files: bool, labels, left_images, frame_name,
+                   animate, limits, background: Background | None) -> None:
     n = store.manifest["states"]
     has_strain = bool(settings.strain_window)
     has_def = bool(info.get("frame", {}).get("rigid_motion_removed"))
-    # the files are independent: written side by side by threads() forked children, the caller handing out
-    # the tasks (with one thread, the caller writes them)
-    with Background(threads() if threads() > 1 else 0) as bg:
+    # the files are independent: written side by side by threads() worker processes, the caller handing
+    # out the tasks (with one thread, the caller writes them)
+    with _background(background, threads() if threads() > 1 else 0,
+                     prepare=load_matplotlib if plot_every else None) as bg:
         # dic.csv: each state's rows as the run or a cluster's task kept them, or formatted here; beside
-        # children, one task a state (kept in the store, joined below while the maps are drawn)
+        # workers, one task a state (kept in the store, joined below while the maps are drawn)
         rows = [bg.submit(functools.partial(_keep_rows, store, grid, k), f"the CSV rows of state {k}")
                 for k in range(n if csv and bg.workers else 0) if not store.rows_path(k).is_file()]
-        bg.submit(lambda: write_npz(folder / "dic.npz", grid, store.values, n, has_strain, settings, info, has_def),
-                  "dic.npz")
+        bg.submit(functools.partial(write_npz, folder / "dic.npz", grid, store.values, n, has_strain, settings,
+                                    info, has_def), "dic.npz")
         vtk_here = vtk and state_files        # a cluster's tasks wrote the VTK files; the maps are drawn here
 
         def write_vtk(k: int, state: Callable[[], StereoState]) -> None:   # moved from the store where the run
             if not store.take_vtk(k, folder / "vtk" / state_file(k)):          # kept it, else made
-                bg.submit(functools.partial(write_state, folder / "vtk", state()), f"the VTK file of state {k}")
+                bg.submit(functools.partial(_write_vtk, store, folder / "vtk", k if bg.workers else state()),
+                          f"the VTK file of state {k}")
 
         if vtk_here or plot_every or dice is not None:
             axes = None
             maps = {}
             if plot_every:
-                load_matplotlib()
-                # the VTK files written while the states are read for the maps' scales: the children busy
+                # the VTK files written while the states are read for the maps' scales: the workers busy
                 # while the caller reads, the long tasks (the maps) handed out together after
                 maps = dict(scales=_run_scales(store, plot_every, grid.active, limits,
                                                each=write_vtk if vtk_here else None),
-                            frame=frame_name, movies={q: MapMovie(folder / "maps" / f"{q}.mp4") for q in animate},
-                            painter=MapPainter())
+                            frame=frame_name, movies={q: MapMovie(folder / "maps" / f"{q}.mp4") for q in animate})
             drawn = list(range(0, n, plot_every)) if plot_every else []
-            # many states' maps in children: blocks of states, each child drawing its block with one painter
+            # many states' maps in the workers: blocks of states, each drawn by one worker (its painter)
             blocks = bool(drawn) and not maps["movies"] and 0 < bg.workers <= len(drawn)
             if blocks:
                 axes = surface_axes(grid.xs, grid.ys, store.read_state(0).points, grid.active)
                 for part in _state_blocks(drawn, bg.workers):
-                    bg.submit(functools.partial(_draw_block, store, folder / "maps", part, axes, labels, image_of,
+                    bg.submit(functools.partial(_draw_block, store, folder / "maps", part, axes, labels, left_images,
                                                 **maps), f"the maps of states {part[0]}..{part[-1]}")
             # every state when each needs something here (DICe's files, VTK files without maps), else the
             # states whose maps are handed out here, one by one (the scales' pass read them all already)
@@ -212,14 +221,13 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
                     if axes is None and plot_every:  # state 0: the reference surface gives every map its mm axes
                         axes = surface_axes(grid.xs, grid.ys, st.points, grid.active)
                     if plot_every and st.state % plot_every == 0 and not blocks:
-                        draw = functools.partial(_draw_maps, folder / "maps", st, axes,
-                                                 labels[st.state] if labels else f"state {st.state}", image_of,
-                                                 **maps)
-                        if maps["movies"]:
-                            draw()      # a movie takes its frames in order, in this process
-                        else:           # in children, which find matplotlib imported (`load_matplotlib`)
+                        if maps["movies"]:      # a movie takes its frames in order, in this process
+                            _draw_block(store, folder / "maps", [st], axes, labels, left_images, **maps)
+                        else:                   # in the workers (`stereodic.dic.maps.load_matplotlib`)
                             for part in _map_parts(list(state_maps(st)), bg.workers, len(drawn)):
-                                bg.submit(functools.partial(draw, names=part),
+                                bg.submit(functools.partial(_draw_block, store, folder / "maps",
+                                                            [_portable(bg, st)], axes, labels, left_images,
+                                                            names=part, **maps),
                                           f"the maps of state {st.state} ({', '.join(part)})")
                     if vtk_here and not plot_every:
                         write_vtk(st.state, lambda st=st: st)
@@ -228,7 +236,7 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
             finally:
                 for movie in maps.get("movies", {}).values():
                     movie.close()
-        if csv:           # here, while the children draw the maps: once the rows of every state are formatted
+        if csv:           # here, while the workers draw the maps: once the rows of every state are formatted
             bg.wait_for(rows)
             write_csv(folder / "dic.csv", (store.read_rows(k) or csv_rows(grid, store.read_state(k)) for k in range(n)),
                       has_strain=has_strain, has_deformation=has_def)
@@ -236,39 +244,74 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
         write_collection(folder / "vtk", range(n))
 
 
-def _draw_maps(folder: Path, st: StereoState, axes: MapAxes, label: str, image_of: Callable[[int], np.ndarray] | None,
-               **options) -> None:
-    """`output.plot_state` of state `st`, over its original left image `image_of(k)` (read here: in the task
-    that draws, not in the caller handing the tasks out) when given."""
-    plot_state(folder, st, axes, label, image=None if image_of is None else image_of(st.state), **options)
+def _draw_block(store: RunStore, folder: Path, states: list[int | StereoState], axes: MapAxes,
+                labels: list[str] | None, left_images: Sequence[str] | None, **options) -> None:
+    """`output.plot_state` of each of `states` (a state number, read from the store here, in the task
+    that draws it; or the state), titled by `labels` (default "state k"), over its original left image
+    (the file `left_images[k]`, read here) when they are given; `options`: `plot_state`'s, drawn with this
+    process's painter (`_painter`: its figures, fonts and drawn axes serve every map the process draws)."""
+    for st in states:
+        st = _state_of(store, st)
+        k = st.state
+        plot_state(folder, st, axes, labels[k] if labels else f"state {k}",
+                   image=None if left_images is None else read_gray(left_images[k]), painter=_painter(), **options)
 
 
-def _draw_block(store: RunStore, folder: Path, states: list[int], axes: MapAxes, labels: list[str] | None,
-                image_of: Callable[[int], np.ndarray] | None, **options) -> None:
-    """`_draw_maps` of each of `states` (state numbers), read from the store here (in the child that draws
-    them), with one painter: its figures and their drawn axes serve the whole block."""
-    for k in states:
-        _draw_maps(folder, store.read_state(k), axes, labels[k] if labels else f"state {k}", image_of, **options)
+@functools.cache
+def _painter() -> MapPainter:
+    """This process's MapPainter (made on first use: a worker's lives from task to task)."""
+    return MapPainter()
+
+
+def _portable(bg: Background, state: StereoState) -> int | StereoState:
+    """What a task of `bg` is given of a state: its number (a worker reads the state's file: `_state_of`),
+    or the state itself in memory when the caller runs the tasks (0 workers)."""
+    return state.state if bg.workers else state
+
+
+def _state_of(store: RunStore, state: int | StereoState) -> StereoState:
+    """The state: read from the store when given by its number."""
+    return store.read_state(state) if isinstance(state, int) else state
+
+
+@contextlib.contextmanager
+def _background(given: Background | None, workers: int, *,
+                prepare: Callable[[], None] | None = None) -> Iterator[Background]:
+    """`given`, its tasks waited for after the block (the workers left running for its owner), else a
+    Background of `workers` (`prepare`: its workers' start) made for the block and ended after it."""
+    if given is None:
+        with Background(workers, prepare=prepare) as bg:
+            yield bg
+    else:
+        yield given
+        given.wait()
+
+
+def _write_vtk(store: RunStore, folder: Path, state: int | StereoState) -> None:
+    """The VTK file of a state (its number, read from the store, or the state) in `folder`."""
+    write_state(folder, _state_of(store, state))
 
 
 def _state_blocks(states: list[int], workers: int) -> list[list[int]]:
-    """The states to draw split into blocks of consecutive states for `workers` children (at least as
-    many states as workers): two blocks a worker, so that a child pays once for its figures over many
-    states and the blocks still even out."""
+    """The states to draw split into blocks of consecutive states for `workers` worker processes (at
+    least as many states as workers): two blocks a worker, so that a task draws its states' axes once
+    (`MapPainter`) and the blocks still even out."""
     return [b.tolist() for b in np.array_split(np.array(states), min(len(states), 2 * workers))]
 
 
 def _map_parts(names: list[str], workers: int, states: int) -> list[list[str]]:
     """A state's map quantities `names` split into tasks when the run has fewer states to draw than
-    `workers` (children): each state's maps shared among its share of the workers (a task pays once for
-    its figures and the state's picture over the image: not one a map); one task a state otherwise."""
+    `workers` (worker processes): each state's maps shared among its share of the workers (a task pays once
+    for reading the state and its picture over the image: not one a map); one task a state otherwise."""
     parts = max(1, min(len(names), workers // max(states, 1)))
     return [list(part) for part in np.array_split(np.array(names, dtype=object), parts)]
 
 
-def _keep_files(store: RunStore, grid: Grid, state: StereoState, *, rows: bool, vtk: bool, ranges: bool) -> None:
-    """Keep a solved state's rows of dic.csv (with `rows`), its VTK file (with `vtk`) and its maps' value
-    ranges (with `ranges`) in the store."""
+def _keep_files(store: RunStore, grid: Grid, state: int | StereoState, *, rows: bool, vtk: bool,
+                ranges: bool) -> None:
+    """Keep a solved state's (its number, read from the store, or the state) rows of dic.csv (with
+    `rows`), its VTK file (with `vtk`) and its maps' value ranges (with `ranges`) in the store."""
+    state = _state_of(store, state)
     if rows:
         _keep_rows(store, grid, state.state, state)
     if vtk:

@@ -10,7 +10,7 @@ so that results stream to disk state by state and an interrupted run resumes whe
   state, and the combined status);
   `DIR/states/carry.npz`: what the state after the last finished one needs (`StereoCarry`);
   `DIR/states/state{k:06d}.csv`: state k's rows of dic.csv, where a cluster's task formatted them beside
-  the chain (`output.csv_rows`), or a forked child beside the run's next state; taken into dic.csv;
+  the chain (`output.csv_rows`), or a worker process beside the run's next state; taken into dic.csv;
   `DIR/states/state{k:06d}.vtp`: state k's VTK file, written beside the run's next state; moved into the
   run's vtk folder;
   `DIR/states/state{k:06d}.ranges.json`: the value ranges of state k's maps (`output.state_ranges`),

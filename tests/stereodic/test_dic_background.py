@@ -1,7 +1,9 @@
-"""Work beside the caller (`stereodic.dic.background`): output work in forked children writes the files
-the caller would, and a task that fails is reported by name; the thread pools keep to the run's threads,
-and so do OpenCV's and numba's own (`stereodic.cli.thread_limits`)."""
+"""Work beside the caller (`stereodic.dic.background`): output work in worker processes, forked when the
+Background is made, writes the files the caller would, and a task that fails is reported by name; the
+thread pools keep to the run's threads, and so do OpenCV's and numba's own (`stereodic.cli.thread_limits`)."""
 
+import functools
+import operator
 import os
 import subprocess
 import sys
@@ -18,36 +20,83 @@ def _write(path, text, seconds=0.0):
     path.write_text(f"{text} from {os.getpid()}")
 
 
-def test_tasks_run_in_children_and_none_waits_behind_a_long_one(tmp_path):
+def _write_started(path, seconds=0.0):
+    """`_write` of the time the task started."""
+    _write(path, repr(time.time()), seconds)
+
+
+_MARK = "imported"
+
+
+def _set_mark(text):
+    global _MARK
+    _MARK = text
+
+
+def _write_mark(path):
+    path.write_text(_MARK)
+
+
+def _fail():
+    raise OSError("disk full")
+
+
+def test_tasks_run_in_the_workers_and_none_waits_behind_a_long_one(tmp_path):
     with Background(2) as bg:
         for k in range(4):
-            bg.submit(lambda k=k: _write(tmp_path / f"{k}.txt", f"{k} {time.time()!r}", 1.0 if k == 0 else 0.0),
+            bg.submit(functools.partial(_write, tmp_path / f"{k}.txt", f"{k} {time.time()!r}", 1.0 if k == 0 else 0.0),
                       f"file {k}")
     texts = [(tmp_path / f"{k}.txt").read_text() for k in range(4)]
     assert [t.split()[0] for t in texts] == ["0", "1", "2", "3"]
     pids = {int(t.split(" from ")[1]) for t in texts}
-    assert os.getpid() not in pids and len(pids) == 4     # each task in a child of its own; the caller hands out
-    # files 1-3 were written in the free slot while file 0's child slept, not after it
+    assert os.getpid() not in pids and len(pids) == 2     # two workers for four tasks; the caller hands out
+    # files 1-3 were written in the free worker while file 0's slept, not after it
     assert all(float(t.split()[1]) < os.path.getmtime(tmp_path / "0.txt") - 0.5 for t in texts[1:])
 
 
-def test_the_caller_waits_for_some_children_while_the_others_go_on(tmp_path):
+def test_the_workers_are_forked_when_it_is_made_and_prepared(tmp_path):
+    """The workers are copies of the caller as it was when the Background was made (a command makes it
+    early, while it is small): what the caller changes later is not in them; `prepare` ran in each."""
+    _set_mark("before")
+    try:
+        with Background(2) as bg:
+            _set_mark("after")
+            bg.wait_for([bg.submit(functools.partial(_write_mark, tmp_path / "plain.txt"), "plain")])
+        with Background(1, prepare=functools.partial(_set_mark, "prepared")) as bg:
+            bg.submit(functools.partial(_write_mark, tmp_path / "prepared.txt"), "prepared")
+    finally:
+        _set_mark("imported")
+    assert (tmp_path / "plain.txt").read_text() == "before"
+    assert (tmp_path / "prepared.txt").read_text() == "prepared"
+
+
+def test_the_caller_waits_for_some_tasks_while_the_others_go_on(tmp_path):
     with Background(2) as bg:
-        slow = bg.submit(lambda: _write(tmp_path / "slow.txt", "slow", 1.0), "slow")
-        quick = bg.submit(lambda: _write(tmp_path / "quick.txt", "quick", 0.1), "quick")
+        slow = bg.submit(functools.partial(_write, tmp_path / "slow.txt", "slow", 1.0), "slow")
+        quick = bg.submit(functools.partial(_write, tmp_path / "quick.txt", "quick", 0.1), "quick")
         bg.wait_for([quick, None])
         assert (tmp_path / "quick.txt").is_file() and not (tmp_path / "slow.txt").exists()
-        assert slow.exitcode is None                    # still running
+        assert not slow.done()                          # still running
     assert (tmp_path / "slow.txt").is_file()            # leaving the context waited for it
     with pytest.raises(RuntimeError, match="broken"):   # a failure among those waited for: named at the end
         with Background(1) as bg:
-            bg.wait_for([bg.submit(lambda: 1 / 0, "broken")])
+            bg.wait_for([bg.submit(functools.partial(operator.truediv, 1, 0), "broken")])
+
+
+def test_a_limit_keeps_workers_free_for_the_callers_own_work(tmp_path):
+    """With `limit` 1 of 2 workers (a run's state files beside its next state), a task waits for the one
+    running: one worker stays free."""
+    with Background(2) as bg:
+        bg.submit(functools.partial(_write, tmp_path / "first.txt", "first", 0.6), "first", limit=1)
+        bg.submit(functools.partial(_write_started, tmp_path / "second.txt"), "second", limit=1)
+    started = float((tmp_path / "second.txt").read_text().split(" from ")[0])
+    assert started >= os.path.getmtime(tmp_path / "first.txt") - 0.05
 
 
 def test_one_worker_runs_the_tasks_one_after_the_other(tmp_path):
     with Background(1) as bg:
         for k in range(3):
-            bg.submit(lambda k=k: _write(tmp_path / f"{k}.txt", k, 0.2), f"file {k}")
+            bg.submit(functools.partial(_write, tmp_path / f"{k}.txt", k, 0.2), f"file {k}")
     times = [os.path.getmtime(tmp_path / f"{k}.txt") for k in range(3)]
     assert times == sorted(times) and times[2] - times[0] >= 0.35   # each waited for the one before
 
@@ -58,13 +107,11 @@ def test_no_workers_runs_everything_here(tmp_path):
     assert (tmp_path / "a.txt").read_text() == f"a from {os.getpid()}"
 
 
-def test_a_failed_child_is_named(tmp_path):
-    def fail():
-        raise OSError("disk full")
-
+def test_a_failed_task_is_named(tmp_path, capfd):
     with pytest.raises(RuntimeError, match="the maps of state 3"):
         with Background(1) as bg:
-            bg.submit(fail, "the maps of state 3")
+            bg.submit(_fail, "the maps of state 3")
+    assert "disk full" in capfd.readouterr().err       # the worker's traceback
 
 
 def test_threads_follow_omp_num_threads(monkeypatch):
@@ -136,22 +183,3 @@ def test_a_command_after_numba_started_keeps_its_pool_and_limits_its_threads(tmp
     out = subprocess.run([sys.executable, str(script)], env={**env, "NUMBA_CACHE_DIR": str(tmp_path / "cache")},
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0 and out.stdout.split() == ["1", "6.0"], out.stderr[-500:]
-
-
-def test_no_child_is_forked_while_a_thread_imports(tmp_path):
-    """A thread that imports modules (`stereodic.cli.dic` loads numba's kernels and matplotlib beside the
-    work) is waited for before the next fork: a child forked meanwhile would inherit its import locks held."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    from stereodic.dic.background import finish_before_fork
-
-    def importing():
-        time.sleep(0.4)
-        (tmp_path / "imported").write_text(repr(time.time()))
-
-    with ThreadPoolExecutor(1) as pool:
-        finish_before_fork(pool.submit(importing))
-        with Background(1) as bg:
-            bg.submit(lambda: _write(tmp_path / "task.txt", repr(time.time())), "the task")
-    started = float((tmp_path / "task.txt").read_text().split(" from ")[0])
-    assert started >= float((tmp_path / "imported").read_text())
