@@ -143,6 +143,7 @@ class PreparedPair:
     right: np.ndarray
     left_b: BSplineImage
     right_b: BSplineImage
+    _left_ref: ImageRef | None = field(default=None, repr=False, compare=False)
 
     @classmethod
     def prepare(cls, left: np.ndarray, right: np.ndarray, settings: DicSettings) -> "PreparedPair":
@@ -151,8 +152,14 @@ class PreparedPair:
                                   for img in (left, right)))
 
     def left_ref(self, *, keep_subsets: bool = False) -> ImageRef:
-        """The left image as a registration's reference (`ImageRef`; keep_subsets: that of a run)."""
-        return ImageRef(self.left, self.left_b, keep_subsets)
+        """The left image as a registration's reference (`ImageRef`; keep_subsets: that of a run, made
+        anew). Without keep_subsets the same one each time: the noise maps that a state's tracked points
+        take of it (`_stereo_at`) serve the next state's incremental steps from it (`register_steps`)."""
+        if keep_subsets:
+            return ImageRef(self.left, self.left_b, True)
+        if self._left_ref is None:
+            self._left_ref = ImageRef(self.left, self.left_b)
+        return self._left_ref
 
 
 @dataclass
@@ -366,7 +373,7 @@ def solve_state(run: StereoRun, k: int, pair: PreparedPair, carry: StereoCarry |
         low = ((cdir.status == OK) & ~(cdir.zncc >= st.switch_zncc)) | np.isin(cdir.status, CROSS_DECORRELATED)
         cand |= low & lc.ok & ~lc.incremental
     cand &= carry.cross.status == OK              # the stereo match of a switching point starts from it
-    prev_ref = run.ref if previous is None else previous.left_ref()
+    prev_ref = run.ref if previous is None or previous.left is run.ref.image else previous.left_ref()
     lsteps, lsn = register_steps(prev_ref, pair.left, pair.left_b, g, lc, ldir, cand, s, seeds=run.seed_idx)
     stereo, snoise = carry.stereo, None
     if lsteps is not None:

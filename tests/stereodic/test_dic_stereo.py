@@ -71,6 +71,25 @@ def test_incremental_mode_agrees(small):
     assert abs(strain["exx"].mean()) < 100e-6 and np.abs(disp).max() < 0.5
 
 
+def test_each_images_noise_maps_are_made_once(small, monkeypatch):
+    """Incremental points take the noise maps (SSSIG) of the image they step from: the previous state's
+    left image, whose maps that state made for its stereo matches, and for the first state the reference,
+    which the run keeps: each image's maps are made once, not again by the next state."""
+    import stereodic.dic.correlate as correlate
+
+    made = []
+
+    def spy(bspline, half):
+        made.append((bspline, half))       # kept alive here: no id of a dead image is reused
+        return sssig(bspline, half)
+
+    sssig = correlate.sssig
+    monkeypatch.setattr(correlate, "sssig", spy)
+    _, grid, states, _ = _run(small, incremental=True)
+    assert states[2].incremental[grid.active].all()
+    assert len(made) >= 3 and len({(id(b), half) for b, half in made}) == len(made)  # the reference's, each state's
+
+
 @pytest.mark.slow
 def test_goals_on_640x512(tmp_path):
     """The issue's goals: 1 % tension, mean strain error <= 50 microstrain, out-of-plane displacement
