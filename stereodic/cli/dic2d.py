@@ -97,7 +97,7 @@ def run(args) -> int:
     from calib.sequences import frame_times
     from stereodic.cli.common import dic_grid, memory_reuse, wrote
     memory_reuse()
-    from stereodic.dic import STATUS_NAMES, DicSettings, ImageRef, correlate_sequence
+    from stereodic.dic import STATUS_NAMES, BSplineImage, DicSettings, ImageRef, correlate_sequence
     from stereodic.dic.background import side_by_side
     from stereodic.dic.output import CsvWriter, image_arrays, image_maps, plot_image, write_npz
     from stereodic.dic3d.diagnose import diagnosis
@@ -132,12 +132,16 @@ def run(args) -> int:
         return dic_grid(args, width, height, "reference", args.ref, reference=lambda: ref,
                         noise=None if reference is None else reference.sigma)
 
-    if preloaded and settings.feature_guess:
-        # the first image's registration starts from its feature matches with the reference (no motion
-        # before it): made beside the points' placement, and kept for it (`stereodic.dic.kept`: the
-        # images are read-only from here)
+    if preloaded:
+        # the first image's B-spline and, for the automatic initial guess, its feature matches with the
+        # reference (no motion before it: its registration starts from them) made beside the points'
+        # placement, and kept for its registration (`stereodic.dic.kept`: the images are read-only from here)
         ref.flags.writeable = preloaded[0].flags.writeable = False
-        (grid, seeds), _ = side_by_side(place_points, lambda: reference.matches(preloaded[0]))
+        first = [lambda: BSplineImage.from_image(preloaded[0], order=settings.order,
+                                                 prefilter_sigma=settings.prefilter_sigma)]
+        if settings.feature_guess:
+            first.append(lambda: reference.matches(preloaded[0]))
+        (grid, seeds), *_ = side_by_side(place_points, *first)
     else:
         grid, seeds = place_points()
     out = Path(args.output)

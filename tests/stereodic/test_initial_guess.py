@@ -101,26 +101,46 @@ def test_the_first_deformed_states_matches_are_made_beside_the_reference_and_onc
     assert made[0][2] and not all(main_thread for _, _, main_thread in made)
 
 
-def test_dic2d_matches_the_first_image_beside_the_points_placement_and_once(tmp_path, monkeypatch):
-    """`dic2d` on 2 threads: the first image's feature matches with the reference are made beside the
-    points' placement (the specimen mask, on the main thread) and found kept by its registration."""
+def test_dic2d_matches_and_interpolates_the_first_image_beside_the_points_placement_once(tmp_path, monkeypatch):
+    """`dic2d` on 2 threads: the first image's feature matches with the reference and its B-spline are
+    made beside the points' placement (the specimen mask, on the main thread) and found kept by its
+    registration."""
     import threading
+    import time
 
     import stereodic.dic.initial_guess as ig
-    from calib.imageio import write_gray
+    import stereodic.dic.texture as texture
+    from calib.imageio import read_gray, write_gray
     from stereodic.cli import main
+    from stereodic.dic.interpolation import BSplineImage
     sp = make_speckle(320, 256, seed=5)
     write_gray(tmp_path / "ref.png", render(sp, noise_sigma=1.0, seed=1))
     write_gray(tmp_path / "def.png", render(sp, lambda x, y: (3.2, -1.7), noise_sigma=1.0, seed=2))
-    made = []
-    real = ig._consistent
+    deformed = read_gray(tmp_path / "def.png")
+    made, splines = [], []
+    real, computed = ig._consistent, BSplineImage._computed.__func__
 
     def spy(ref, dfm):
         made.append(threading.current_thread() is threading.main_thread())
         return real(ref, dfm)
 
+    def spline_spy(cls, image, order, prefilter_sigma):
+        if np.array_equal(image, deformed):
+            splines.append(time.perf_counter())
+        return computed(cls, image, order, prefilter_sigma)
+
+    def mask_spy(*args, **kwargs):
+        try:
+            return mask(*args, **kwargs)
+        finally:
+            placed.append(time.perf_counter())
+
+    mask, placed = texture.specimen_mask, []
     monkeypatch.setattr(ig, "_consistent", spy)
+    monkeypatch.setattr(BSplineImage, "_computed", classmethod(spline_spy))
+    monkeypatch.setattr(texture, "specimen_mask", mask_spy)
     monkeypatch.setenv("OMP_NUM_THREADS", "2")
     assert main(["dic2d", str(tmp_path / "ref.png"), str(tmp_path / "def.png"), "--step", "8",
                  "-o", str(tmp_path / "r.csv")]) == 0
     assert made == [False]
+    assert len(splines) == 1 and splines[0] < placed[0]     # once, while the points were being placed
