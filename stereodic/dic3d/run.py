@@ -183,9 +183,11 @@ def _write_outputs(store: RunStore, grid: Grid, folder: Path, settings: StereoSe
     with _background(background, threads() if threads() > 1 else 0,
                      prepare=load_matplotlib if plot_every else None) as bg:
         # dic.csv: each state's rows as the run or a cluster's task kept them, or formatted here; beside
-        # workers, one task a state (kept in the store, joined below while the maps are drawn)
+        # workers, one task a state (kept in the store, joined below while the maps are drawn), but for the
+        # last state without them, whose rows the join formats itself rather than wait (a run's last state)
+        missing = [k for k in range(n if csv and bg.workers else 0) if not store.rows_path(k).is_file()]
         rows = [bg.submit(functools.partial(_keep_rows, store, grid, k), f"the CSV rows of state {k}")
-                for k in range(n if csv and bg.workers else 0) if not store.rows_path(k).is_file()]
+                for k in missing[:-1]]
         bg.submit(functools.partial(write_npz, folder / "dic.npz", grid, store.values, n, has_strain, settings,
                                     info, has_def), "dic.npz")
         vtk_here = vtk and state_files        # a cluster's tasks wrote the VTK files; the maps are drawn here
