@@ -36,6 +36,7 @@ import signal
 import sys
 import traceback
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from typing import Callable, Iterable, TypeVar
 
 T = TypeVar("T")
@@ -74,7 +75,8 @@ class Background:
     """Run tasks in `workers` processes forked now (module docstring); 0 workers: every task in the
     caller, when it is submitted. `prepare`, if given, runs first in each worker (e.g. imports its tasks
     will need, beside the caller's work). Used as a context manager, which waits for every task on leaving
-    and ends the workers; a task that failed raises RuntimeError then (its traceback went to stderr)."""
+    and ends the workers; a task that failed raises RuntimeError then (its traceback went to stderr), as
+    does one whose worker died (killed: out of memory?), then or when the next task is submitted."""
 
     def __init__(self, workers: int, *, prepare: Callable[[], None] | None = None):
         self.workers = workers if hasattr(os, "fork") else 0
@@ -100,8 +102,10 @@ class Background:
         for name, future in self.running:
             if not future.done():
                 still.append((name, future))
+            elif isinstance(future.exception(), BrokenProcessPool):
+                self.failed.append(f"{name} (a worker process died: out of memory?)")
             elif future.exception() is not None:
-                self.failed.append(name)
+                self.failed.append(f"{name} (the error is above)")
         self.running = still
 
     def submit(self, task: Callable[[], object], name: str, *, limit: int | None = None) -> Future | None:
@@ -115,7 +119,11 @@ class Background:
         while len(self.running) >= min(limit or self.workers, self.workers):
             wait([future for _, future in self.running], return_when=FIRST_COMPLETED)
             self._reap()
-        future = self._pool.submit(_run_task, task, name)
+        try:
+            future = self._pool.submit(_run_task, task, name)
+        except BrokenProcessPool:
+            self.wait()                                  # names the task whose worker died
+            raise
         self.running.append((name, future))
         return future
 
@@ -130,7 +138,7 @@ class Background:
         self.wait_for(future for _, future in self.running)
         if self.failed:
             failed, self.failed = self.failed, []
-            raise RuntimeError(f"writing {', '.join(failed)} failed (the error is above)")
+            raise RuntimeError(f"writing {'; '.join(failed)} failed")
 
 
 def _start_worker(prepare: Callable[[], None] | None) -> None:

@@ -5,6 +5,7 @@ thread pools keep to the run's threads, and so do OpenCV's and numba's own (`ste
 import functools
 import operator
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -112,6 +113,19 @@ def test_a_failed_task_is_named(tmp_path, capfd):
         with Background(1) as bg:
             bg.submit(_fail, "the maps of state 3")
     assert "disk full" in capfd.readouterr().err       # the worker's traceback
+
+
+def _die():
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+def test_a_task_whose_worker_dies_is_named(tmp_path):
+    """A worker killed in a task (the kernel's out-of-memory killer) is named with the task, when the
+    next task is handed out or at the end: not a bare BrokenProcessPool."""
+    with pytest.raises(RuntimeError, match=r"the maps of state 3 \(a worker process died"):
+        with Background(2) as bg:
+            bg.wait_for([bg.submit(_die, "the maps of state 3")])
+            bg.submit(functools.partial(_write, tmp_path / "next.txt", "next"), "the next file")
 
 
 def test_threads_follow_omp_num_threads(monkeypatch):
