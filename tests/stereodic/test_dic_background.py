@@ -71,6 +71,21 @@ def test_the_workers_are_forked_when_it_is_made_and_prepared(tmp_path):
     assert (tmp_path / "prepared.txt").read_text() == "prepared"
 
 
+def _write_niceness(path):
+    path.write_text(str(os.getpriority(os.PRIO_PROCESS, 0)))
+
+
+def test_the_workers_yield_to_the_caller(tmp_path):
+    """The workers run at a lower priority than the caller (WORKER_NICE higher a nice value, capped at
+    19), so that a run's output work takes the cores its correlation leaves idle."""
+    from stereodic.dic.background import WORKER_NICE
+
+    with Background(1) as bg:
+        bg.submit(functools.partial(_write_niceness, tmp_path / "nice.txt"), "nice")
+    mine = os.getpriority(os.PRIO_PROCESS, 0)
+    assert int((tmp_path / "nice.txt").read_text()) == min(mine + WORKER_NICE, 19) > mine or mine == 19
+
+
 def test_the_caller_waits_for_some_tasks_while_the_others_go_on(tmp_path):
     with Background(2) as bg:
         slow = bg.submit(functools.partial(_write, tmp_path / "slow.txt", "slow", 1.0), "slow")
