@@ -37,6 +37,8 @@ import multiprocessing
 import os
 import signal
 import sys
+import threading
+import time
 import traceback
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -88,7 +90,7 @@ class Background:
         self._pool = None
         if self.workers:
             self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("fork"),
-                                             initializer=_start_worker, initargs=(prepare,))
+                                             initializer=_start_worker, initargs=(os.getpid(), prepare))
             self._pool.submit(_nothing)              # a fork pool starts all of its workers at the first task
 
     def __enter__(self) -> "Background":
@@ -147,14 +149,24 @@ class Background:
 WORKER_NICE = 10   # how much lower the workers' scheduling priority is than the caller's (`nice`)
 
 
-def _start_worker(prepare: Callable[[], None] | None) -> None:
-    """A worker's start: Ctrl-C is the caller's to handle (it ends the workers); a lower priority
-    (WORKER_NICE), so that the output work yields the cores to the caller's (its correlation, the critical
-    path) and takes what the caller leaves idle; then `prepare`."""
+def _start_worker(caller: int, prepare: Callable[[], None] | None) -> None:
+    """A worker's start: Ctrl-C is the caller's to handle (it ends the workers); the worker leaves when
+    its caller (process id `caller`) is gone (`_follow`); a lower priority (WORKER_NICE), so that the
+    output work yields the cores to the caller's (its correlation, the critical path) and takes what the
+    caller leaves idle; then `prepare`."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_follow, args=(caller,), daemon=True).start()
     os.nice(WORKER_NICE)
     if prepare is not None:
         prepare()
+
+
+def _follow(caller: int) -> None:
+    """Leave this worker once its caller is gone (killed: a worker waiting for the next task would wait
+    forever, as it holds the task queue's other end itself), checked twice a second."""
+    while os.getppid() == caller:
+        time.sleep(0.5)
+    os._exit(1)
 
 
 def _nothing() -> None:

@@ -143,6 +143,38 @@ def test_a_task_whose_worker_dies_is_named(tmp_path):
             bg.submit(functools.partial(_write, tmp_path / "next.txt", "next"), "the next file")
 
 
+def test_the_workers_leave_when_the_caller_is_killed(tmp_path):
+    """A caller killed half way (SIGKILL: no shutdown) leaves no worker behind: each follows its caller and
+    leaves within a second."""
+    code = ("import functools, os, sys, time\n"
+            "from stereodic.dic.background import Background\n"
+            "bg = Background(2)\n"
+            "bg.submit(functools.partial(time.sleep, 60), 'a long task')\n"
+            "print(' '.join(str(p) for p in bg._pool._processes), flush=True)\n"
+            "time.sleep(60)\n")
+    caller = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    workers = [int(p) for p in caller.stdout.readline().split()]
+    assert len(workers) == 2 and all(_alive(p) for p in workers)
+    caller.kill()
+    caller.wait()
+    deadline = time.time() + 5
+    while any(_alive(p) for p in workers) and time.time() < deadline:
+        time.sleep(0.1)
+    left = [p for p in workers if _alive(p)]
+    for p in left:                              # none left behind by the test either
+        os.kill(p, signal.SIGKILL)
+    assert not left
+
+
+def _alive(pid):
+    """Whether process `pid` runs (not a zombie: its parent, init, reaps it)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(") ")[1][0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
 def test_threads_follow_omp_num_threads(monkeypatch):
     monkeypatch.setenv("OMP_NUM_THREADS", "3")
     assert threads() == 3
