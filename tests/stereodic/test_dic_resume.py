@@ -121,7 +121,7 @@ def test_a_state_file_keeps_every_combined_status():
 
 @pytest.mark.parametrize("threads", ["1", "2"])
 def test_the_vtk_files_made_beside_the_run_are_the_states_as_saved(dic_sim, tmp_path, monkeypatch, threads):
-    """Each state's VTK file but the last is made while the next state is solved (in a forked child on
+    """Each state's VTK file but the last is made while the next state is solved (by a worker process on
     two threads) and kept in the run folder, then moved into vtk/: the same bytes as the file made at the
     end from the saved state; none is left behind. With --frame specimen they are the specimen frame's."""
     from stereodic.dic3d.store import RunStore
