@@ -38,7 +38,6 @@ import numpy as np
 from calib.capture import Capture, Frame, Pattern
 from calib.errors import InputError
 from calib.imageio import IMAGE_SUFFIXES
-from calib.phase import DARK, UNDECIDED
 
 FOLDER_SUFFIXES = IMAGE_SUFFIXES + (".jpg", ".jpeg", ".bmp")   # what OpenCV's samples save too
 
@@ -127,6 +126,7 @@ def decode_gray(patterns: list[np.ndarray], inverses: list[np.ndarray] | None, w
     else:
         contrast = np.max(np.abs(np.stack(diffs)), axis=0)
         offset = sum(f32(p) + f32(q) for p, q in zip(patterns, inverses)) / np.float32(2 * len(patterns))
+    from calib.phase import DARK, UNDECIDED   # here: calib.phase's kernels bring numba (0.15 s of import)
     shape = contrast.shape
     limit = np.maximum(DECISIVE_FRACTION * contrast, np.float32(min_difference))
     code = np.zeros(shape, np.int64)

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from calib.patterns import DisplayResponse
@@ -97,35 +96,10 @@ def fit_intensity(levels, images, full_scale: float, min_range: float) -> Intens
     # per pixel: offset + gain * Y(L) by least squares over the unsaturated levels
     h, w = span.shape
     offset, gain = np.empty((h, w), np.float32), np.empty((h, w), np.float32)
-    _fit_pixels(stack.reshape(len(stack), -1), order, response(levels).astype(np.float32), np.float32(full_scale),
+    from calib.intensity_kernels import fit_pixels
+    fit_pixels(stack.reshape(len(stack), -1), order, response(levels).astype(np.float32), np.float32(full_scale),
                 np.float32(min_range), offset.reshape(-1), gain.reshape(-1))
     return IntensityMatrix(offset, gain, response)
-
-
-@numba.njit(cache=True, parallel=True)
-def _fit_pixels(stack, order, lum, full, min_range, offset, gain):  # pragma: no cover - compiled
-    """Per pixel: least-squares offset + gain * lum over the unsaturated frames stack[order[j]]; NaN
-    where the brightest and darkest frames differ by less than min_range, fewer than 2 frames are
-    unsaturated, or the gain is not positive."""
-    for i in numba.prange(stack.shape[1]):
-        sw = sy = syy = si = syi = np.float32(0)
-        for j in range(order.size):
-            v = stack[order[j], i]
-            if v < full:
-                y = lum[j]
-                sw += 1
-                sy += y
-                syy += y * y
-                si += v
-                syi += y * v
-        det = sw * syy - sy * sy
-        g = (sw * syi - sy * si) / det if det != 0 else np.float32(np.nan)
-        span = stack[order[-1], i] - stack[order[0], i]
-        if span >= min_range and sw >= 2 and g > 0:
-            gain[i] = g
-            offset[i] = (si - g * sy) / sw
-        else:
-            gain[i] = offset[i] = np.nan
 
 
 def smooth_response(levels: np.ndarray, luminance: np.ndarray, samples: int = 256) -> DisplayResponse:

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from stereodic.stereo.rig import Rig
@@ -78,85 +77,6 @@ def closest_points(o1: np.ndarray, d1: np.ndarray, o2: np.ndarray, d2: np.ndarra
     return Triangulation((p1 + p2) / 2, np.linalg.norm(p1 - p2, axis=-1))
 
 
-@numba.njit(cache=True, inline="always")
-def _bilinear3(field, u, v, out):  # pragma: no cover - numba kernel
-    """`stereodic.virtual.sampling.bilinear` of an (H, W, 3) field at one (u, v), into out (3,)."""
-    h, w = field.shape[0], field.shape[1]
-    if not (np.isfinite(u) and np.isfinite(v)):
-        out[:] = np.nan
-        return
-    i = min(max(int(np.floor(u)), 0), w - 2)
-    j = min(max(int(np.floor(v)), 0), h - 2)
-    a, b = u - i, v - j
-    for c in range(3):
-        p00, p10, p01, p11 = field[j, i, c], field[j, i + 1, c], field[j + 1, i, c], field[j + 1, i + 1, c]
-        out[c] = p00 + a * (p10 - p00) + b * (p01 - p00) + a * b * (p11 - p10 - p01 + p00)
-
-
-@numba.njit(cache=True, parallel=True)
-def _triangulate(xl, rl, xr, rr, origin, eu, ev, dir_l, dir_r, c_l, c_r, corrected, points, gap
-                 ):  # pragma: no cover - numba kernel
-    # scalar code per point: array expressions inside a prange become nested parallel loops, which
-    # numba takes ~10 s to compile
-    for k in numba.prange(xl.size):
-        o1 = np.empty(3)
-        o2 = np.empty(3)
-        d1 = np.empty(3)
-        d2 = np.empty(3)
-        for c in range(3):
-            o1[c] = origin[c] + xl[k] * eu[c] + rl[k] * ev[c]
-            o2[c] = origin[c] + xr[k] * eu[c] + rr[k] * ev[c]
-        if corrected:
-            _bilinear3(dir_l, xl[k], rl[k], d1)
-            _bilinear3(dir_r, xr[k], rr[k], d2)
-        else:
-            for c in range(3):
-                d1[c] = o1[c] - c_l[c]
-                d2[c] = o2[c] - c_r[c]
-        n1 = np.sqrt(d1[0] * d1[0] + d1[1] * d1[1] + d1[2] * d1[2])
-        n2 = np.sqrt(d2[0] * d2[0] + d2[1] * d2[1] + d2[2] * d2[2])
-        b = d = e = 0.0
-        for c in range(3):
-            d1[c] /= n1
-            d2[c] /= n2
-        for c in range(3):
-            w = o1[c] - o2[c]
-            b += d1[c] * d2[c]
-            d += d1[c] * w
-            e += d2[c] * w
-        den = 1.0 - b * b
-        if den > 1e-15:
-            s = (b * e - d) / den
-            t = (e - b * d) / den
-        else:
-            s = np.nan
-            t = np.nan
-        g = 0.0
-        for c in range(3):
-            p1 = o1[c] + s * d1[c]
-            p2 = o2[c] + t * d2[c]
-            points[k, c] = (p1 + p2) / 2
-            g += (p1 - p2) * (p1 - p2)
-        gap[k] = np.sqrt(g)
-
-
-@numba.njit(cache=True, parallel=True)
-def _ray_distances(xl, rl, xr, rr, origin, eu, ev, dir_l, dir_r, out):  # pragma: no cover - numba kernel
-    for k in numba.prange(xl.size):
-        d1 = np.empty(3)
-        d2 = np.empty(3)
-        _bilinear3(dir_l, xl[k], rl[k], d1)
-        _bilinear3(dir_r, xr[k], rr[k], d2)
-        n0 = d1[1] * d2[2] - d1[2] * d2[1]
-        n1 = d1[2] * d2[0] - d1[0] * d2[2]
-        n2 = d1[0] * d2[1] - d1[1] * d2[0]
-        dot = 0.0
-        for c in range(3):   # o2 - o1, the two rays' points on the common plane
-            w = (xr[k] - xl[k]) * eu[c] + (rr[k] - rl[k]) * ev[c]
-            dot += w * (n0 if c == 0 else n1 if c == 1 else n2)
-        out[k] = dot / np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-
-
 # below this many matches `ray_distances` takes numpy rather than its kernel, whose first call in a
 # process loads numba's machinery (0.4-0.5 s, mostly holding the interpreter's lock): the rig check's few
 # hundred features, before the correlation, need not wait for it
@@ -176,7 +96,8 @@ def ray_distances(rig: Rig, x_left, row_left, x_right, row_right, *, compiled: b
     eu, ev = sensor.axis_u * sensor.pitch_mm[0], sensor.axis_v * sensor.pitch_mm[1]
     if compiled or (compiled is None and xl.size >= FEW_MATCHES):
         out = np.empty(xl.size)
-        _ray_distances(xl, rl, xr, rr, sensor.origin, eu, ev, np.ascontiguousarray(rig.left.direction, np.float64),
+        from stereodic.stereo.triangulate_kernels import distances_all
+        distances_all(xl, rl, xr, rr, sensor.origin, eu, ev, np.ascontiguousarray(rig.left.direction, np.float64),
                        np.ascontiguousarray(rig.right.direction, np.float64), out)
     else:
         n = np.cross(bilinear(rig.left.direction, xl, rl), bilinear(rig.right.direction, xr, rr))
@@ -216,7 +137,8 @@ def triangulate(rig: Rig, x_left, x_right, row, *, row_right=None, corrected: bo
     sensor = rig.sensor
     points = np.empty((xl.size, 3))
     gap = np.empty(xl.size)
-    _triangulate(xl, rl, xr, rr, sensor.origin, sensor.axis_u * sensor.pitch_mm[0],
+    from stereodic.stereo.triangulate_kernels import triangulate_all
+    triangulate_all(xl, rl, xr, rr, sensor.origin, sensor.axis_u * sensor.pitch_mm[0],
                  sensor.axis_v * sensor.pitch_mm[1], np.ascontiguousarray(rig.left.direction, np.float64),
                  np.ascontiguousarray(rig.right.direction, np.float64), rig.left.centre.astype(np.float64),
                  rig.right.centre.astype(np.float64), corrected, points, gap)

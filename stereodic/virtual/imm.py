@@ -23,7 +23,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import cv2
-import numba
 import numpy as np
 
 from calib.errors import InputError
@@ -123,7 +122,8 @@ def build_imm(prvm: PRVM, sensor: VirtualSensor, *, tol_px: float = 1e-6, iterat
     map_x = np.full((hv, wv), BLANK, np.float32)
     map_y = np.full((hv, wv), BLANK, np.float32)
     valid = np.zeros((hv, wv), np.bool_)
-    _invert(q, coarse, 1.0 / _STEP, 1.0, iterations, tol_px, map_x, map_y, valid)
+    from stereodic.virtual.imm_kernels import invert_rows
+    invert_rows(q, coarse, 1.0 / _STEP, 1.0, iterations, tol_px, map_x, map_y, valid)
     return IMM(map_x, map_y, valid, (prvm.width, prvm.height))
 
 
@@ -149,7 +149,8 @@ def _coarse_inverse(q: np.ndarray, wv: int, hv: int, tol_px: float, max_points: 
     mx, my = np.full((nv, nu), BLANK, np.float32), np.full((nv, nu), BLANK, np.float32)
     ok = np.zeros((nv, nu), np.bool_)
     coarse = np.ascontiguousarray(start, np.float64)
-    _invert(q, coarse, 1.0, float(_STEP), 100, tol_px, mx, my, ok)
+    from stereodic.virtual.imm_kernels import invert_rows
+    invert_rows(q, coarse, 1.0, float(_STEP), 100, tol_px, mx, my, ok)
     if not ok.any():
         raise InputError(None, "the virtual sensor does not overlap the real field")
     coarse = np.stack([mx, my], axis=-1).astype(np.float64)
@@ -158,56 +159,6 @@ def _coarse_inverse(q: np.ndarray, wv: int, hv: int, tol_px: float, max_points: 
         near = distance_transform_edt(~ok, return_distances=False, return_indices=True)
         coarse = coarse[near[0], near[1]]
     return np.ascontiguousarray(coarse)
-
-
-@numba.njit(cache=True, parallel=True)
-def _invert(q, start, start_scale, target_step, iterations, tol_px, map_x, map_y, valid):  # pragma: no cover
-    """For every output node (col, row), i.e. virtual point (col, row) * target_step: start from `start`
-    (Hs, Ws, 2) real (u, v) sampled bilinearly at (col, row) * start_scale, then Newton on the bilinear
-    interpolant of the projected real pixels q (H, W, 2), cell by cell, until the plane residual is
-    below 1e-9 px. Writes the real (u, v) and validity (see build_imm). A numba kernel."""
-    h, w = q.shape[0], q.shape[1]
-    nv, nu = start.shape[0], start.shape[1]
-    hv, wv = map_x.shape
-    for row in numba.prange(hv):
-        for col in range(wv):
-            tx, ty = col * target_step, row * target_step
-            gx, gy = col * start_scale, row * start_scale
-            i0, j0 = min(int(gx), nu - 2), min(int(gy), nv - 2)
-            a, b = gx - i0, gy - j0
-            u = ((1 - a) * (1 - b) * start[j0, i0, 0] + a * (1 - b) * start[j0, i0 + 1, 0]
-                 + (1 - a) * b * start[j0 + 1, i0, 0] + a * b * start[j0 + 1, i0 + 1, 0])
-            v = ((1 - a) * (1 - b) * start[j0, i0, 1] + a * (1 - b) * start[j0, i0 + 1, 1]
-                 + (1 - a) * b * start[j0 + 1, i0, 1] + a * b * start[j0 + 1, i0 + 1, 1])
-            norm = np.inf
-            for _ in range(iterations):
-                if not (np.isfinite(u) and np.isfinite(v)):
-                    norm = np.inf
-                    break
-                i = min(max(int(np.floor(u)), 0), w - 2)
-                j = min(max(int(np.floor(v)), 0), h - 2)
-                a, b = u - i, v - j
-                ux = q[j, i + 1, 0] - q[j, i, 0]
-                uy = q[j, i + 1, 1] - q[j, i, 1]
-                vx = q[j + 1, i, 0] - q[j, i, 0]
-                vy = q[j + 1, i, 1] - q[j, i, 1]
-                cx = q[j + 1, i + 1, 0] - q[j, i + 1, 0] - q[j + 1, i, 0] + q[j, i, 0]
-                cy = q[j + 1, i + 1, 1] - q[j, i + 1, 1] - q[j + 1, i, 1] + q[j, i, 1]
-                rx = q[j, i, 0] + a * ux + b * vx + a * b * cx - tx
-                ry = q[j, i, 1] + a * uy + b * vy + a * b * cy - ty
-                norm = np.sqrt(rx * rx + ry * ry)
-                if not norm >= 1e-9:  # converged (or NaN: an invalid real pixel)
-                    break
-                jux, juy = ux + b * cx, uy + b * cy  # d(plane)/du
-                jvx, jvy = vx + a * cx, vy + a * cy  # d(plane)/dv
-                det = jux * jvy - juy * jvx
-                u -= (jvy * rx - jvx * ry) / det
-                v -= (jux * ry - juy * rx) / det
-            eps = 1e-9
-            if norm < tol_px and -eps <= u <= w - 1 + eps and -eps <= v <= h - 1 + eps:
-                map_x[row, col] = min(max(u, 0.0), w - 1.0)
-                map_y[row, col] = min(max(v, 0.0), h - 1.0)
-                valid[row, col] = True
 
 
 def apply_imm(image: np.ndarray, imm: IMM, *, fixed_point: bool = False) -> np.ndarray:

@@ -51,3 +51,12 @@ def test_a_small_dic2d_imports_neither_numba_nor_scipy(tmp_path):
     assert not found & set(NOT_FOR_DIC2D)
     assert {m for m in modules if m.startswith("stereodic.cli.")} == {"stereodic.cli.common", "stereodic.cli.dic2d"}
     assert "stereodic.dic.maps" not in modules     # no --plot: no maps
+
+
+def test_the_stereo_runs_modules_import_without_numba():
+    """`dic` imports its run (`stereodic.dic3d.run`: the rig, the triangulation, the strain fit) before it
+    forks its output workers and starts its checks: without numba (0.15 s of a serial start), which the
+    run loads beside its checks with its kernels (`stereodic.dic3d.stereo.load_kernels`)."""
+    code = "import sys\nimport stereodic.dic3d.run\nprint('numba' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.stdout.strip() == "False", out.stderr
