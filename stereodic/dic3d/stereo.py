@@ -449,9 +449,9 @@ def _stereo_at(pair: PreparedPair, s: DicSettings, xs: np.ndarray, ys: np.ndarra
 def load_kernels(rig: Rig) -> None:
     """Load the compiled (numba) kernels that each state's points and strains take - the triangulation,
     the rays' distances, the strain fit - by running them on one point: their first call in a process
-    loads them from numba's cache (a few tenths of a second), which a thread can do beside the first
-    state's correlation rather than after it; and scipy's k-d tree, which the deformed states' feature
-    guesses take (`initial_guess.TREE_DISTANCES`), imported."""
+    imports numba and loads them from its cache (a few tenths of a second), which a thread can do beside
+    the rig check and the first state's correlation rather than after them; and scipy's k-d tree, which
+    the deformed states' feature guesses take (`initial_guess.TREE_DISTANCES`), imported."""
     import scipy.spatial  # noqa: F401  (imported for its first user)
     x = np.zeros(1)
     triangulate(rig, x, x, x)
