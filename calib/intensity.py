@@ -98,7 +98,7 @@ def fit_intensity(levels, images, full_scale: float, min_range: float) -> Intens
     offset, gain = np.empty((h, w), np.float32), np.empty((h, w), np.float32)
     from calib.intensity_kernels import fit_pixels
     fit_pixels(stack.reshape(len(stack), -1), order, response(levels).astype(np.float32), np.float32(full_scale),
-                np.float32(min_range), offset.reshape(-1), gain.reshape(-1))
+               np.float32(min_range), offset.reshape(-1), gain.reshape(-1))
     return IntensityMatrix(offset, gain, response)
 
 

@@ -264,10 +264,10 @@ def _measure(args, background) -> int:
 
     rig = load_rig(args.rig)
     # on more than one thread, beside the checks and the correlation: the rig file's hash for the run's
-    # record (hashlib releases the GIL), the kernels of the states' points and strains loaded (the rig
-    # check needs them first), matplotlib imported for the maps once the correlation runs, whose kernels
-    # leave the interpreter's lock free (beside the checks it would hold it from their Python); on one
-    # thread, each when it is needed
+    # record (hashlib releases the GIL), numba and the kernels of the states' points and strains loaded,
+    # and with --animate matplotlib imported for the maps once the correlation runs, whose kernels leave
+    # the interpreter's lock free (beside the checks it would hold it from their Python); on one thread,
+    # each when it is needed (the output workers import matplotlib themselves: `_run`)
     rig_hash = beside = None
     if threads() > 1:
         from stereodic.dic3d.stereo import load_kernels
@@ -322,7 +322,7 @@ def _measure(args, background) -> int:
     if done:
         print(f"{out}: resuming a run with {done} of {n} states done")
     if beside is not None:
-        if args.animate and not args.no_plot:     # the maps drawn here (`_run`)
+        if args.animate and not args.no_plot:     # the maps drawn in this process (`_run`)
             from stereodic.dic.maps import load_matplotlib
             beside.submit(load_matplotlib)
         beside.shutdown(wait=False)

@@ -98,7 +98,7 @@ def ray_distances(rig: Rig, x_left, row_left, x_right, row_right, *, compiled: b
         out = np.empty(xl.size)
         from stereodic.stereo.triangulate_kernels import distances_all
         distances_all(xl, rl, xr, rr, sensor.origin, eu, ev, np.ascontiguousarray(rig.left.direction, np.float64),
-                       np.ascontiguousarray(rig.right.direction, np.float64), out)
+                      np.ascontiguousarray(rig.right.direction, np.float64), out)
     else:
         n = np.cross(bilinear(rig.left.direction, xl, rl), bilinear(rig.right.direction, xr, rr))
         w = (xr - xl)[:, None] * eu + (rr - rl)[:, None] * ev   # o_r - o_l, the rays' points on the common plane
@@ -139,7 +139,7 @@ def triangulate(rig: Rig, x_left, x_right, row, *, row_right=None, corrected: bo
     gap = np.empty(xl.size)
     from stereodic.stereo.triangulate_kernels import triangulate_all
     triangulate_all(xl, rl, xr, rr, sensor.origin, sensor.axis_u * sensor.pitch_mm[0],
-                 sensor.axis_v * sensor.pitch_mm[1], np.ascontiguousarray(rig.left.direction, np.float64),
-                 np.ascontiguousarray(rig.right.direction, np.float64), rig.left.centre.astype(np.float64),
-                 rig.right.centre.astype(np.float64), corrected, points, gap)
+                    sensor.axis_v * sensor.pitch_mm[1], np.ascontiguousarray(rig.left.direction, np.float64),
+                    np.ascontiguousarray(rig.right.direction, np.float64), rig.left.centre.astype(np.float64),
+                    rig.right.centre.astype(np.float64), corrected, points, gap)
     return Triangulation(points.reshape(shape + (3,)), gap.reshape(shape))
