@@ -92,18 +92,18 @@ def ray_distances(rig: Rig, x_left, row_left, x_right, row_right, *, compiled: b
     FEW_MATCHES matches, the kernel from there."""
     arrays = np.broadcast_arrays(*(np.asarray(a, np.float64) for a in (x_left, row_left, x_right, row_right)))
     xl, rl, xr, rr = (np.ascontiguousarray(a, np.float64).ravel() for a in arrays)
-    sensor = rig.sensor
-    eu, ev = sensor.axis_u * sensor.pitch_mm[0], sensor.axis_v * sensor.pitch_mm[1]
     if compiled or (compiled is None and xl.size >= FEW_MATCHES):
+        sensor = rig.sensor
         out = np.empty(xl.size)
         from stereodic.stereo.triangulate_kernels import distances_all
-        distances_all(xl, rl, xr, rr, sensor.origin, eu, ev, np.ascontiguousarray(rig.left.direction, np.float64),
+        distances_all(xl, rl, xr, rr, sensor.origin, sensor.axis_u * sensor.pitch_mm[0],
+                      sensor.axis_v * sensor.pitch_mm[1], np.ascontiguousarray(rig.left.direction, np.float64),
                       np.ascontiguousarray(rig.right.direction, np.float64), out)
     else:
-        n = np.cross(bilinear(rig.left.direction, xl, rl), bilinear(rig.right.direction, xr, rr))
-        w = (xr - xl)[:, None] * eu + (rr - rl)[:, None] * ev   # o_r - o_l, the rays' points on the common plane
+        (o1, d1), (o2, d2) = rays_at(rig, "left", xl, rl), rays_at(rig, "right", xr, rr)
+        n = np.cross(d1, d2)
         with np.errstate(invalid="ignore", divide="ignore"):
-            out = np.einsum("ij,ij->i", w, n) / np.linalg.norm(n, axis=1)
+            out = np.einsum("ij,ij->i", o2 - o1, n) / np.linalg.norm(n, axis=1)
     return out.reshape(arrays[0].shape)
 
 
