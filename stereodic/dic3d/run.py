@@ -315,14 +315,15 @@ def _keep_files(store: RunStore, grid: Grid, state: int | StereoState, *, rows: 
     `rows`), its VTK file (with `vtk`) and its maps' value ranges (with `ranges`) in the store."""
     state = _state_of(store, state)
     if rows:
-        _keep_rows(store, grid, state.state, state)
+        _keep_rows(store, grid, state)
     if vtk:
         store.write_vtk(state)
     if ranges:
         store.write_ranges(state.state, state_ranges(state, grid.active))
 
 
-def _keep_rows(store: RunStore, grid: Grid, k: int, state: StereoState | None = None) -> None:
-    """Format state k's rows of dic.csv and keep them in the store (`RunStore.write_rows`), from `state`
-    (None: read from the store)."""
-    store.write_rows(k, csv_rows(grid, store.read_state(k) if state is None else state))
+def _keep_rows(store: RunStore, grid: Grid, state: int | StereoState) -> None:
+    """Format a state's (its number, read from the store, or the state) rows of dic.csv and keep them in
+    the store (`RunStore.write_rows`)."""
+    state = _state_of(store, state)
+    store.write_rows(state.state, csv_rows(grid, state))
