@@ -8,25 +8,40 @@ reproduces any field of that degree exactly, so real distortion is not flattened
 would; the noise variance drops by the filter's centre weight.
 
 How large a window? Noise falls as 1/window, but a window much wider than a local distortion bends it.
-`Adaptive` lets the data decide per pixel by Lepski's method: it fits a ladder of windows, each doubling
-the last, and keeps at each pixel the largest window whose fit differs from every smaller window's by at
-most `threshold` standard deviations of that difference. The deviation is known: sigma (the raw field's
-noise, measured locally from the smallest window's residual) times sqrt(v_i - v_j), v the filters'
-variance factors (exact for nested local polynomial fits). Where the field is smooth on the large scale
-(a Brown-Conrady or non-central lens) the largest window wins and the noise falls ~8x below one 43-pixel
-window's; over a local bump the larger windows disagree with the smaller ones by more than their noise
-and are rejected, so the bump keeps a small window. The bias this lets through is at most about the
-noise of the smaller window (the balance that makes the method near-optimal). The chosen window index is
-median-filtered (isolated false alarms of the test), eroded (never above the median) and blurred, and
-the fit interpolated between the two neighbouring windows of the ladder, so the result has no seams.
+`Adaptive` lets the data decide per pixel: it fits a ladder of windows, each doubling the last, and
+keeps at each pixel the window of least estimated risk, its noise variance plus its squared bias
+(`_least_risk`). The noise is known: sigma^2 v_j (sigma the raw field's noise, measured locally from the
+residual of the data's finest window; v_j the filter's variance factor). The bias is measured from the
+step to the next smaller window: a local cubic's bias grows as its window's fourth power, so the step
+is 15/16 of the larger window's bias plus noise of a known variance, sigma^2 (v_{j-1} - v_j) (nested
+fits); the step squared less that noise, averaged over the smaller window's box, estimates the bias
+squared (at the border, where the larger windows fit lines, with the growth of a line's bias). A
+structure finer than two neighbouring windows bends both alike and leaves their step small (a 15-px
+ripple), so the risk chooses among the windows Lepski's test lets through: up to the largest whose fit
+differs from every smaller window's by at most `threshold` (2.5) standard deviations of their
+difference. From one stage position, which cannot tell lens structure from the display's own errors,
+the risk's box-averaged bias estimate follows those errors, and the window is Lepski's alone
+(`bias_weight` 0, `threshold` 3; `calib.ray_field.auto_smoother`). Where the field is smooth
+on the large scale (a Brown-Conrady or non-central lens) the largest window wins and the noise falls
+~8x below one 43-pixel window's; over a local bump the larger windows' bias outweighs their lower
+noise, so the bump keeps a small window, down to the ladder's finer rungs (`Adaptive.finer_rungs`) for
+a feature narrower than the data's finest scale. The squared bias counts `Adaptive.bias_weight` (2)
+times: a bias is common to every capture of the same lens and poses and does not average out
+downstream as noise does. The chosen window index is median-filtered (isolated choices of the noisy
+risk estimate) and blurred, and the fit interpolated between the two neighbouring windows of the
+ladder, so the result has no seams.
 
-The bias the chosen windows let through is estimated after the fact (`_bias`): where the field bends
-within a window its fit departs from the next smaller window's by the bias (a local cubic's bias
-grows as the window's fourth power, so the smaller window's is a sixteenth of it) plus the noise of
-their difference, sigma^2 (v_smaller - v_chosen) (nested fits); the mean over the image of the squared
-step, less that noise, is the fields' mean squared bias, which the uncertainty adds to the noise. On a
-field with local bumps (`tests/calib/test_regularise.py`) the noise alone covers 73 % of the RMS error,
-the two together 94 %.
+Until 2026-12-07 the window was Lepski's alone, at 3 standard deviations, its index then eroded: it let
+through a bias of up to about the noise of the smaller window (69-83 % of a free-form lens's as-held
+ray error was common to two captures; 43-54 % now, docs/calibration.md), and the finer rung served the
+border only, so a bump narrower than the finest scale inside the image kept a window that bent it
+(0.036 px over 60 px on one lens).
+
+The uncertainty is the noise after smoothing. With the bias counted twice in the risk it is a small
+part of the error: on a field with local bumps (`tests/calib/test_regularise.py`) the noise alone covers
+96 % of the RMS error. (Until 2026-12-07 an estimate of the bias Lepski's choice let through was added:
+the step from the chosen window to the next smaller one, less its noise, over the image. With the
+risk's choice that step is small by selection and the estimate read 0, so it is gone.)
 
 A global polynomial (`_base`) is removed first and the local fits smooth the remainder: of degree 3,
 or up to 6 where that models the field to within its noise (a Brown-Conrady lens's r^4 terms; not a
@@ -37,12 +52,9 @@ beyond the smallest. At the border of the data - the image's, or where a larger 
 such as the band a display that does not fill the view leaves - a window becomes one-sided and
 `edge_span` times longer (the off-centre evaluation of a polynomial is noisier), and the larger windows
 fit a line there (`Adaptive.edge_order`), which the base has made enough; the smallest keeps the cubic,
-for a local bump near the border. Being one-sided and longer, the smallest window reaches 2 x
-`edge_span` times farther from a border pixel than from an interior one, and bends a bump there that
-it follows inside: the ladder has one more window, half the smallest (`Adaptive.edge_rungs`), that
-only the pixels within a window of the border may choose (a free-form lens's bumps near the border
-had 3x the interior's systematic error over the outer 30 px, 640 x 512; docs/calibration.md). Window
-sums come from running sums (numba), so a window costs the same whatever its size.
+for a local bump near the border; being one-sided and longer, a window reaches 2 x `edge_span` times
+farther from a border pixel than from an interior one, and there the finer rungs serve. Window sums
+come from running sums (numba), so a window costs the same whatever its size.
 
 Where the ladder starts is measured (`finest_scale`): the finest scale of the structure the fields of
 two stage planes share (the lens's), told from the noise and the display's own errors, which differ
@@ -71,7 +83,7 @@ FILL_PX = 2.0
 # the smallest window (`finest_scale`): the analysis covers at most SCALE_REGION x SCALE_REGION pixels
 # (the centre of a larger image) cut into blocks of a SCALE_BLOCKS-th of its smaller side; the ladder
 # reaches below a window when more than SCALE_SHARE of the blocks are better served by a smaller one,
-# and it keeps at least SCALE_LEVELS windows (doubling, narrower than the image: Lepski's test has a
+# and it keeps at least SCALE_LEVELS windows (doubling, narrower than the image: the risk has a
 # choice everywhere, also for local features too small for a share of the blocks)
 SCALE_REGION = 1024
 SCALE_BLOCKS = 8
@@ -360,23 +372,82 @@ def _fit_axis1(a, lo, hi, g, centre, scale, start, end, half, span, interior, ed
             a[j, r, i] = v
 
 
+def _least_risk(fits: np.ndarray, sigma: np.ndarray, var_v: np.ndarray, var_u: np.ndarray, top: np.ndarray,
+                ladder: list[Smoother], edge: np.ndarray, bias_weight: float) -> np.ndarray:
+    """(H, W) uint8 index of the window j <= top of least estimated risk at each pixel: the window's noise
+    sigma^2 v_j plus bias_weight times its squared bias b_j^2 (module docstring).
+
+    The bias from the step to the next smaller window: a local polynomial of order p has a bias that
+    grows as its window's (p + 1)-th power, g = 2^(p + 1) times per doubling (16 for a cubic), so
+    fit_j - fit_{j-1} = b_j (1 - 1/g); the step squared, less its noise sigma^2 (v_{j-1} - v_j) (nested
+    fits), averaged over window j - 1's box (what the step's noise is correlated over), over (1 - 1/g)^2
+    estimates b_j^2 (clipped at 0). The order is each window's at the pixel:
+    `Smoother.edge_order` within its half window of the border of the data (`edge`, pixels:
+    `_edge_distance`); a window of a lower order than the smaller one has all their step's bias (g
+    infinite). The smallest window's bias: the next one's over g."""
+    index = np.zeros(sigma.shape, np.uint8)
+    best = np.empty(sigma.shape, np.float32)
+    step2 = np.empty(sigma.shape, np.float32)
+    for j in range(1, len(fits)):
+        _step_squared(fits, j, sigma, var_v, var_u, step2)
+        b2 = _box(step2, ladder[j - 1].window)
+        small, large = ladder[j - 1], ladder[j]
+        _risk_update(b2, j, sigma, var_v, var_u, edge, top, bias_weight, small.half_window, small.order,
+                     small.edge_order, large.half_window, large.order, large.edge_order, best, index)
+    return index
+
+
 @numba.njit(cache=True, parallel=True)
-def _lepski(fits, sigma, var_v, var_u, bottom, top, threshold):
-    """(H, W) uint8 index of the largest window bottom <= j <= top whose fit differs from every smaller
-    window i's (from bottom) by at most threshold standard deviations of the difference, sigma *
-    sqrt(var_i - var_j) (exact for nested local polynomial fits: the larger window's weights are a
-    polynomial on the smaller window, so Cov(f_i, f_j) = Var(f_j))."""
+def _step_squared(fits, j, sigma, var_v, var_u, out):
+    """out (H, W) float32: the step from window j - 1's fit to window j's, squared, less its noise sigma^2
+    (v_{j-1} - v_j) (`_least_risk`)."""
+    nw, h, w = fits.shape
+    for r in numba.prange(h):
+        for c in range(w):
+            d = fits[j, r, c] - fits[j - 1, r, c]
+            s2 = sigma[r, c] * sigma[r, c]
+            out[r, c] = d * d - s2 * (var_v[j - 1, r, c] * var_u[j - 1, r, c] - var_v[j, r, c] * var_u[j, r, c])
+
+
+@numba.njit(cache=True, parallel=True)
+def _risk_update(b2, j, sigma, var_v, var_u, edge, top, bias_weight, small_half, small_order, small_edge_order,
+                 large_half, large_order, large_edge_order, best, index):
+    """Window j's risk at each pixel from its box-averaged squared step `b2` (`_least_risk`); where it
+    is below `best` (and j <= top) it becomes the best and `index` j. For j = 1, window 0's risk first."""
+    h, w = b2.shape
+    for r in numba.prange(h):
+        for c in range(w):
+            p_small = small_edge_order if edge[r, c] < small_half else small_order
+            p_large = large_edge_order if edge[r, c] < large_half else large_order
+            # the bias's growth per doubling, g = 2^(p + 1); a lower order than the smaller window's: all
+            # the step is its own bias (g infinite)
+            g = 2.0 ** (p_large + 1) if p_large == p_small else np.inf
+            bias2 = max(b2[r, c], 0.0) / (1.0 - 1.0 / g) ** 2
+            s2 = sigma[r, c] * sigma[r, c]
+            if j == 1:
+                best[r, c] = s2 * var_v[0, r, c] * var_u[0, r, c] + bias_weight * bias2 / (g * g)
+                index[r, c] = 0
+            risk = s2 * var_v[j, r, c] * var_u[j, r, c] + bias_weight * bias2
+            if risk < best[r, c] and j <= top[r, c]:
+                best[r, c] = risk
+                index[r, c] = j
+
+
+@numba.njit(cache=True, parallel=True)
+def _lepski(fits, sigma, var_v, var_u, top, threshold):
+    """(H, W) uint8 index of the largest window j <= top whose fit differs from every smaller window
+    i's by at most threshold standard deviations of the difference, sigma * sqrt(var_i - var_j) (exact
+    for nested local polynomial fits: the larger window's weights are a polynomial on the smaller
+    window, so Cov(f_i, f_j) = Var(f_j)): Lepski's method, the cap on the window of least risk."""
     nw, h, w = fits.shape
     index = np.zeros((h, w), np.uint8)
     for r in numba.prange(h):
         for c in range(w):
             s2 = (threshold * sigma[r, c]) ** 2
-            b = bottom[r, c]
-            index[r, c] = b
-            for j in range(b + 1, min(nw, top[r, c] + 1)):
+            for j in range(1, min(nw, top[r, c] + 1)):
                 vj = var_v[j, r, c] * var_u[j, r, c]
                 ok = True
-                for i in range(b, j):
+                for i in range(j):
                     d = fits[j, r, c] - fits[i, r, c]
                     if d * d > s2 * (var_v[i, r, c] * var_u[i, r, c] - vj):
                         ok = False
@@ -385,6 +456,16 @@ def _lepski(fits, sigma, var_v, var_u, bottom, top, threshold):
                     break
                 index[r, c] = j
     return index
+
+
+def _edge_distance(inside: np.ndarray | None, h: int, w: int) -> np.ndarray:
+    """(H, W) float32 the distance (pixels, along a row or column) of each pixel from the border of the
+    data, the image's or where the pixels inside the data (`_inside`; None: all) end."""
+    r, c = np.ogrid[:h, :w]
+    dist = np.minimum(np.minimum(r, h - 1 - r), np.minimum(c, w - 1 - c)).astype(np.float32)
+    if inside is not None:
+        dist = np.minimum(dist, cv2.distanceTransform(inside.astype(np.uint8), cv2.DIST_C, 3) - 1)
+    return dist
 
 
 @numba.njit(cache=True, parallel=True)
@@ -426,43 +507,46 @@ def _residual2(rem, fit, var_v, var_u, valid):
 
 @dataclass(frozen=True)
 class Adaptive:
-    """Window chosen per pixel (Lepski's method) over a ladder of windows doubling from the smallest.
+    """Window chosen per pixel, the one of least estimated risk (`_least_risk`) up to the largest that
+    Lepski's test lets through (`_lepski`), over a ladder of windows doubling from the smallest.
 
-    half_window: the smallest window's half size m (pixels); levels: the number of windows (those wider
-    than the image are dropped); order: the local polynomial's; edge_order: that of the larger windows'
-    one-sided fits at the border of the data (lower is less noisy there; the smallest windows keep
-    `order`, so the test can fall back to them where the field bends); edge_rungs: how many windows,
-    each half the last, the ladder reaches below m for the pixels within one window (2m+1) of the
-    border of the data (`_border_band`), where a window is one-sided and `Smoother.edge_span` times
-    longer, so that the smallest reaches that much farther from its pixel; threshold: how many
-    standard deviations of their difference a window's fit may differ from a smaller one's; coverage:
-    the least fraction of valid pixels among a window's pixels inside the data (the rest: filled holes)
-    for it to be used (beyond the smallest); blend: the half size (in half windows m) of the median,
-    erosion and box filters applied to the chosen window index.
+    half_window: the smallest window's half size m (pixels) that the data need (`finest_scale`);
+    finer_rungs: how many windows, each half the last, the ladder reaches below m (for a local feature
+    narrower than the data's finest scale, or one near the border, where a window is one-sided and
+    `Smoother.edge_span` times longer, so that it reaches that much farther from its pixel); levels: the
+    number of windows from m up (those wider than the image are dropped); order: the local polynomial's;
+    edge_order: that of the windows' above m one-sided fits at the border of the data (lower is less
+    noisy there; the windows up to m keep `order`, for a local bump near the border); bias_weight: how
+    much a window's squared bias counts against its noise variance in the risk; threshold: the cap, how
+    many standard deviations of their difference the chosen window's fit may differ from any smaller
+    one's; coverage: the least fraction of valid pixels among a window's pixels inside the data (the
+    rest: filled holes) for it to be used (beyond the smallest); blend: the half size (in half windows m) of the median and box filters
+    applied to the chosen window index.
     """
 
     half_window: int = 20
     levels: int = 4
     order: int = 3
     edge_order: int = 1
-    edge_rungs: int = 1
-    threshold: float = 3.0
+    finer_rungs: int = 1
+    bias_weight: float = 2.0
+    threshold: float = 2.5
     coverage: float = 0.9
     blend: float = 1.0
 
     @property
     def window(self) -> int:
-        """The smallest window away from the border (pixels)."""
+        """The window of the data's finest scale, 2m + 1 (pixels); the ladder's `below` windows are finer."""
         return 2 * self.half_window + 1
 
     @property
     def below(self) -> int:
-        """The windows of the ladder below `half_window`, used at the border only: as many of
-        `edge_rungs` as keep a half window of at least 2 (a cubic's least)."""
-        return sum(1 for k in range(1, self.edge_rungs + 1) if self.half_window >> k >= 2)
+        """The windows of the ladder below `half_window`: as many of `finer_rungs` as keep a half window of
+        at least 2 (a cubic's least)."""
+        return sum(1 for k in range(1, self.finer_rungs + 1) if self.half_window >> k >= 2)
 
     def ladder(self) -> list[Smoother]:
-        """The windows, smallest first: the `below` border-only ones, then `levels` doubling from m."""
+        """The windows, smallest first: the `below` finer ones, then `levels` doubling from m."""
         lower = [Smoother(self.half_window >> k, self.order, self.order) for k in range(self.below, 0, -1)]
         return lower + [Smoother(self.half_window * 2 ** j, self.order, self.order if j == 0 else self.edge_order)
                         for j in range(self.levels)]
@@ -472,15 +556,12 @@ class Adaptive:
 class Regularised:
     """Result of `smooth_fields`. fields: (K, H, W) float64 smoothed, NaN outside valid; noise: (K, H, W)
     float32 estimated 1-sigma noise of the raw fields; gain: (K, H, W) float32 the noise after / before
-    at each pixel; window: (H, W) float32 the effective window (pixels) used, averaged over the fields;
-    bias: (K,) the RMS bias of each smoothed field, estimated (`_bias`; 0 with one window), in the
-    fields' units."""
+    at each pixel; window: (H, W) float32 the effective window (pixels) used, averaged over the fields."""
 
     fields: np.ndarray
     noise: np.ndarray
     gain: np.ndarray
     window: np.ndarray
-    bias: np.ndarray
 
 
 def window_halves(h: int, w: int) -> list[int]:
@@ -660,29 +741,14 @@ def _box(a: np.ndarray, size: int) -> np.ndarray:
 
 
 def _smooth_index(index: np.ndarray, levels: int, size: int, inside: np.ndarray | None = None) -> np.ndarray:
-    """The chosen window index made smooth: median (drops the test's isolated false alarms), eroded
-    (so that it nowhere exceeds the median) and box-blurred over size x size pixels; with `inside`,
-    each over the pixels inside the data only (outside them there is no index)."""
+    """The chosen window index made smooth: median (drops isolated choices of a noisy risk estimate) and
+    box-blurred over size x size pixels; with `inside`, each over the pixels inside the data only
+    (outside them there is no index)."""
     med = _box_median(index, levels, size, inside)
-    if inside is not None:
-        med[~inside] = levels - 1                       # no pull on the erosion
-    # the index's values are whole numbers below 256: eroded as bytes (exact, and 3-4x faster than floats)
-    ero = cv2.erode(med.astype(np.uint8), np.ones((size, size), np.uint8),
-                    borderType=cv2.BORDER_REPLICATE).astype(np.float32)
     if inside is None:
-        return _box(ero, size)
+        return _box(med, size)
     f = inside.astype(np.float32)
-    return _box(np.where(inside, ero, 0), size) / np.maximum(_box(f, size), 1e-6)
-
-
-def _border_band(inside: np.ndarray | None, h: int, w: int, width: int) -> np.ndarray:
-    """(H, W) bool: the pixels less than `width` pixels (along a row or column) from the border of the
-    data, the image's or where the pixels inside the data (`_inside`; None: all) end."""
-    r, c = np.ogrid[:h, :w]
-    band = np.minimum(np.minimum(r, h - 1 - r), np.minimum(c, w - 1 - c)) < width
-    if inside is not None:
-        band |= cv2.distanceTransform(inside.astype(np.uint8), cv2.DIST_C, 3) <= width
-    return band
+    return _box(np.where(inside, med, 0), size) / np.maximum(_box(f, size), 1e-6)
 
 
 def _inside(valid: np.ndarray) -> np.ndarray | None:
@@ -758,23 +824,19 @@ def smooth_fields(fields: np.ndarray, valid: np.ndarray, smoother: Smoother | Ad
     box = ladder[below].window
     count = _box(vf, box)
     # the largest window allowed at each pixel: one whose share of valid pixels among those inside the
-    # data reaches `coverage` (holes are filled, not fitted); the smallest: the border-only windows
-    # (`Adaptive.edge_rungs`) within the border band, else the first above them
+    # data reaches `coverage` (holes are filled, not fitted); every pixel may take the finer ones
     top = np.full((h, w), below, np.uint8)
     for j, s in enumerate(ladder[below + 1:], below + 1):
         share = _box(vf, s.window)
         if inside is not None:
             share = share / np.maximum(_box(inside.astype(np.float32), s.window), 1e-6)
         top[share >= smoother.coverage] = j
-    bottom = np.zeros((h, w), np.uint8)
-    if below:
-        bottom[~_border_band(inside, h, w, ladder[below].window)] = below
     windows = np.array([s.window for s in ladder], np.float32)
+    edge = _edge_distance(inside, h, w) if nw > 1 else None
     out = np.empty((k, h, w))
     noise = np.empty((k, h, w), np.float32)
     gain = np.empty((k, h, w), np.float32)
     window = np.zeros((h, w), np.float32)
-    bias = np.zeros(k)
     for i in range(k):
         base = _base(fields[i], valid)
         rem = fitter.filled(_masked(fields[i] - base, valid))
@@ -783,24 +845,11 @@ def smooth_fields(fields: np.ndarray, valid: np.ndarray, smoother: Smoother | Ad
         sigma = np.sqrt(np.maximum(e2, 0) / np.maximum(count, 1e-6))
         index = np.zeros((h, w), np.float32)
         if nw > 1:
-            index = _lepski(fits, sigma, pv, pu, bottom, top, smoother.threshold)
+            cap = _lepski(fits, sigma, pv, pu, top, smoother.threshold)
+            index = _least_risk(fits, sigma, pv, pu, cap, ladder, edge, smoother.bias_weight)
             size = 2 * int(round(smoother.blend * ladder[below].half_window)) + 1
             index = _smooth_index(index, nw, size, inside)
         out[i], gain[i], win = _blend(fits, index, pv, pu, base, valid, windows)
         noise[i] = np.where(valid, sigma, np.nan)
         window += win / k
-        if nw > 1:
-            smaller = _blend(fits, np.maximum(index - 1, bottom).astype(np.float32), pv, pu, base, valid, windows)
-            bias[i] = _bias(out[i], gain[i], smaller[0], smaller[1], sigma, valid)
-    return Regularised(out, noise, gain, window, bias)
-
-
-def _bias(value: np.ndarray, gain: np.ndarray, smaller: np.ndarray, smaller_gain: np.ndarray, sigma: np.ndarray,
-          valid: np.ndarray) -> float:
-    """The RMS bias of a smoothed field `value` (H, W) of noise gain `gain` (noise after / before), from
-    its fit at one window of the ladder smaller, `smaller` with its gain `smaller_gain`, and the raw
-    noise `sigma` (module docstring): sqrt(max(0, mean (value - smaller)^2 - mean sigma^2 (g_s^2 -
-    g^2))) over the valid pixels."""
-    step = (value - smaller)[valid]
-    noise = sigma[valid] ** 2 * np.maximum(smaller_gain[valid].astype(np.float64) ** 2 - gain[valid] ** 2, 0.0)
-    return float(np.sqrt(max(np.mean(step ** 2) - np.mean(noise), 0.0))) if step.size else 0.0
+    return Regularised(out, noise, gain, window)

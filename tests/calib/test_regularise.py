@@ -76,8 +76,9 @@ def test_adaptive_lowers_noise_by_the_predicted_factor_where_smooth(adaptive_run
     err_fix = np.sqrt(np.mean((fix - field)[:, sel] ** 2))
     predicted = np.sqrt(np.mean((SIGMA * last.gain[0][sel]) ** 2))
     assert err_ada == pytest.approx(predicted, rel=0.25)
-    # there the largest windows (81 and 161 px) are chosen: 2.5x to 8x less noise than 21 px
-    assert np.median(last.window[sel]) > 80
+    # there windows between 41 and 81 px are chosen (a 161-px window bends the long wave): 2.5x less
+    # error than 21 px
+    assert np.median(last.window[sel]) > 60
     assert err_ada < err_fix / 2.5
 
 
@@ -99,26 +100,36 @@ def test_adaptive_does_not_bias_local_bumps(adaptive_runs):
         assert np.median(last.window[near]) <= 41                          # small windows chosen there
 
 
-def test_adaptive_uncertainty_with_its_bias_covers_the_error(adaptive_runs):
-    """The reported error of the adaptive fit (the noise after smoothing and the estimated bias) against
-    its RMS error over the eight realisations and the whole field: the noise alone covers 73 % of it
-    (the bumps and the long wave bend the larger windows), the two together 94 %."""
+def test_adaptive_uncertainty_covers_the_error(adaptive_runs):
+    """The reported error of the adaptive fit (the noise after smoothing) against its RMS error over the
+    eight realisations and the whole field: it covers 96 % of it, the bias the windows of least risk let
+    through being a small part (below). (Lepski's choice alone, before 2026-12-07: 73 %.)"""
     field, smooth, ada, fix, last = adaptive_runs
     err = np.sqrt(np.mean((ada - field) ** 2))
     noise = np.sqrt(np.mean((last.noise[0] * last.gain[0]) ** 2))
-    assert noise < 0.8 * err
-    assert np.hypot(noise, last.bias[0]) == pytest.approx(err, rel=0.12)
+    assert noise == pytest.approx(err, rel=0.1)
 
 
-def test_bias_of_a_field_the_windows_follow_exactly_is_zero():
-    """A cubic with white noise: every window follows it, so the fits differ by their noise alone and
-    the estimated bias is 0 (the error is the noise after smoothing, to 15 %)."""
+def test_adaptive_keeps_the_bias_below_half_the_error(adaptive_runs):
+    """The window of least risk counts the squared bias twice (`Adaptive.bias_weight`), so the error
+    common to all eight realisations (the bias) is well below half the RMS error (Lepski's method alone
+    at 3 sigma, the choice before 2026-12-07: 68 %, above the noise)."""
+    field, smooth, ada, fix, last = adaptive_runs
+    err = ada - field
+    common = err.mean(axis=0)
+    spread = np.mean((err - common) ** 2)
+    bias = np.sqrt(np.mean(common ** 2) - spread / (len(ada) - 1))   # the mean keeps 1/n of the noise
+    assert bias < 0.5 * np.sqrt(np.mean(err ** 2))
+
+
+def test_a_field_the_windows_follow_exactly_errs_by_its_noise():
+    """A cubic with white noise: every window follows it, the largest are chosen, and the error is the
+    noise after smoothing, to 15 %."""
     v, u = np.mgrid[0:H, 0:W].astype(float)
     cubic = 1e-6 * (u ** 3 - 2 * v ** 3) + 1e-4 * u * v - 0.01 * u + 3.0
     reg = smooth_fields((cubic + np.random.default_rng(2).normal(0, SIGMA, (H, W)))[None], np.ones((H, W), bool),
                         Adaptive(half_window=10))
     noise = np.sqrt(np.mean((reg.noise[0] * reg.gain[0]) ** 2))
-    assert reg.bias[0] < 0.2 * noise
     assert np.sqrt(np.mean((reg.fields[0] - cubic) ** 2)) == pytest.approx(noise, rel=0.15)
 
 
@@ -241,25 +252,36 @@ def test_the_smallest_window_follows_lens_structure_common_to_both_planes_not_th
     assert finest_scale(*_planes(rng, own=own), valid) == smooth
 
 
-def test_a_bump_at_the_border_is_followed_by_the_border_only_window():
-    """A lens bump (16 px) on the image's left border: there the smallest window (41 px) is one-sided and
-    82 px long, and bends the bump away; the window half its size that the ladder keeps for the border
-    band (`Adaptive.edge_rungs`) follows it, 3x closer to the truth, while away from the border the fit
-    is the same as without that window."""
-    field, _ = _truth()
-    v, u = np.mgrid[0:H, 0:W].astype(float)
-    field = field + 2.0 * np.exp(-((u - 3) ** 2 + (v - 130) ** 2) / (2 * 16.0 ** 2))
-    near = (u < 25) & (np.abs(v - 130) < 25)
-    rng = np.random.default_rng(3)
+def _finer_rung_errors(field: np.ndarray, near: np.ndarray, seed: int) -> tuple[float, float]:
+    """The RMS error over `near` of the adaptive fit (finest scale 41 px) without and with the finer rung
+    (21 px), over six noise realisations."""
+    rng = np.random.default_rng(seed)
     fits = {0: [], 1: []}
     for _ in range(6):
         raw = (field + rng.normal(0, SIGMA, (H, W)))[None]
         for rungs in fits:
             fits[rungs].append(smooth_fields(raw, np.ones((H, W), bool),
-                                             Adaptive(half_window=20, edge_rungs=rungs)).fields[0])
-    without, with_ = np.stack(fits[0]), np.stack(fits[1])
-    err_without = np.sqrt(np.mean((without - field)[:, near] ** 2))
-    err_with = np.sqrt(np.mean((with_ - field)[:, near] ** 2))
-    assert err_with < err_without / 3
-    # the border's window is not the cause of the interior's error: the same fit there
-    np.testing.assert_allclose(with_[:, 100:-100, 100:-100], without[:, 100:-100, 100:-100], atol=1e-6)
+                                             Adaptive(half_window=20, finer_rungs=rungs)).fields[0])
+    return tuple(float(np.sqrt(np.mean((np.stack(fits[k]) - field)[:, near] ** 2))) for k in (0, 1))
+
+
+def test_a_bump_at_the_border_is_followed_by_the_finer_window():
+    """A lens bump (16 px) on the image's left border: there the finest scale's window (41 px) is
+    one-sided and 82 px long, and bends the bump away; the ladder's finer rung, half its size
+    (`Adaptive.finer_rungs`), follows it, 3x closer to the truth."""
+    field, _ = _truth()
+    v, u = np.mgrid[0:H, 0:W].astype(float)
+    field = field + 2.0 * np.exp(-((u - 3) ** 2 + (v - 130) ** 2) / (2 * 16.0 ** 2))
+    without, with_ = _finer_rung_errors(field, (u < 25) & (np.abs(v - 130) < 25), seed=3)
+    assert with_ < without / 3
+
+
+def test_a_bump_narrower_than_the_finest_scale_is_followed_inside_the_image():
+    """A bump of 8 px inside the image, narrower than the finest scale the ladder was given (41 px): the
+    finer rung follows it, 4x closer to the truth than without it (Lepski's method, before 2026-12-07,
+    kept the finer rung for the border and erred by as much as without it, 0.21)."""
+    field, _ = _truth()
+    v, u = np.mgrid[0:H, 0:W].astype(float)
+    field = field + 2.0 * np.exp(-((u - 160) ** 2 + (v - 60) ** 2) / (2 * 8.0 ** 2))
+    without, with_ = _finer_rung_errors(field, (u - 160) ** 2 + (v - 60) ** 2 < 16 ** 2, seed=3)
+    assert with_ < without / 3
