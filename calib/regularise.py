@@ -25,11 +25,11 @@ the risk's box-averaged bias estimate follows those errors, and the window is Le
 on the large scale (a Brown-Conrady or non-central lens) the largest window wins and the noise falls
 ~8x below one 43-pixel window's; over a local bump the larger windows' bias outweighs their lower
 noise, so the bump keeps a small window, down to the ladder's finer rungs (`Adaptive.finer_rungs`)
-within a window of the border, or where Lepski's test rejects the finest scale's window. The squared bias counts `Adaptive.bias_weight` (2)
-times: a bias is common to every capture of the same lens and poses and does not average out
-downstream as noise does. The chosen window index is median-filtered (isolated choices of the noisy
-risk estimate) and blurred, and the fit interpolated between the two neighbouring windows of the
-ladder, so the result has no seams.
+within a window of the border, or where Lepski's test rejects the finest scale's window. The squared
+bias counts `Adaptive.bias_weight` (2) times: a bias is common to every capture of the same lens and
+poses and does not average out downstream as noise does. The chosen window index is median-filtered
+(isolated choices of the noisy risk estimate) and blurred, and the fit interpolated between the two
+neighbouring windows of the ladder, so the result has no seams.
 
 Until 2026-12-07 the window was Lepski's alone, at 3 standard deviations, its index then eroded: it let
 through a bias of up to about the noise of the smaller window (69-83 % of a free-form lens's as-held
@@ -390,9 +390,9 @@ def _least_risk(fits: np.ndarray, sigma: np.ndarray, var_v: np.ndarray, var_u: n
     best = np.empty(sigma.shape, np.float32)
     step2 = np.empty(sigma.shape, np.float32)
     for j in range(1, len(fits)):
-        _step_squared(fits, j, sigma, var_v, var_u, step2)
-        b2 = _box(step2, ladder[j - 1].window)
         small, large = ladder[j - 1], ladder[j]
+        _step_squared(fits, j, sigma, var_v, var_u, step2)
+        b2 = _box(step2, small.window)
         _risk_update(b2, j, sigma, var_v, var_u, edge, top, bias_weight, small.half_window, small.order,
                      small.edge_order, large.half_window, large.order, large.edge_order, best, index)
     return index
@@ -521,8 +521,8 @@ class Adaptive:
     much a window's squared bias counts against its noise variance in the risk; threshold: the cap, how
     many standard deviations of their difference the chosen window's fit may differ from any smaller
     one's; coverage: the least fraction of valid pixels among a window's pixels inside the data (the
-    rest: filled holes) for it to be used (beyond the smallest); blend: the half size (in half windows m) of the median and box filters
-    applied to the chosen window index.
+    rest: filled holes) for it to be used (beyond the smallest); blend: the half size (in half windows
+    m) of the median and box filters applied to the chosen window index.
     """
 
     half_window: int = 20
