@@ -1,5 +1,10 @@
-"""The compiled DIC kernels (stereodic/dic/src, C with OpenMP), built at install; everything else about
-the package is in pyproject.toml. Why compiled: docs/dic.md, "Start-up and the compiled kernels"."""
+"""The compiled kernels (C with OpenMP), built at install; everything else about the package is in
+pyproject.toml. Why compiled: docs/dic.md, "Start-up and the compiled kernels".
+
+- stereodic.dic._kernels (stereodic/dic/src): B-splines, IC-GN, propagation, the maps' raster cells;
+- stereodic.stereo._kernels (stereodic/stereo/src): the triangulation and the rays' distances;
+- stereodic.strain._kernels (stereodic/strain/src): the 3-D strain fit.
+Their arrays pass through stereodic/src/buffers.h."""
 
 from setuptools import Extension, setup
 
@@ -9,8 +14,16 @@ from setuptools import Extension, setup
 FLAGS = ["-O3", "-march=native", "-fopenmp", "-fno-math-errno", "-funsafe-math-optimizations",
          "-ffp-contract=fast", "-std=c11"]
 
-setup(ext_modules=[Extension(
-    "stereodic.dic._kernels",
-    sources=[f"stereodic/dic/src/{name}.c" for name in ("module", "bspline", "icgn", "propagation", "raster")],
-    depends=[f"stereodic/dic/src/{name}.h" for name in ("bspline", "icgn", "propagation", "raster")],
-    extra_compile_args=FLAGS, extra_link_args=["-fopenmp"])])
+
+def kernels(package: str, names: tuple[str, ...], headers: tuple[str, ...] = ()) -> Extension:
+    """The extension `package`._kernels from the C files `names` in the package's src folder."""
+    src = package.replace(".", "/") + "/src"
+    return Extension(f"{package}._kernels", sources=[f"{src}/{name}.c" for name in names],
+                     depends=[f"{src}/{name}.h" for name in headers] + ["stereodic/src/buffers.h"],
+                     include_dirs=["stereodic/src"], extra_compile_args=FLAGS, extra_link_args=["-fopenmp"])
+
+
+setup(ext_modules=[kernels("stereodic.dic", ("module", "bspline", "icgn", "propagation", "raster"),
+                           ("bspline", "icgn", "propagation", "raster")),
+                   kernels("stereodic.stereo", ("module",)),
+                   kernels("stereodic.strain", ("module",))])

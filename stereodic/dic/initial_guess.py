@@ -241,7 +241,7 @@ def feature_guess(matches: tuple[np.ndarray, np.ndarray], xs: np.ndarray, ys: np
 
 # from this many point-to-match distances `_nearest` takes scipy's k-d tree rather than the distance
 # matrix and its partial sort (numpy, 5-15 ns a distance), whose first use in a process imports
-# scipy.spatial (0.04-0.15 s; `dic` imports it beside its first state, `stereo.load_kernels`): a `dic2d`
+# scipy.spatial (0.04-0.15 s; `dic` imports it beside its first state: `stereodic.cli.dic`): a `dic2d`
 # lattice's guess (2M distances) stays on numpy, a stereo run's temporal guess of a deformed state (6-10M
 # distances, 0.2 s a state) takes the tree (0.01-0.02 s)
 TREE_DISTANCES = 2 ** 22

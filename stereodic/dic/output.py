@@ -41,9 +41,8 @@ def csv_header(has_strain: bool) -> str:
 
 
 def csv_rows(k: int, f: DicField, m: StrainMeasure | None) -> str:
-    """The rows of deformed image k (its field and strain measure), newline-terminated; with more than one
-    thread (`background.threads`) and more than SPLIT_ROWS rows, their halves formatted side by side
-    (numpy's array operations release the interpreter's lock)."""
+    """The rows of deformed image k (its field and strain measure), newline-terminated (on two threads:
+    `format_rows_beside`)."""
     act = f.grid.active.ravel()
     X, Y = f.grid.points()
     status = f.points.status[act]
@@ -53,7 +52,14 @@ def csv_rows(k: int, f: DicField, m: StrainMeasure | None) -> str:
     if m is not None:
         formats += tuple(ff for _, _, ff in STRAIN_COLUMNS) + ("%d",)
         columns += [getattr(m, field).ravel()[act] for _, field, _ in STRAIN_COLUMNS] + [m.valid.ravel()[act]]
-    n = len(status)
+    return format_rows_beside(columns, formats)
+
+
+def format_rows_beside(columns: list[np.ndarray], formats: tuple[str, ...] | list[str]) -> str:
+    """`calib.csv_text.format_rows(columns, formats)`; with more than one thread (`background.threads`) and
+    more than SPLIT_ROWS rows, its halves formatted side by side (numpy's array operations release the
+    interpreter's lock)."""
+    n = len(columns[0]) if columns else 0
     if threads() < 2 or n < SPLIT_ROWS:
         return format_rows(columns, formats)
     return "".join(side_by_side(*(lambda part=part: format_rows([c[part] for c in columns], formats)

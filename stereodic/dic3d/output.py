@@ -28,12 +28,11 @@ from typing import Callable, Iterable, Sequence
 import numpy as np
 
 from calib.atomic import atomic_output
-from calib.csv_text import format_rows
 from calib.npz_stream import write_stacked_npz
 from stereodic.dic.grid import Grid
 from stereodic.dic.icgn import OK, OUTSIDE, STATUS_NAMES
 from stereodic.dic.maps import Backdrop, MapAxes, MapMovie, MapPainter, RunScales, save_map, value_range
-from stereodic.dic.output import STRAIN_COLUMNS
+from stereodic.dic.output import STRAIN_COLUMNS, format_rows_beside
 from stereodic.dic3d.stereo import NO_REFERENCE, RAY_GAP, CameraMatch, StereoSettings, StereoState
 from stereodic.strain.measures import StrainMeasure
 
@@ -52,7 +51,8 @@ def csv_columns(has_strain: bool, has_deformation: bool = False) -> list[str]:
 
 
 def csv_rows(grid: Grid, st: StereoState) -> str:
-    """The CSV rows (module docstring) of one state, newline-terminated."""
+    """The CSV rows (module docstring) of one state, newline-terminated (on two threads:
+    `stereodic.dic.output.format_rows_beside`)."""
     names = np.array(STATUS_NAMES, "S")
     act = grid.active.ravel()
     X, Y = grid.points()
@@ -74,7 +74,7 @@ def csv_rows(grid: Grid, st: StereoState) -> str:
     if st.deformation is not None:
         deformation = flat(st.deformation)
         cols += [(deformation[:, i], "%.6f") for i in range(3)]
-    return format_rows([c for c, _ in cols], [f for _, f in cols])
+    return format_rows_beside([c for c, _ in cols], [f for _, f in cols])
 
 
 def write_csv(path: str | os.PathLike, rows: Iterable[str], *, has_strain: bool, has_deformation: bool = False) -> None:

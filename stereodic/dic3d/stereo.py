@@ -62,7 +62,7 @@ from stereodic.dic3d.refit import offset_at, offset_seed_search
 from stereodic.stereo.rig import Rig
 from stereodic.strain.fit import Strain, StrainFit, strain_3d
 from stereodic.strain.measures import StrainMeasure, measure_strain
-from stereodic.stereo.triangulate import ray_distances, triangulate
+from stereodic.stereo.triangulate import triangulate
 
 CROSS_DECORRELATED = tuple(c for c in DECORRELATED if c != OUTSIDE)
 
@@ -444,19 +444,6 @@ def _stereo_at(pair: PreparedPair, s: DicSettings, xs: np.ndarray, ys: np.ndarra
             r.warp, r.zncc, r.iterations, r.status)
         noise[track] = pair.left_ref().noise(xs[track], ys[track], s.half)
     return res, noise
-
-
-def load_kernels(rig: Rig) -> None:
-    """Load the compiled (numba) kernels that each state's points and strains take - the triangulation,
-    the rays' distances, the strain fit - by running them on one point: their first call in a process
-    imports numba and loads them from its cache (a few tenths of a second), which a thread can do beside
-    the rig check and the first state's correlation rather than after them; and scipy's k-d tree, which
-    the deformed states' feature guesses take (`initial_guess.TREE_DISTANCES`), imported."""
-    import scipy.spatial  # noqa: F401  (imported for its first user)
-    x = np.zeros(1)
-    triangulate(rig, x, x, x)
-    ray_distances(rig, x, x, x, x, compiled=True)
-    StrainFit(np.zeros((3, 3, 3)))(np.zeros((3, 3, 3)))
 
 
 def _state(run: StereoRun, k: int, left: CameraMatch, right: CameraMatch, incremental: np.ndarray) -> StereoState:

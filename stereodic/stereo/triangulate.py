@@ -9,8 +9,9 @@ common plane (`VirtualSensor.points`):
 - corrected=False: the pinhole ray from the camera's optical centre (what the Q matrix computes).
 The point is the midpoint of the closest points of the two rays; `gap_mm` is their distance (zero for a
 perfect match of a perfect rig; a quality figure). Rays that are blank or parallel give NaN.
-`rays_at` and `closest_points` are the numpy statement of this; `triangulate` runs it as one fused numba
-kernel (ray lookup + closest points per match, matches in parallel, no temporaries), ~10 M matches/s.
+`rays_at` and `closest_points` are the numpy statement of this; `triangulate` runs it as one fused compiled
+kernel (ray lookup + closest points per match, matches in parallel, no temporaries: C with OpenMP in
+`stereodic.stereo._kernels`, stereodic/stereo/src), ~10 M matches/s.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stereodic.stereo._kernels import distances_all, triangulate_all
 from stereodic.stereo.rig import Rig
 from stereodic.virtual.sampling import bilinear
 
@@ -77,40 +79,25 @@ def closest_points(o1: np.ndarray, d1: np.ndarray, o2: np.ndarray, d2: np.ndarra
     return Triangulation((p1 + p2) / 2, np.linalg.norm(p1 - p2, axis=-1))
 
 
-# below this many matches `ray_distances` takes numpy rather than its kernel, whose first call in a
-# process loads numba's machinery (0.4-0.5 s, mostly holding the interpreter's lock): the rig check's few
-# hundred features, before the correlation, need not wait for it
-FEW_MATCHES = 4096
-
-
-def ray_distances(rig: Rig, x_left, row_left, x_right, row_right, *, compiled: bool | None = None) -> np.ndarray:
+def ray_distances(rig: Rig, x_left, row_left, x_right, row_right) -> np.ndarray:
     """Signed distances between the left ray at (x_left, row_left) and the right ray at (x_right,
     row_right), virtual pixels (broadcast to one shape; EVM-corrected rays, `rays_at`), mm: (o_r - o_l) .
     n / |n| with n = d_l x d_r (the sign tells on which side of the left ray the right one passes); NaN
-    where a ray is blank or the two are parallel. `compiled`: True a numba kernel (matches in parallel;
-    0.1 us a match once loaded), False numpy (about 1 us a match, nothing to load), None: numpy below
-    FEW_MATCHES matches, the kernel from there."""
+    where a ray is blank or the two are parallel. A compiled kernel (matches in parallel, 0.1 us a match)."""
     arrays = np.broadcast_arrays(*(np.asarray(a, np.float64) for a in (x_left, row_left, x_right, row_right)))
     xl, rl, xr, rr = (np.ascontiguousarray(a, np.float64).ravel() for a in arrays)
-    if compiled or (compiled is None and xl.size >= FEW_MATCHES):
-        sensor = rig.sensor
-        out = np.empty(xl.size)
-        from stereodic.stereo.triangulate_kernels import distances_all
-        distances_all(xl, rl, xr, rr, sensor.origin, sensor.axis_u * sensor.pitch_mm[0],
-                      sensor.axis_v * sensor.pitch_mm[1], np.ascontiguousarray(rig.left.direction, np.float64),
-                      np.ascontiguousarray(rig.right.direction, np.float64), out)
-    else:
-        (o1, d1), (o2, d2) = rays_at(rig, "left", xl, rl), rays_at(rig, "right", xr, rr)
-        n = np.cross(d1, d2)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out = np.einsum("ij,ij->i", o2 - o1, n) / np.linalg.norm(n, axis=1)
+    sensor = rig.sensor
+    out = np.empty(xl.size)
+    distances_all(xl, rl, xr, rr, sensor.origin, sensor.axis_u * sensor.pitch_mm[0],
+                  sensor.axis_v * sensor.pitch_mm[1], np.ascontiguousarray(rig.left.direction, np.float64),
+                  np.ascontiguousarray(rig.right.direction, np.float64), out)
     return out.reshape(arrays[0].shape)
 
 
 def triangulate(rig: Rig, x_left, x_right, row, *, row_right=None, corrected: bool = True) -> Triangulation:
     """3D points of matched virtual positions (x_left, row) <-> (x_right, row_right).
 
-    A numba kernel (matches in parallel) that equals `closest_points(*rays_at(left), *rays_at(right))`.
+    A compiled kernel (matches in parallel) that equals `closest_points(*rays_at(left), *rays_at(right))`.
 
     Parameters
     ----------
@@ -137,7 +124,6 @@ def triangulate(rig: Rig, x_left, x_right, row, *, row_right=None, corrected: bo
     sensor = rig.sensor
     points = np.empty((xl.size, 3))
     gap = np.empty(xl.size)
-    from stereodic.stereo.triangulate_kernels import triangulate_all
     triangulate_all(xl, rl, xr, rr, sensor.origin, sensor.axis_u * sensor.pitch_mm[0],
                     sensor.axis_v * sensor.pitch_mm[1], np.ascontiguousarray(rig.left.direction, np.float64),
                     np.ascontiguousarray(rig.right.direction, np.float64), rig.left.centre.astype(np.float64),

@@ -10,7 +10,8 @@ the deformation gradient and the Green-Lagrange strain E = (F^T F - I) / 2.
   motion and the surface's tilt are handled; components in the tangent frame (e1, e2), e1 the
   projection of the x axis on the plane, e2 = n x e1, n oriented towards +z. `StrainFit` does the same
   for many displacement fields on one surface (a sequence's states on its reference shape); the fits
-  run in one compiled kernel, the grid's rows in parallel.
+  run in one compiled kernel, the grid's rows in parallel (C with OpenMP: `stereodic.strain._kernels`,
+  stereodic/strain/src).
 Strains are dimensionless; NaN (with valid = False) where the window holds too few valid points or
 the centre point is not valid.
 """
@@ -20,6 +21,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from stereodic.strain._kernels import fit_all
 
 
 @dataclass
@@ -99,7 +102,6 @@ class StrainFit:
         ok = np.empty(shape, np.bool_)
         grad = np.empty(shape + (3, 2))
         normal, e1 = np.empty(shape + (3,)), np.empty(shape + (3,))
-        from stereodic.strain.fit_kernels import fit_all
         fit_all(X, D, self.window, self.min_fraction * self.window ** 2, exx, eyy, exy, ok, grad, normal, e1)
         return Strain(exx, eyy, exy, ok, grad, normal, e1)
 

@@ -83,14 +83,11 @@ def test_numba_kernel_equals_the_numpy_statement(corrected):
     assert np.abs(got.gap_mm[ok] - ref.gap_mm[ok]).max() < 1e-9
 
 
-@pytest.mark.parametrize("compiled", [True, False, None])
-def test_ray_distances_are_the_signed_gap_of_the_triangulation(compiled):
-    """The signed distance between the two rays, by the kernel and by numpy (and by the choice on the
-    count): its size is triangulate's gap (the same rays, another kernel), zero for the simulator's true
-    matches, and it changes sign across the epipolar row."""
-    import functools
-    from stereodic.stereo import triangulate as tr
-    ray_distances = functools.partial(tr.ray_distances, compiled=compiled)
+def test_ray_distances_are_the_signed_gap_of_the_triangulation():
+    """The signed distance between the two rays (the compiled kernel): numpy's statement of it from
+    `rays_at` (o_r - o_l) . n / |n|, n = d_l x d_r; its size is triangulate's gap (the same rays, another
+    kernel), zero for the simulator's true matches, and it changes sign across the epipolar row."""
+    from stereodic.stereo.triangulate import ray_distances, rays_at
     ll, lr, pl, pr, rig = pair("noncentral", "brown")
     x = volume_points(rig, 500, 1.0, seed=5)
     left, right = seen_at(rig, ll, pl, x), seen_at(rig, lr, pr, x)
@@ -104,5 +101,9 @@ def test_ray_distances_are_the_signed_gap_of_the_triangulation(compiled):
         assert np.all(np.sign(d) == np.sign(d[0])) and np.abs(d).min() > 0.05
     assert np.sign(ray_distances(rig, xl[:1], yl[:1], xr[:1], yr[:1] + 0.7)) != \
         np.sign(ray_distances(rig, xl[:1], yl[:1], xr[:1], yr[:1] - 0.7))
+    (o1, d1), (o2, d2) = rays_at(rig, "left", xl, yl), rays_at(rig, "right", xr, yr + 0.7)
+    n = np.cross(d1, d2)
+    assert np.allclose(ray_distances(rig, xl, yl, xr, yr + 0.7),
+                       np.einsum("ij,ij->i", o2 - o1, n) / np.linalg.norm(n, axis=1), rtol=1e-9, atol=1e-12)
     blank = ray_distances(rig, np.array([np.nan, xl[0]]), yl[:2], xr[:2], yr[:2])
     assert np.isnan(blank[0]) and np.isfinite(blank[1])

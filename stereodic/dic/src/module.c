@@ -3,71 +3,17 @@
  * called by stereodic.dic.interpolation, .icgn, .propagation and .maps, which document them.
  *
  * Arrays come in through the buffer protocol (numpy arrays, C-contiguous, of the dtype each function
- * names); every shape is checked here, so a wrong call raises ValueError instead of reading out of
- * bounds. The GIL is released while a kernel runs; OpenMP threads share the points. */
+ * names); every shape is checked (stereodic/src/buffers.h), so a wrong call raises ValueError instead of
+ * reading out of bounds. The GIL is released while a kernel runs; OpenMP threads share the points. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 
 #include <math.h>
 #include <string.h>
 
+#include "buffers.h"
 #include "propagation.h"
 #include "raster.h"
-
-#define MAX_BUFFERS 24
-#define ANY (-1)
-
-typedef struct {
-    Py_buffer b[MAX_BUFFERS];
-    int n;
-} Buffers;
-
-static void release(Buffers *bs)
-{
-    for (int i = 0; i < bs->n; ++i)
-        PyBuffer_Release(&bs->b[i]);
-    bs->n = 0;
-}
-
-/* The data of array `o` (C-contiguous, element type 'd' float64, 'f' float32, 'b' int8, 'i' int32 or
- * 'q' int64), of `ndim` dimensions whose sizes must equal shape[] where not ANY; the sizes found go to
- * found[] (if not NULL). NULL with ValueError/TypeError set otherwise. */
-static void *array(Buffers *bs, PyObject *o, char type, int ndim, const Py_ssize_t *shape, Py_ssize_t *found,
-                   int writable, const char *name)
-{
-    if (bs->n == MAX_BUFFERS) {
-        PyErr_SetString(PyExc_RuntimeError, "too many arrays in one call");
-        return NULL;
-    }
-    Py_buffer *v = &bs->b[bs->n];
-    if (PyObject_GetBuffer(o, v, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0)) < 0)
-        return NULL;
-    bs->n++;
-    const char *f = v->format ? v->format : "B";
-    if (*f == '@' || *f == '=' || *f == '<')
-        ++f;
-    char kind = f[0];
-    if (kind == 'l' || kind == 'q')
-        kind = v->itemsize == 8 ? 'q' : (v->itemsize == 4 ? 'i' : '?');
-    const Py_ssize_t size = type == 'd' || type == 'q' ? 8 : type == 'f' || type == 'i' ? 4 : 1;
-    if (kind != type || f[1] != '\0' || v->itemsize != size) {
-        PyErr_Format(PyExc_TypeError, "%s: expected element type '%c', got '%s'", name, type, v->format);
-        return NULL;
-    }
-    if (v->ndim != ndim) {
-        PyErr_Format(PyExc_ValueError, "%s: expected %d dimensions, got %d", name, ndim, v->ndim);
-        return NULL;
-    }
-    for (int i = 0; i < ndim; ++i) {
-        if (shape && shape[i] != ANY && v->shape[i] != shape[i]) {
-            PyErr_Format(PyExc_ValueError, "%s: size %zd along axis %d, expected %zd", name, v->shape[i], i, shape[i]);
-            return NULL;
-        }
-        if (found)
-            found[i] = v->shape[i];
-    }
-    return v->buf;
-}
 
 /* A padded coefficient array of an image of width x height pixels and B-spline order 3 or 5. */
 static int spline(Buffers *bs, PyObject *o, int order, int width, int height, Spline *s, const char *name)
