@@ -86,12 +86,18 @@ def ray_distances(rig: Rig, x_left, row_left, x_right, row_right) -> np.ndarray:
     where a ray is blank or the two are parallel. A compiled kernel (matches in parallel, 0.1 us a match)."""
     arrays = np.broadcast_arrays(*(np.asarray(a, np.float64) for a in (x_left, row_left, x_right, row_right)))
     xl, rl, xr, rr = (np.ascontiguousarray(a, np.float64).ravel() for a in arrays)
-    sensor = rig.sensor
     out = np.empty(xl.size)
-    distances_all(xl, rl, xr, rr, sensor.origin, sensor.axis_u * sensor.pitch_mm[0],
-                  sensor.axis_v * sensor.pitch_mm[1], np.ascontiguousarray(rig.left.direction, np.float64),
-                  np.ascontiguousarray(rig.right.direction, np.float64), out)
+    distances_all(xl, rl, xr, rr, *_plane(rig), out)
     return out.reshape(arrays[0].shape)
+
+
+def _plane(rig: Rig) -> tuple[np.ndarray, ...]:
+    """The kernels' view of the rig (float64, C-contiguous): the common plane's origin (3,) and its mm
+    per virtual pixel along u and v (3,) each, WCS; the left and right rays' directions (H, W, 3)."""
+    sensor = rig.sensor
+    return tuple(np.ascontiguousarray(a, np.float64) for a in (
+        sensor.origin, sensor.axis_u * sensor.pitch_mm[0], sensor.axis_v * sensor.pitch_mm[1], rig.left.direction,
+        rig.right.direction))
 
 
 def triangulate(rig: Rig, x_left, x_right, row, *, row_right=None, corrected: bool = True) -> Triangulation:
@@ -121,11 +127,8 @@ def triangulate(rig: Rig, x_left, x_right, row, *, row_right=None, corrected: bo
     row_right = row if row_right is None else np.broadcast_to(np.asarray(row_right, np.float64), row.shape)
     shape = row.shape
     xl, xr, rl, rr = (np.ascontiguousarray(a, np.float64).ravel() for a in (x_left, x_right, row, row_right))
-    sensor = rig.sensor
     points = np.empty((xl.size, 3))
     gap = np.empty(xl.size)
-    triangulate_all(xl, rl, xr, rr, sensor.origin, sensor.axis_u * sensor.pitch_mm[0],
-                    sensor.axis_v * sensor.pitch_mm[1], np.ascontiguousarray(rig.left.direction, np.float64),
-                    np.ascontiguousarray(rig.right.direction, np.float64), rig.left.centre.astype(np.float64),
-                    rig.right.centre.astype(np.float64), corrected, points, gap)
+    triangulate_all(xl, rl, xr, rr, *_plane(rig), np.ascontiguousarray(rig.left.centre, np.float64),
+                    np.ascontiguousarray(rig.right.centre, np.float64), corrected, points, gap)
     return Triangulation(points.reshape(shape + (3,)), gap.reshape(shape))
