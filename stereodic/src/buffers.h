@@ -1,7 +1,8 @@
 /* Arrays in and out of stereodic's compiled kernels (the extensions stereodic.dic._kernels,
  * stereodic.stereo._kernels, stereodic.strain._kernels): numpy arrays through the buffer protocol,
  * C-contiguous, each of the dtype and shape its function names, checked here so that a wrong call raises
- * ValueError or TypeError instead of reading out of bounds. Include after Python.h. */
+ * ValueError or TypeError instead of reading out of bounds (`array`), and released when the call ends
+ * (`finish`). Include after Python.h. */
 #ifndef STEREODIC_BUFFERS_H
 #define STEREODIC_BUFFERS_H
 
@@ -58,6 +59,19 @@ static void *array(Buffers *bs, PyObject *o, char type, int ndim, const Py_ssize
             found[i] = v->shape[i];
     }
     return v->buf;
+}
+
+/* The end of a kernel's Python function: the call's buffers released; None, or NULL where rc < 0: the
+ * exception already set, else (a kernel that ran out of memory) MemoryError. */
+static inline PyObject *finish(Buffers *bs, int rc)
+{
+    release(bs);
+    if (rc < 0) {
+        if (!PyErr_Occurred())
+            PyErr_NoMemory();
+        return NULL;
+    }
+    Py_RETURN_NONE;
 }
 
 #endif

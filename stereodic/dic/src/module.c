@@ -108,19 +108,6 @@ static int cache(Buffers *bs, Problem *pb, PyObject *data, PyObject *rows, Py_ss
     return 0;
 }
 
-/* Release the buffers and return None, or NULL where rc < 0: the exception already set, else (a kernel
- * that ran out of memory) MemoryError. */
-static PyObject *finish(Buffers *bs, int rc)
-{
-    release(bs);
-    if (rc < 0) {
-        if (!PyErr_Occurred())
-            PyErr_NoMemory();
-        return NULL;
-    }
-    Py_RETURN_NONE;
-}
-
 static PyObject *py_spline_coefficients(PyObject *self, PyObject *args)
 {
     PyObject *img, *out;

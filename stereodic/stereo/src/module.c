@@ -138,11 +138,9 @@ static PyObject *py_triangulate_all(PyObject *self, PyObject *args)
         gap[k] = sqrt(g);
     }
     Py_END_ALLOW_THREADS
-    release(&bs);
-    Py_RETURN_NONE;
+    return finish(&bs, 0);
 fail:
-    release(&bs);
-    return NULL;
+    return finish(&bs, -1);
 }
 
 static PyObject *py_distances_all(PyObject *self, PyObject *args)
@@ -172,11 +170,9 @@ static PyObject *py_distances_all(PyObject *self, PyObject *args)
         out[k] = dot / sqrt(nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]);
     }
     Py_END_ALLOW_THREADS
-    release(&bs);
-    Py_RETURN_NONE;
+    return finish(&bs, 0);
 fail:
-    release(&bs);
-    return NULL;
+    return finish(&bs, -1);
 }
 
 static PyMethodDef methods[] = {

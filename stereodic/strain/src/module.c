@@ -208,11 +208,9 @@ static PyObject *py_fit_all(PyObject *self, PyObject *args)
         for (Py_ssize_t j = 0; j < nx; ++j)
             fit_point(X, D, ny, nx, i, j, window / 2, min_count, exx, eyy, exy, ok, grad, normal, e1);
     Py_END_ALLOW_THREADS
-    release(&bs);
-    Py_RETURN_NONE;
+    return finish(&bs, 0);
 fail:
-    release(&bs);
-    return NULL;
+    return finish(&bs, -1);
 }
 
 static PyMethodDef methods[] = {
