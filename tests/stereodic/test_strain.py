@@ -130,3 +130,21 @@ def test_3d_cylinder_under_inflation_and_stretch():
 def test_bad_window():
     with pytest.raises(ValueError):
         strain_2d(np.arange(5.0), np.arange(5.0), np.zeros((5, 5)), np.zeros((5, 5)), window=4)
+
+
+def test_the_compiled_fit_refuses_arrays_of_the_wrong_shape_or_type():
+    """The strain kernel checks its arrays (stereodic/src/buffers.h) instead of reading past them."""
+    from stereodic.strain._kernels import fit_all
+    shape = (6, 7)
+    X, D = np.zeros(shape + (3,)), np.zeros(shape + (3,))
+    out = [np.empty(shape) for _ in range(3)] + [np.empty(shape, bool), np.empty(shape + (3, 2)),
+                                                  np.empty(shape + (3,)), np.empty(shape + (3,))]
+    fit_all(X, D, 3, 5.0, *out)
+    with pytest.raises(ValueError, match="D"):
+        fit_all(X, np.zeros((6, 6, 3)), 3, 5.0, *out)
+    with pytest.raises(TypeError, match="X"):
+        fit_all(X.astype(np.float32), D, 3, 5.0, *out)
+    with pytest.raises(ValueError, match="window"):
+        fit_all(X, D, 4, 5.0, *out)
+    with pytest.raises(ValueError, match="grad"):
+        fit_all(X, D, 3, 5.0, *out[:4], np.empty(shape + (3, 3)), *out[5:])

@@ -107,3 +107,18 @@ def test_ray_distances_are_the_signed_gap_of_the_triangulation():
                        np.einsum("ij,ij->i", o2 - o1, n) / np.linalg.norm(n, axis=1), rtol=1e-9, atol=1e-12)
     blank = ray_distances(rig, np.array([np.nan, xl[0]]), yl[:2], xr[:2], yr[:2])
     assert np.isnan(blank[0]) and np.isfinite(blank[1])
+
+
+def test_the_compiled_kernels_refuse_arrays_of_the_wrong_shape():
+    """The triangulation's kernels check their arrays (stereodic/src/buffers.h) instead of reading past
+    them: matches of unequal lengths, direction fields of different sizes, an output too short."""
+    from stereodic.stereo._kernels import distances_all, triangulate_all
+    x = np.zeros(5)
+    v3, field = np.zeros(3), np.zeros((4, 6, 3))
+    distances_all(x, x, x, x, v3, v3, v3, field, field, np.empty(5))
+    with pytest.raises(ValueError, match="rr"):
+        distances_all(x, x, x, np.zeros(4), v3, v3, v3, field, field, np.empty(5))
+    with pytest.raises(ValueError, match="dir_r"):
+        distances_all(x, x, x, x, v3, v3, v3, field, np.zeros((4, 5, 3)), np.empty(5))
+    with pytest.raises(ValueError, match="points"):
+        triangulate_all(x, x, x, x, v3, v3, v3, field, field, v3, v3, True, np.empty((4, 3)), np.empty(5))
