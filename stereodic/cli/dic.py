@@ -244,7 +244,6 @@ def _run(args) -> int:
 def _measure(args, background) -> int:
     """The run (module docstring), its outputs written by `background`'s workers."""
     import functools
-    import importlib
     import os
     import sys
     from concurrent.futures import ThreadPoolExecutor
@@ -265,10 +264,9 @@ def _measure(args, background) -> int:
 
     rig = load_rig(args.rig)
     # on more than one thread, beside the checks and the correlation: the rig file's hash for the run's
-    # record (hashlib releases the GIL), and once the correlation runs, whose kernels leave the
-    # interpreter's lock free (beside the checks an import would hold it from their Python), scipy's k-d
-    # tree imported for the deformed states' feature guesses (`initial_guess.TREE_DISTANCES`) and with
-    # --animate matplotlib for the maps; on one thread, each when it is needed (the output workers import
+    # record (hashlib releases the GIL), and with --animate, once the correlation runs, whose kernels leave
+    # the interpreter's lock free (beside the checks an import would hold it from their Python),
+    # matplotlib for the maps; on one thread, each when it is needed (the output workers import
     # matplotlib themselves: `_run`)
     rig_hash = beside = None
     if threads() > 1:
@@ -322,7 +320,6 @@ def _measure(args, background) -> int:
     if done:
         print(f"{out}: resuming a run with {done} of {n} states done")
     if beside is not None:
-        beside.submit(importlib.import_module, "scipy.spatial")
         if args.animate and not args.no_plot:     # the maps drawn in this process (`_run`)
             from stereodic.dic.maps import load_matplotlib
             beside.submit(load_matplotlib)

@@ -239,32 +239,24 @@ def feature_guess(matches: tuple[np.ndarray, np.ndarray], xs: np.ndarray, ys: np
     return warp, ok
 
 
-# from this many point-to-match distances `_nearest` takes scipy's k-d tree rather than the distance
-# matrix and its partial sort (numpy, 5-15 ns a distance), whose first use in a process imports
-# scipy.spatial (0.04-0.15 s; `dic` imports it beside its first state: `stereodic.cli.dic`): a `dic2d`
-# lattice's guess (2M distances) stays on numpy, a stereo run's temporal guess of a deformed state (6-10M
-# distances, 0.2 s a state) takes the tree (0.01-0.02 s)
-TREE_DISTANCES = 2 ** 22
-
-
 def _nearest(p: np.ndarray, xs: np.ndarray, ys: np.ndarray, k: int) -> np.ndarray:
     """(N, k) indices of the k points of p (M, 2) nearest to each (xs, ys) (of points at equal distances,
-    either): scipy's k-d tree from TREE_DISTANCES distances, its queries on the run's threads (imported
-    here: a small `dic2d` loads no scipy), else the distance matrix by blocks of rows (at most 2^20
-    distances at a time) side by side on the run's threads (numpy releases the GIL)."""
-    if xs.size * len(p) >= TREE_DISTANCES:
-        from scipy.spatial import cKDTree
-        _, idx = cKDTree(p).query(np.column_stack([xs, ys]), k=k, workers=threads())
-        return np.asarray(idx, np.int64).reshape(xs.size, k)
-    out = np.empty((xs.size, k), np.int64)
-    block = max(1, 2 ** 20 // len(p))
+    either): every distance, by OpenCV's brute-force FLANN index (exact; float32 differences from the
+    matches' mean, so near ties are told apart to about 1e-4 px), the points in blocks side by side on
+    the run's threads (OpenCV releases the GIL; an index each). 1024 points among 4000 matches take 16 ms
+    on one thread; scipy's k-d tree would be faster per query, but its first use in a process imports
+    scipy.spatial: 0.24 s and 0.4 CPU-s, more than a run's guesses take."""
+    centre = p.mean(axis=0) if len(p) else np.zeros(2)
+    data = np.ascontiguousarray(p - centre, np.float32)
+    queries = np.ascontiguousarray(np.column_stack([xs, ys]) - centre, np.float32)
+    if not queries.size:
+        return np.empty((0, k), np.int64)
 
-    def rows(a: int) -> None:
-        d = (xs[a:a + block, None] - p[:, 0]) ** 2 + (ys[a:a + block, None] - p[:, 1]) ** 2
-        out[a:a + block] = np.argpartition(d, k - 1, axis=1)[:, :k] if k < len(p) else np.arange(k)
+    def block(rows: np.ndarray) -> np.ndarray:
+        return cv2.flann_Index(data, {"algorithm": 0}).knnSearch(queries[rows], k)[0]   # 0: FLANN_INDEX_LINEAR
 
-    thread_map(rows, range(0, xs.size, block))
-    return out
+    parts = [r for r in np.array_split(np.arange(len(queries)), threads()) if r.size]
+    return np.concatenate(thread_map(block, parts)).astype(np.int64).reshape(len(queries), k)
 
 
 def _robust_affine(p: np.ndarray, q: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

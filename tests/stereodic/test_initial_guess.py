@@ -59,22 +59,25 @@ def test_the_b_spline_of_a_read_only_image_is_kept_while_it_lives():
     assert len(cache._KEPT) == before - 3
 
 
-def test_the_nearest_matches_by_the_tree_and_by_the_distance_matrix_are_the_true_nearest(monkeypatch):
-    """`_nearest`'s two ways (scipy's k-d tree from TREE_DISTANCES, the distance matrix below) give each
-    point the k matches a full sort of its distances gives (random positions: no ties), on 1 and 2 threads."""
+def test_the_nearest_matches_are_the_true_nearest(monkeypatch):
+    """`_nearest` gives each point the k matches a full sort of its float64 distances gives (random
+    positions: no ties), on 1 and 2 threads, on a lattice of nodes as on scattered points, with as many
+    neighbours as matches, and for no points at all."""
     import stereodic.dic.initial_guess as ig
     rng = np.random.default_rng(3)
     p = rng.uniform(0, 1900, (1500, 2))
-    xs, ys = rng.uniform(-50, 1950, 700), rng.uniform(-50, 1250, 700)
-    d = (xs[:, None] - p[:, 0]) ** 2 + (ys[:, None] - p[:, 1]) ** 2
-    truth = np.sort(np.argsort(d, axis=1)[:, :12], axis=1)
+    gx, gy = np.meshgrid(np.linspace(-50, 1950, 40), np.linspace(-50, 1250, 25))
+    cases = [(rng.uniform(-50, 1950, 700), rng.uniform(-50, 1250, 700), p, 12), (gx.ravel(), gy.ravel(), p, 12),
+             (rng.uniform(0, 100, 9), rng.uniform(0, 100, 9), p[:7], 7)]
     for threads in ("1", "2"):
         monkeypatch.setenv("OMP_NUM_THREADS", threads)
-        for limit in (0, 2 ** 62):
-            monkeypatch.setattr(ig, "TREE_DISTANCES", limit)
-            got = ig._nearest(p, xs, ys, 12)
-            assert got.shape == (700, 12) and got.dtype == np.int64
+        for xs, ys, matches, k in cases:
+            d = (xs[:, None] - matches[:, 0]) ** 2 + (ys[:, None] - matches[:, 1]) ** 2
+            truth = np.sort(np.argsort(d, axis=1)[:, :k], axis=1)
+            got = ig._nearest(matches, xs, ys, k)
+            assert got.shape == (xs.size, k) and got.dtype == np.int64
             np.testing.assert_array_equal(np.sort(got, axis=1), truth)
+        assert ig._nearest(p, np.empty(0), np.empty(0), 12).shape == (0, 12)
 
 
 def test_the_first_deformed_states_matches_are_made_beside_the_reference_and_once(dic_sim, tmp_path, monkeypatch):

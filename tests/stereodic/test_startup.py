@@ -53,10 +53,13 @@ def test_a_small_dic2d_imports_neither_numba_nor_scipy(tmp_path):
     assert "stereodic.dic.maps" not in modules     # no --plot: no maps
 
 
-def test_a_stereo_run_imports_no_numba(tmp_path):
+def test_a_stereo_run_imports_neither_numba_nor_scipy(tmp_path, monkeypatch):
     """`dic` (the correlation, the triangulation, the rays' distances, the strain fit: compiled ahead of
     time, stereodic/*/src) runs without numba, whose start-up (0.3 s of imports and the kernels' loading,
-    holding the interpreter's lock) would be serial work of every run."""
+    holding the interpreter's lock) would be serial work of every run; and on two threads without scipy,
+    whose k-d tree the feature guess's nearest matches took (`initial_guess._nearest`: 0.4 CPU-s of
+    imports beside the first state's correlation)."""
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")
     from scanners.sim.dic import DicState
     from tests.stereodic.dic_cases import simulate_dic_with_rig
     simulate_dic_with_rig(tmp_path / "d", [DicState("reference"), DicState("shift", translation_mm=(0.3, 0.0, 0.0))],
@@ -64,4 +67,4 @@ def test_a_stereo_run_imports_no_numba(tmp_path):
     modules = _imported(["dic", str(tmp_path / "d" / "rig.npz"), str(tmp_path / "d"), "--subset", "21", "--step", "8",
                          "--no-plot", "--no-vtk", "-o", str(tmp_path / "out")])
     assert (tmp_path / "out" / "dic.npz").is_file() and "numpy" in modules
-    assert "numba" not in modules
+    assert "numba" not in modules and "scipy" not in modules
