@@ -437,6 +437,13 @@ class MapPainter:
                signed: bool = True, scale: ColourScale | None = None, backdrop: Backdrop | None = None):
         """The matplotlib Figure of one map (`save_map`'s options), valid until the next map of this
         painter with the same layout (`draw` draws it faster than the figure's own savefig)."""
+        return self._compose(values, axes, title=title, quantity=quantity, unit=unit, decimals=decimals,
+                             signed=signed, scale=scale, backdrop=backdrop, bar_drawn=False)
+
+    def _compose(self, values: np.ndarray, axes: MapAxes, *, title: str, quantity: str, unit: str, decimals: int,
+                 signed: bool, scale: ColourScale | None, backdrop: Backdrop | None, bar_drawn: bool):
+        """`figure`; `bar_drawn`: the colour bar is left as it is where its pixels for this map were kept
+        (`_Layout.bar_pixels`: `draw` pastes them; updating the bar, 7 ms a map, would draw nothing new)."""
         from matplotlib.cm import ScalarMappable
         from matplotlib.colors import Normalize
         from matplotlib.ticker import FuncFormatter, MaxNLocator
@@ -482,17 +489,20 @@ class MapPainter:
             other.ax.set_visible(kind == extend)
         bar = bars[extend]
         tall = max(0.9 * box.height, 0.5 * _MAP[3] / _HEIGHT)         # a flat map's bar still readable
-        bar.ax.set_position((box.x1 + _BAR[0] / width, (box.y0 + box.y1 - tall) / 2, _BAR[1] / width, tall))
-        with bar.mappable.norm.callbacks.blocked():     # the bar redrawn once, by set_cmap
-            bar.mappable.norm.vmin, bar.mappable.norm.vmax = lo, hi
-        bar.mappable.set_cmap(cmap)
-        bar.locator = MaxNLocator(7)
-        ticks = bar.locator.tick_values(lo, hi)
+        position = (box.x1 + _BAR[0] / width, (box.y0 + box.y1 - tall) / 2, _BAR[1] / width, tall)
+        bar.ax.set_position(position)
+        locator = MaxNLocator(7)
+        ticks = locator.tick_values(lo, hi)
         places = _decimals(float(np.min(np.diff(ticks)))) if len(ticks) > 1 else decimals
-        bar.formatter = FuncFormatter(lambda v, _: fixed(v, places))
-        bar.update_ticks()
-        bar.set_label(f"{quantity} ({unit})" if unit else quantity)
         lay.bar_key = (extend, float(lo), float(hi), cmap, quantity, unit, places, tuple(bar.ax.get_position().bounds))
+        if not (bar_drawn and lay.bar_key in lay.bar_pixels):
+            with bar.mappable.norm.callbacks.blocked():     # the bar redrawn once, by set_cmap
+                bar.mappable.norm.vmin, bar.mappable.norm.vmax = lo, hi
+            bar.mappable.set_cmap(cmap)
+            bar.locator = locator
+            bar.formatter = FuncFormatter(lambda v, _: fixed(v, places))
+            bar.update_ticks()
+            bar.set_label(f"{quantity} ({unit})" if unit else quantity)
 
         if backdrop is None:
             lay.words = [ax.set_title(f"{title}\n{summary}", fontsize=9.5)]
@@ -514,23 +524,25 @@ class MapPainter:
         from matplotlib.backends.backend_agg import FigureCanvasAgg
 
         lay = self._layout(options.get("backdrop") is not None)
-        self.figure(values, axes, **options)
         if lay.figure.canvas is not lay.canvas:     # the caller gave the figure another canvas: draw afresh
             lay.canvas = lay.figure.canvas if isinstance(lay.figure.canvas, FigureCanvasAgg) else \
                 FigureCanvasAgg(lay.figure)
             lay.drawn = None
         backdrop = options.get("backdrop")
         key = (axes, None if backdrop is None else backdrop.image.shape[:2])
+        fresh = lay.drawn is None or lay.drawn[0] is not key[0] or lay.drawn[1] != key[1]
+        if fresh:
+            lay.bar_pixels.clear()                # drawn on the background before
+        self._compose(values, axes, **{"signed": True, "scale": None, "backdrop": None, **options}, bar_drawn=True)
         parts = [lay.plain] + ([] if lay.over is None else [lay.over]) + \
             [bar.ax for bar in lay.bars.values() if bar.ax.get_visible()] + lay.words
-        if lay.drawn is None or lay.drawn[0] is not key[0] or lay.drawn[1] != key[1]:
+        if fresh:
             for part in parts:
                 part.set_animated(True)           # left out of the background
             lay.canvas.draw()
             for part in parts:
                 part.set_animated(False)
             lay.background, lay.drawn = lay.canvas.copy_from_bbox(lay.figure.bbox), key
-            lay.bar_pixels.clear()                # drawn on the background before
         else:
             lay.canvas.restore_region(lay.background)
         buffer = np.asarray(lay.canvas.buffer_rgba())

@@ -195,6 +195,32 @@ def test_a_colour_bar_drawn_once_gives_the_pixels_of_one_drawn_again():
         assert len(kept) == 2                 # without arrows (states 0, 1: drawn once), with (state 2)
 
 
+def test_a_kept_colour_bar_is_pasted_without_updating_the_bar_and_a_figure_still_shows_its_own():
+    """Quantities in turn (each its own run scale): a map whose bar was kept is drawn without updating the
+    bar (left as the other quantity's), pixel for pixel what a fresh painter draws; the painter's next
+    Figure (`figure`, for a caller that draws it) still carries its own bar's range, map and label."""
+    from stereodic.dic.maps import ColourScale, MapPainter
+    rng = np.random.default_rng(5)
+    axes = pixel_axes(XS, YS)
+    x, _ = np.meshgrid(XS, YS)
+    quantities = {"exx": ColourScale(-400.0, 400.0, "RdBu_r"), "Z": ColourScale(10.0, 30.0, "viridis")}
+    painter = MapPainter()
+    for k in range(2):
+        for quantity, scale in quantities.items():
+            values = rng.uniform(scale.lo, scale.hi, x.shape)
+            options = dict(title=f"state {k}", quantity=quantity, unit="u", decimals=0, scale=scale,
+                           signed=quantity != "Z")
+            assert np.array_equal(painter.draw(values, axes, **options), MapPainter().draw(values, axes, **options))
+            if k == 1 and quantity == "exx":     # its bar pasted, the bar itself still Z's of state 0
+                bar = next(b for b in painter._layouts[False].bars.values() if b.ax.get_visible())
+                assert (bar.mappable.norm.vmin, bar.mappable.norm.vmax) == (10.0, 30.0)
+    painter.figure(rng.uniform(-400.0, 400.0, x.shape), axes, title="again", quantity="exx", unit="u", decimals=0,
+                   scale=quantities["exx"])
+    bar = next(b for b in painter._layouts[False].bars.values() if b.ax.get_visible())
+    assert (bar.mappable.norm.vmin, bar.mappable.norm.vmax) == (-400.0, 400.0)
+    assert bar.mappable.get_cmap().name == "RdBu_r" and bar.ax.get_ylabel() == "exx (u)"
+
+
 def test_the_field_over_the_image_is_the_linear_interpolation_between_the_points():
     """Backdrop.raster against matplotlib's LinearTriInterpolator (an independent linear interpolation) on
     the same triangles, two per square of neighbouring grid points; a hole in the grid left blank, not
