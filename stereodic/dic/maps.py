@@ -22,8 +22,8 @@ once among the grid's triangles (`grid_cells`: two per square of neighbouring po
 never bridged): once per run for the plain map (each cell the grid point nearest in the grid's rows and
 columns), once per state for the map over the image (the values interpolated linearly, the image
 averaged over the same cells). A `MapPainter` keeps its figures from map to map, with a fixed layout,
-draws what stays (the axes, ticks and labels) once and copies it for each map (matplotlib's blitting),
-pastes the pictures into the figure's pixels, and the PNG is encoded by OpenCV.
+draws what stays (the axes, ticks and labels, the image panel's title) once and copies it for each map
+(matplotlib's blitting), pastes the pictures into the figure's pixels, and the PNG is encoded by OpenCV.
 """
 
 from __future__ import annotations
@@ -406,9 +406,9 @@ class MapPainter:
     560 pixels), a map beside its copy over the image (1300 x 560) - and reused: a map sets the pictures'
     pixels (each a raster coloured by `colours`: one image, not a patch per point), the colour bar's
     range, map, arrows and ticks, and the words. The layout is fixed (no layout engine runs per map), and
-    what stays over a run - the axes with their ticks and labels, for one MapAxes and one image size - is
-    drawn once and copied (matplotlib's blitting): on it each map pastes its pictures (`_paste`) and draws
-    its colour bar and titles."""
+    what stays over a run - the axes with their ticks and labels and the image panel's title, for one
+    MapAxes and one image (its size and label) - is drawn once and copied (matplotlib's blitting): on it
+    each map pastes its pictures (`_paste`) and draws its colour bar and titles."""
 
     def __init__(self):
         self._layouts: dict[bool, _Layout] = {}
@@ -514,8 +514,9 @@ class MapPainter:
             h, w = backdrop.image.shape[:2]
             over.set_xlim(-0.5, w - 0.5)
             over.set_ylim(h - 0.5, -0.5)
-            lay.words = [over.set_title(f"over {backdrop.label}", fontsize=9),
-                         fig.suptitle(f"{title}\n{summary}", fontsize=9.5, y=0.99, va="top")]
+            if over.get_title() != f"over {backdrop.label}":   # the same over a run: drawn with the background
+                over.set_title(f"over {backdrop.label}", fontsize=9)
+            lay.words = [fig.suptitle(f"{title}\n{summary}", fontsize=9.5, y=0.99, va="top")]
         return fig
 
 
@@ -529,7 +530,7 @@ class MapPainter:
                 FigureCanvasAgg(lay.figure)
             lay.drawn = None
         backdrop = options.get("backdrop")
-        key = (axes, None if backdrop is None else backdrop.image.shape[:2])
+        key = (axes, None if backdrop is None else (backdrop.image.shape[:2], backdrop.label))
         fresh = lay.drawn is None or lay.drawn[0] is not key[0] or lay.drawn[1] != key[1]
         if fresh:
             lay.bar_pixels.clear()                # drawn on the background before

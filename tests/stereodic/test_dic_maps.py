@@ -221,6 +221,24 @@ def test_a_kept_colour_bar_is_pasted_without_updating_the_bar_and_a_figure_still
     assert bar.mappable.get_cmap().name == "RdBu_r" and bar.ax.get_ylabel() == "exx (u)"
 
 
+def test_the_image_panels_title_drawn_with_the_background_follows_the_backdrops_label():
+    """The panel over the image is titled by its Backdrop's label, drawn once with the figure's background:
+    a painter whose next map has another label draws what a fresh painter draws, and the two titles'
+    pictures differ."""
+    from stereodic.dic.maps import Backdrop, MapPainter
+    rng = np.random.default_rng(7)
+    image = (rng.random((220, 320)) * 255).astype(np.uint8)
+    x, y = np.meshgrid(XS, YS)
+    axes, values = pixel_axes(XS, YS), rng.normal(0.0, 1.0, x.shape)
+    options = dict(title="state 1", quantity="u", unit="px", decimals=3)
+    painter, drawn = MapPainter(), []
+    for label in ("the deformed image", "the left camera's image of the state"):
+        backdrop = Backdrop(image, x, y, label)
+        drawn.append(painter.draw(values, axes, backdrop=backdrop, **options))
+        assert np.array_equal(drawn[-1], MapPainter().draw(values, axes, backdrop=backdrop, **options))
+    assert not np.array_equal(drawn[0], drawn[1])
+
+
 def test_the_field_over_the_image_is_the_linear_interpolation_between_the_points():
     """Backdrop.raster against matplotlib's LinearTriInterpolator (an independent linear interpolation) on
     the same triangles, two per square of neighbouring grid points; a hole in the grid left blank, not
