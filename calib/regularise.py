@@ -25,18 +25,22 @@ the risk's box-averaged bias estimate follows those errors, and the window is Le
 on the large scale (a Brown-Conrady or non-central lens) the largest window wins and the noise falls
 ~8x below one 43-pixel window's; over a local bump the larger windows' bias outweighs their lower
 noise, so the bump keeps a small window, down to the ladder's finer rungs (`Adaptive.finer_rungs`)
-within a window of the border, or where Lepski's test rejects the finest scale's window. The squared
-bias counts `Adaptive.bias_weight` (2) times: a bias is common to every capture of the same lens and
-poses and does not average out downstream as noise does. The chosen window index is median-filtered
+within a window of the border, or over a region where Lepski's test rejects the finest scale's window
+(`_rejected_region`). The squared bias counts `Adaptive.bias_weight` (2) times: a bias is common to every
+capture of the same lens and poses and does not average out downstream as noise does. The chosen window index is median-filtered
 (isolated choices of the noisy risk estimate) and blurred, and the fit interpolated between the two
 neighbouring windows of the ladder, so the result has no seams.
 
 Until 2026-12-07 the window was Lepski's alone, at 3 standard deviations, its index then eroded: it let
 through a bias of up to about the noise of the smaller window (69-83 % of a free-form lens's as-held
-ray error was common to two captures; 44-73 % now, docs/calibration.md). The finer rung serves the
-border band, and inside it the pixels where Lepski's test rejects the finest scale's window against it:
+ray error was common to two captures; 44-56 % now, docs/calibration.md). The finer rung serves the
+border band, and inside it the regions where Lepski's test rejects the finest scale's window against it:
 open to every pixel, the risk chose it where noise made the larger window's step look like bias, and a
-hand-held calibration of the free-form lens at 1280 x 1024 erred by 28 % more.
+hand-held calibration of the free-form lens at 1280 x 1024 erred by 28 % more; at the rejecting pixels
+alone (until 2026-12-08) it left a bump's flanks to the larger window, and the median of the window index
+overruled it over a small bump; over their regions grown by the half window, but with the noise's
+isolated rejections kept (an opening drops them now), the same hand-held calibration erred by 23-26 %
+more.
 
 The uncertainty is the noise after smoothing. With the bias counted twice in the risk it is a small
 part of the error: on a field with local bumps (`tests/calib/test_regularise.py`) the noise alone covers
@@ -90,6 +94,9 @@ SCALE_REGION = 1024
 SCALE_BLOCKS = 8
 SCALE_SHARE = 0.2
 SCALE_LEVELS = 3
+# the opening (erosion, then dilation) of the pixels where Lepski's test rejects the finest scale's window,
+# as a share of its half size: rejections in regions narrower than this twice over are noise's (`_rejected_region`)
+REJECTED_OPENING = 0.2
 
 
 @dataclass(frozen=True)
@@ -741,6 +748,17 @@ def _box(a: np.ndarray, size: int) -> np.ndarray:
     return cv2.blur(a, (size, size), borderType=cv2.BORDER_REPLICATE)
 
 
+def _rejected_region(rejected: np.ndarray, half: int) -> np.ndarray:
+    """(H, W) bool: where the finer rungs may serve inside the data, from the pixels whose Lepski test
+    rejects the finest scale's window (half size `half`, pixels) against a finer one: their regions at
+    least 2 e + 1 pixels wide (a morphological opening of radius e = REJECTED_OPENING x half drops the
+    isolated rejections that noise makes), grown by the finest window's half size (a bump's flanks, where
+    the test's step is small but the window still bends it)."""
+    e = max(1, int(round(half * REJECTED_OPENING)))
+    seed = cv2.erode(rejected.astype(np.uint8), np.ones((2 * e + 1, 2 * e + 1), np.uint8))
+    return cv2.dilate(seed, np.ones((2 * (half + e) + 1, 2 * (half + e) + 1), np.uint8)) > 0
+
+
 def _smooth_index(index: np.ndarray, levels: int, size: int, inside: np.ndarray | None = None) -> np.ndarray:
     """The chosen window index made smooth: median (drops isolated choices of a noisy risk estimate) and
     box-blurred over size x size pixels; with `inside`, each over the pixels inside the data only
@@ -848,9 +866,9 @@ def smooth_fields(fields: np.ndarray, valid: np.ndarray, smoother: Smoother | Ad
         if nw > 1:
             cap = _lepski(fits, sigma, pv, pu, top, smoother.threshold)
             index = _least_risk(fits, sigma, pv, pu, cap, ladder, edge, smoother.bias_weight)
-            # the finer rungs only within a window of the border of the data, or where Lepski's test
-            # rejects the finest scale's window itself
-            finer = (cap < below) | (edge < ladder[below].window)
+            # the finer rungs only within a window of the border of the data, or over a region where
+            # Lepski's test rejects the finest scale's window itself (`_rejected_region`)
+            finer = _rejected_region(cap < below, ladder[below].half_window) | (edge < ladder[below].window)
             index = np.maximum(index, np.where(finer, 0, below).astype(np.uint8))
             size = 2 * int(round(smoother.blend * ladder[below].half_window)) + 1
             index = _smooth_index(index, nw, size, inside)
