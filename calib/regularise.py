@@ -27,9 +27,9 @@ on the large scale (a Brown-Conrady or non-central lens) the largest window wins
 noise, so the bump keeps a small window, down to the ladder's finer rungs (`Adaptive.finer_rungs`)
 within a window of the border, or over a region where Lepski's test rejects the finest scale's window
 (`_rejected_region`). The squared bias counts `Adaptive.bias_weight` (2) times: a bias is common to every
-capture of the same lens and poses and does not average out downstream as noise does. The chosen window index is median-filtered
-(isolated choices of the noisy risk estimate) and blurred, and the fit interpolated between the two
-neighbouring windows of the ladder, so the result has no seams.
+capture of the same lens and poses and does not average out downstream as noise does. The chosen window
+index is median-filtered (isolated choices of the noisy risk estimate) and blurred, and the fit
+interpolated between the two neighbouring windows of the ladder, so the result has no seams.
 
 Until 2026-12-07 the window was Lepski's alone, at 3 standard deviations, its index then eroded: it let
 through a bias of up to about the noise of the smaller window (69-83 % of a free-form lens's as-held
@@ -94,8 +94,8 @@ SCALE_REGION = 1024
 SCALE_BLOCKS = 8
 SCALE_SHARE = 0.2
 SCALE_LEVELS = 3
-# the opening (erosion, then dilation) of the pixels where Lepski's test rejects the finest scale's window,
-# as a share of its half size: rejections in regions narrower than this twice over are noise's (`_rejected_region`)
+# the radius of the opening (erosion, then dilation) of the pixels where Lepski's test rejects the finest
+# scale's window, as a share of its half size: narrower regions of rejections are noise's (`_rejected_region`)
 REJECTED_OPENING = 0.2
 
 

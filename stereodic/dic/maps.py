@@ -42,7 +42,8 @@ from calib.numbers import fixed
 class MapAxes:
     """Where each grid point of a map is: x, y (ny, nx) float arrays in `unit` ("px" or "mm"), named
     `names` on the axes; flip_x / flip_y: the axis runs right to left / top to bottom; active (ny, nx)
-    bool: the grid points measured at all (the grid's ROI and mask), None = every one."""
+    bool: the grid points measured at all (the grid's ROI and mask), None = every one; token: names
+    these axes in every copy of them (a worker process's, unpickled from a task)."""
 
     x: np.ndarray
     y: np.ndarray
@@ -51,6 +52,7 @@ class MapAxes:
     flip_x: bool
     flip_y: bool
     active: np.ndarray | None = None
+    token: str = field(default_factory=lambda: os.urandom(8).hex(), compare=False, repr=False)
     _cache: dict = field(default_factory=dict, compare=False, repr=False)
 
 

@@ -351,3 +351,28 @@ def test_a_block_of_states_drawn_by_one_child_gives_the_maps_of_one_child_a_stat
     assert len(drawn) == 3 * 7 and drawn == sorted(p.name for p in (outs["each"] / "maps").glob("*.png"))
     for png in drawn:
         assert np.array_equal(cv2.imread(str(outs["one"] / "maps" / png)), cv2.imread(str(outs["each"] / "maps" / png)))
+
+
+def test_a_workers_tasks_share_the_runs_axes_and_the_background_drawn_on_them(monkeypatch):
+    """Each task of a run's maps unpickles its own copy of the run's MapAxes: a worker takes the first copy
+    it was given for the later ones (`run._run_axes`, by the axes' token), so that its painter draws the
+    axes' background once for all its tasks; axes of another run are taken as given."""
+    import pickle
+
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from stereodic.dic.maps import MapPainter
+    from stereodic.dic3d.run import _run_axes
+    axes = pixel_axes(XS, YS)
+    copies = [pickle.loads(pickle.dumps(axes)) for _ in range(2)]
+    assert copies[0] is not copies[1] and copies[0].token == copies[1].token == axes.token
+    draws = []
+    real = FigureCanvasAgg.draw
+    monkeypatch.setattr(FigureCanvasAgg, "draw", lambda canvas, *a: (draws.append(1), real(canvas, *a))[1])
+    painter = MapPainter()
+    x, _ = np.meshgrid(XS, YS)
+    for copy in copies:             # two tasks
+        painter.draw(x * 1.0, _run_axes(copy), title="state", quantity="u", unit="px", decimals=2)
+    assert _run_axes(copies[1]) is _run_axes(copies[0]) and len(draws) == 1
+    other = pixel_axes(XS, YS)
+    assert other.token != axes.token and _run_axes(other) is other
