@@ -443,7 +443,8 @@ class MapPainter:
                              signed=signed, scale=scale, backdrop=backdrop, bar_drawn=False)
 
     def _compose(self, values: np.ndarray, axes: MapAxes, *, title: str, quantity: str, unit: str, decimals: int,
-                 signed: bool, scale: ColourScale | None, backdrop: Backdrop | None, bar_drawn: bool):
+                 signed: bool = True, scale: ColourScale | None = None, backdrop: Backdrop | None = None,
+                 bar_drawn: bool = False):
         """`figure`; `bar_drawn`: the colour bar is left as it is where its pixels for this map were kept
         (`_Layout.bar_pixels`: `draw` pastes them; updating the bar, 7 ms a map, would draw nothing new)."""
         from matplotlib.cm import ScalarMappable
@@ -536,7 +537,7 @@ class MapPainter:
         fresh = lay.drawn is None or lay.drawn[0] is not key[0] or lay.drawn[1] != key[1]
         if fresh:
             lay.bar_pixels.clear()                # drawn on the background before
-        self._compose(values, axes, **{"signed": True, "scale": None, "backdrop": None, **options}, bar_drawn=True)
+        self._compose(values, axes, **options, bar_drawn=True)
         parts = [lay.plain] + ([] if lay.over is None else [lay.over]) + \
             [bar.ax for bar in lay.bars.values() if bar.ax.get_visible()] + lay.words
         if fresh:
